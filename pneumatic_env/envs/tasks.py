@@ -1,0 +1,268 @@
+"""Tracking tasks and the batched episode logic shared by the single and the vector env.
+
+A ``TaskSpec`` says what is tracked (force with the rod clamped, or position with the
+rod free), the default reference and how the reward scales the error. ``TaskCore`` runs
+``n_envs`` episodes of one task on a ``BatchSimulator``: references, domain
+randomisation, sensor model, observations and rewards, all as arrays. The single env is a
+``TaskCore`` of one environment, so single and vector envs share every line of task code.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import params as P
+from ..physics import layout as L
+from ..references import make_reference, ReferenceSpec
+from ..simulator import BatchSimulator
+
+OBSERVED_CHANNELS = ("p1", "p2", "x", "f")
+_CHANNEL_OUTPUT = {"p1": L.O_P1, "p2": L.O_P2, "x": L.O_X, "f": L.O_F}
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """What a task tracks and how it scores it."""
+
+    name: str
+    piston_mode: str  # "fixed" or "free" (configs/load.yaml)
+    tracked: str  # "f" or "x"
+    reference: dict  # default reference spec, in units of `reference_scale` (see scale_of)
+    description: str = ""
+    extra_defaults: dict = field(default_factory=dict)
+
+
+FORCE_TRACK = TaskSpec(
+    name="ForceTrack", piston_mode="fixed", tracked="f",
+    reference={"kind": "mixture", "choices": [
+        {"kind": "random_step", "amplitude": 0.6, "hold_min_s": 0.1, "hold_max_s": 0.5},
+        {"kind": "sine", "amplitude": 0.5, "frequency_hz": 2.0, "offset": 0.1},
+        {"kind": "multisine", "amplitude": 0.5, "frequencies_hz": [1.0, 3.0, 7.0],
+         "offset": 0.1},
+        {"kind": "chirp", "amplitude": 0.4, "f0_hz": 0.5, "f1_hz": 15.0, "duration_s": 2.0,
+         "offset": 0.1},
+    ]},
+    description="rod clamped to a load cell at mid-stroke; track a force reference (N)",
+    extra_defaults={"fixed_position_m": 0.0},
+)
+POSITION_TRACK = TaskSpec(
+    name="PositionTrack", piston_mode="free", tracked="x",
+    reference={"kind": "mixture", "choices": [
+        {"kind": "random_step", "amplitude": 0.6, "hold_min_s": 0.2, "hold_max_s": 0.6},
+        {"kind": "sine", "amplitude": 0.6, "frequency_hz": 1.0},
+        {"kind": "sine", "amplitude": 0.4, "frequency_hz": 5.0},
+    ]},
+    description="rod free, no load; track a piston position reference (m)",
+)
+TASKS = {t.name: t for t in (FORCE_TRACK, POSITION_TRACK)}
+
+
+def scale_of(task: TaskSpec, param: dict) -> float:
+    """The task's natural unit: a force a cylinder can hold both ways (N), or the half stroke (m).
+
+    Reference specs of the registered tasks are written in this unit, so one spec fits both
+    cylinders; the reward divides the error by it.
+    """
+    if task.tracked == "x":
+        return 0.5 * param["stroke_m"]
+    a1 = 0.25 * np.pi * param["bore_diameter_m"] ** 2
+    ar = 0.25 * np.pi * param["rod_diameter_m"] ** 2
+    push = (param["supply_pressure_pa"] - param["ambient_pressure_pa"]) * a1
+    pull = (param["supply_pressure_pa"] - param["ambient_pressure_pa"]) * (a1 - ar)
+    return float(min(push, pull))
+
+
+def _scale_spec(spec: dict, scale: float) -> dict:
+    """Multiply a reference spec's amplitude/offset/values by ``scale`` (recursively)."""
+    out = dict(spec)
+    for key in ("amplitude", "offset"):
+        if key in out:
+            out[key] = out[key] * scale
+    if "values" in out:
+        out["values"] = np.asarray(out["values"], dtype=float) * scale
+    if "choices" in out:
+        out["choices"] = [_scale_spec(c, scale) for c in out["choices"]]
+    return out
+
+
+@dataclass
+class EnvOptions:
+    """Options of a tracking env beyond the physical parameters (all keyword arguments)."""
+
+    episode_steps: int = 2000
+    preview_steps: int = 10
+    reference: dict | ReferenceSpec | None = None  # in the tracked channel's SI unit
+    normalize_observation: bool = False
+    effort_weight: float = 0.0
+    chatter_weight: float = 0.0
+    domain_randomization: dict | None = None
+    sensor_noise: dict | None = None  # channel -> standard deviation (SI)
+    sensor_lag_s: float = 0.0
+    control_dt_s: float | None = None
+    substeps: int | None = None
+
+    def validate(self) -> None:
+        def bad(name, value, allowed):
+            raise ValueError(f"{name} = {value!r} is not allowed: {allowed}")
+        if int(self.episode_steps) != self.episode_steps or self.episode_steps < 1:
+            bad("episode_steps", self.episode_steps, "must be an integer >= 1")
+        if int(self.preview_steps) != self.preview_steps or self.preview_steps < 0:
+            bad("preview_steps", self.preview_steps, "must be an integer >= 0")
+        for name in ("effort_weight", "chatter_weight", "sensor_lag_s"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                bad(name, value, "must be a finite number >= 0")
+        for channel, std in (self.sensor_noise or {}).items():
+            if channel not in OBSERVED_CHANNELS:
+                bad("sensor_noise key", channel, f"must be one of {list(OBSERVED_CHANNELS)}")
+            if not (np.isfinite(std) and std >= 0):
+                bad(f"sensor_noise['{channel}']", std, "must be a finite number >= 0")
+
+
+class TaskCore:
+    """``n_envs`` episodes of one tracking task, advanced together."""
+
+    def __init__(self, task: TaskSpec, n_envs: int, cylinder: str, tube_length_m: float | None,
+                 params=None, options: EnvOptions | None = None, **overrides):
+        self.task = task
+        self.options = options or EnvOptions()
+        self.options.validate()
+        numerics = P.load_numerics()
+        control_dt = self.options.control_dt_s or numerics["control_dt_s"]
+        substeps = self.options.substeps or numerics["substeps"]
+        overrides = {**task.extra_defaults, **overrides}
+        base = P.load_parameters(cylinder, tube_length_m=tube_length_m, params=params,
+                                 piston_mode=task.piston_mode, **overrides)
+        self.base_params = base
+        self.cylinder = cylinder
+        self._randomization = self._check_randomization(self.options.domain_randomization, base)
+        self.n_envs = n_envs
+        self.sim = BatchSimulator(P.parameter_array([base] * n_envs), control_dt, substeps)
+        self.dt = control_dt
+        self.scale = scale_of(task, base)
+        self.reference_spec = make_reference(
+            self.options.reference if self.options.reference is not None
+            else _scale_spec(task.reference, self.scale))
+        self.i_max = base["coil_current_max_a"]
+        self.pa, self.ps = base["ambient_pressure_pa"], base["supply_pressure_pa"]
+        self.half_stroke = 0.5 * base["stroke_m"]
+        n_ref = self.options.episode_steps + self.options.preview_steps + 1
+        self.references = np.zeros((n_envs, n_ref))
+        self.step_count = np.zeros(n_envs, dtype=np.int64)
+        self.prev_action = np.zeros(n_envs)
+        self.measured = np.zeros((n_envs, len(OBSERVED_CHANNELS)))
+        self._noise_std = np.array([(self.options.sensor_noise or {}).get(c, 0.0)
+                                    for c in OBSERVED_CHANNELS])
+        self._lag = (np.exp(-control_dt / self.options.sensor_lag_s)
+                     if self.options.sensor_lag_s > 0 else 0.0)
+        self._out_rows = np.array([_CHANNEL_OUTPUT[c] for c in OBSERVED_CHANNELS])
+        self._tracked_row = _CHANNEL_OUTPUT[task.tracked]
+        self.obs_dim = len(OBSERVED_CHANNELS) + 1 + self.options.preview_steps
+
+    # -- parameters ----------------------------------------------------------------------
+    @staticmethod
+    def _check_randomization(spec, base):
+        """{name: (low, high)} absolute or {name: r} for +-r relative, uniform per episode."""
+        if not spec:
+            return {}
+        checked = {}
+        for name, rng in spec.items():
+            if name not in base:
+                P.load_parameters(**{name: 0.0})  # raises the loader's "unknown field" error
+            if np.isscalar(rng):
+                if not (np.isfinite(rng) and 0 <= rng < 1):
+                    raise ValueError(f"domain_randomization['{name}'] = {rng!r} is not allowed: "
+                                     "a relative half-width must be in [0, 1)")
+                low, high = base[name] * (1 - rng), base[name] * (1 + rng)
+            else:
+                low, high = (float(v) for v in rng)
+            if not (np.isfinite(low) and np.isfinite(high) and low <= high):
+                raise ValueError(f"domain_randomization['{name}'] = {rng!r} is not allowed: "
+                                 "must be (low, high) with low <= high, finite")
+            for value in (low, high):  # both ends must be valid parameter values
+                P.load_parameters(params=base, **{name: value})
+            checked[name] = (min(low, high), max(low, high))
+        return checked
+
+    # -- episodes ------------------------------------------------------------------------
+    def reset_envs(self, envs: np.ndarray, rngs: list) -> None:
+        """Start new episodes in ``envs``; ``rngs[i]`` is env i's own generator."""
+        n_ref = self.references.shape[1]
+        if self._randomization:
+            columns = []
+            for env in envs:
+                drawn = {n: rngs[env].uniform(lo, hi) for n, (lo, hi) in self._randomization.items()}
+                columns.append(P.load_parameters(self.cylinder, params=self.base_params, **drawn))
+            self.sim.set_params(envs, P.parameter_array(columns))
+        self.sim.reset(envs)
+        for env in envs:
+            self.references[env] = self.reference_spec.generate(n_ref, self.dt, rngs[env])
+        self.step_count[envs] = 0
+        self.prev_action[envs] = 0.0
+        self.measured[envs] = self.sim.outputs[self._out_rows][:, envs].T
+        self._add_noise(envs, rngs)
+
+    def _add_noise(self, envs, rngs):
+        if np.any(self._noise_std > 0):
+            for env in envs:
+                self.measured[env] += self._noise_std * rngs[env].standard_normal(len(OBSERVED_CHANNELS))
+
+    def check_action(self, action: np.ndarray) -> np.ndarray:
+        """Coil currents as float64 (n_envs,); clear errors for NaN, inf and wrong shapes."""
+        a = np.asarray(action, dtype=np.float64)
+        if a.size != self.n_envs or a.ndim > 2:
+            raise ValueError(f"action has shape {a.shape}, expected ({self.n_envs}, 1) or "
+                             f"({self.n_envs},): one coil current (A) per environment")
+        a = a.reshape(self.n_envs)
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"action contains {a[~np.isfinite(a)][0]}: the coil current must be "
+                             f"finite, in [-{self.i_max}, {self.i_max}] A")
+        return a
+
+    def step(self, coil_current_a: np.ndarray, rngs: list) -> tuple[np.ndarray, dict]:
+        """Advance all envs one control period; returns the reward and per-env info arrays."""
+        applied = np.clip(coil_current_a, -self.i_max, self.i_max)
+        out = self.sim.step(applied)
+        self.step_count += 1
+        lagged = self.measured * self._lag if self._lag else None
+        self.measured[:] = out[self._out_rows].T
+        self._add_noise(range(self.n_envs), rngs)
+        if lagged is not None:
+            self.measured *= 1 - self._lag
+            self.measured += lagged
+        idx = np.minimum(self.step_count, self.references.shape[1] - 1)
+        ref = self.references[np.arange(self.n_envs), idx]
+        error = out[self._tracked_row] - ref
+        reward = -np.minimum(np.abs(error) / self.scale, 1.0)
+        reward -= self.options.effort_weight * (applied / self.i_max) ** 2
+        reward -= self.options.chatter_weight * ((applied - self.prev_action) / (2 * self.i_max)) ** 2
+        self.prev_action = applied
+        info = {"tracking_error": error, "reference": ref, "coil_current_a": applied,
+                "action_clipped": applied != coil_current_a,
+                "exhaust_mass_kg": out[L.O_EXHAUST].copy()}
+        return reward, info
+
+    def observation(self) -> np.ndarray:
+        """[p1, p2, x, f, ref(k), ref(k+1..k+H)] per env, float32 (SI or normalised)."""
+        n, h = self.n_envs, self.options.preview_steps
+        cols = self.step_count[:, None] + np.arange(h + 1)[None, :]
+        np.minimum(cols, self.references.shape[1] - 1, out=cols)
+        refs = np.take_along_axis(self.references, cols, axis=1)
+        obs = np.empty((n, self.obs_dim), dtype=np.float32)
+        if self.options.normalize_observation:
+            span = self.ps - self.pa
+            obs[:, 0] = (self.measured[:, 0] - self.pa) / span
+            obs[:, 1] = (self.measured[:, 1] - self.pa) / span
+            obs[:, 2] = self.measured[:, 2] / self.half_stroke
+            obs[:, 3] = self.measured[:, 3] / self.scale
+            obs[:, 4:] = refs / self.scale
+        else:
+            obs[:, :4] = self.measured
+            obs[:, 4:] = refs
+        return obs
+
+    def observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        # Unbounded: sensor noise can put a measured channel anywhere.
+        return (np.full(self.obs_dim, -np.inf, np.float32),
+                np.full(self.obs_dim, np.inf, np.float32))

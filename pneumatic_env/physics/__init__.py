@@ -1,0 +1,1 @@
+"""Numba-jitted physics core: one module per sub-model, composed by ``kernel``."""

@@ -1,0 +1,57 @@
+"""Compressible flow through an orifice (paper Eqs. 39, 40, 52)."""
+import math
+
+from numba import njit
+
+
+@njit(cache=True)
+def flow_constants(heat_capacity_ratio, gas_constant):
+    """C1, C2 and the critical pressure ratio P_cr of Eq. 40 (exponents as corrected)."""
+    k = heat_capacity_ratio
+    c1 = math.sqrt(k / gas_constant * (2.0 / (k + 1.0)) ** ((k + 1.0) / (k - 1.0)))
+    c2 = math.sqrt(2.0 * k / (gas_constant * (k - 1.0)))
+    critical_ratio = (2.0 / (k + 1.0)) ** (k / (k - 1.0))
+    return c1, c2, critical_ratio
+
+
+@njit(cache=True)
+def subsonic_reduced_flow(pressure_ratio, heat_capacity_ratio, c2):
+    """The unchoked branch of Eq. 52: C2 r^(1/k) sqrt(1 - r^((k-1)/k))."""
+    r_pow = math.exp(math.log(pressure_ratio) / heat_capacity_ratio)  # r^(1/k)
+    return c2 * r_pow * math.sqrt(max(1.0 - pressure_ratio / r_pow, 0.0))
+
+
+@njit(cache=True)
+def reduced_flow(pressure_ratio, heat_capacity_ratio, c1, c2, critical_ratio,
+                 linear_ratio, linear_slope):
+    """Reduced flow m_r(P_d/P_u) of Eq. 52, linearised above ``linear_ratio``.
+
+    Eq. 52 has an infinite slope at r -> 1, which a fixed-step integrator cannot follow;
+    above ``linear_ratio`` the function is replaced by the straight line
+    ``linear_slope * (1 - r)`` that meets it at ``linear_ratio`` (continuous, finite slope,
+    zero at r = 1). ``linear_slope = m_r(linear_ratio) / (1 - linear_ratio)``.
+    """
+    if pressure_ratio <= critical_ratio:
+        return c1
+    if pressure_ratio < linear_ratio:
+        return subsonic_reduced_flow(pressure_ratio, heat_capacity_ratio, c2)
+    return linear_slope * (1.0 - pressure_ratio)
+
+
+@njit(cache=True)
+def orifice_mass_flow(area_m2, discharge_coefficient, p_from_pa, p_to_pa, inv_sqrt_temperature,
+                      heat_capacity_ratio, c1, c2, critical_ratio, linear_ratio, linear_slope):
+    """Signed mass flow (kg/s) from node ``from`` to node ``to`` through an orifice (Eq. 39).
+
+    The flow always runs from the higher to the lower pressure; a negative value means
+    the air flows from ``to`` to ``from``.
+    """
+    if area_m2 <= 0.0 or p_from_pa == p_to_pa:
+        return 0.0
+    if p_from_pa > p_to_pa:
+        upstream, downstream, sign = p_from_pa, p_to_pa, 1.0
+    else:
+        upstream, downstream, sign = p_to_pa, p_from_pa, -1.0
+    m_r = reduced_flow(downstream / upstream, heat_capacity_ratio, c1, c2, critical_ratio,
+                       linear_ratio, linear_slope)
+    return sign * discharge_coefficient * area_m2 * upstream * inv_sqrt_temperature * m_r

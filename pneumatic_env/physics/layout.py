@@ -1,0 +1,106 @@
+"""Array layout of the physics core: parameter rows, state rows, history channels.
+
+The kernel works on struct-of-arrays with the environments innermost:
+``params[P_*, n_envs]`` and ``state[S_*, n_envs]``; the tube-delay history is kept per
+environment, ``history[env, slot, H_*]``, because the kernel advances one environment
+through all substeps of a control period at a time. Row indices are module-level integer constants so
+Numba compiles them as literals. ``PARAMETER_NAMES`` is the single list that the YAML
+configs (``configs/``), the loader and the kernel agree on; every name carries its unit.
+
+A physical effect that the paper's model lacks is a sub-model with its own parameter
+rows whose neutral value switches it off (a zero area, a zero time constant, ...), so
+one parameter set can switch an effect on for some environments of a batch and not
+for others without recompiling the kernel.
+"""
+
+PARAMETER_NAMES = (
+    # air and thermodynamics (Sec. 2.2, Eq. 14, Eq. 40)
+    "gas_constant_j_per_kg_k",
+    "heat_capacity_ratio",
+    "temperature_k",
+    "ambient_pressure_pa",
+    "supply_pressure_pa",
+    "air_viscosity_pa_s",
+    "alpha_in",
+    "alpha_out",
+    "alpha_motion",
+    # valve spool (Eq. 38) and orifice (Eqs. 39, 44, 45)
+    "spool_mass_kg",
+    "spool_damping_n_s_per_m",
+    "spool_spring_n_per_m",
+    "coil_force_n_per_a",
+    "coil_current_max_a",
+    "discharge_coefficient",
+    "hole_radius_m",
+    "spool_half_width_m",
+    "holes_per_path",
+    # tube (Eqs. 30, 31, 33, 35)
+    "tube_length_m",
+    "tube_inner_diameter_m",
+    "reynolds_turbulent",
+    "tube_coupling",  # 0: command delay (default), 1: literal Eq. 55
+    # cylinder (Eqs. 1, 15)
+    "bore_diameter_m",
+    "rod_diameter_m",
+    "stroke_m",
+    "dead_volume_cap_m3",
+    "dead_volume_rod_m3",
+    "piston_mass_kg",
+    "static_friction_n",
+    "dynamic_friction_n",
+    "viscous_friction_n_s_per_m",
+    "leakage_area_m2",
+    # load (Eq. 1) and rod mode
+    "piston_mode",  # 0: fixed (rod clamped to a load cell), 1: free, 2: spring
+    "fixed_position_m",
+    "load_mass_kg",
+    "load_force_n",
+    "spring_stiffness_n_per_m",
+    "spring_rest_position_m",
+    # numerics
+    "flow_linear_ratio",  # pressure ratio above which the flow function is linearised
+)
+
+_g = globals()
+for _i, _name in enumerate(PARAMETER_NAMES):
+    _g["P_" + _name.upper()] = _i
+N_PARAMS = len(PARAMETER_NAMES)
+
+# Integer-valued parameters (stored as float rows) and their allowed values.
+DISCRETE_PARAMETERS = {
+    "tube_coupling": {0: "command", 1: "literal"},
+    "piston_mode": {0: "fixed", 1: "free", 2: "spring"},
+}
+
+STATE_NAMES = (
+    "spool_position_m",
+    "spool_velocity_m_per_s",
+    "p1_pa",
+    "p2_pa",
+    "piston_position_m",
+    "piston_velocity_m_per_s",  # exactly 0.0 while the piston sticks or rests on a stop
+    "exhaust_mass_kg",  # air let out of both chambers since reset (air consumption)
+)
+for _i, _name in enumerate(STATE_NAMES):
+    _g["S_" + _name.upper()] = _i
+N_STATE = len(STATE_NAMES)
+S_X_S = S_SPOOL_POSITION_M
+S_V_S = S_SPOOL_VELOCITY_M_PER_S
+S_P1 = S_P1_PA
+S_P2 = S_P2_PA
+S_X = S_PISTON_POSITION_M
+S_V = S_PISTON_VELOCITY_M_PER_S
+S_EXHAUST = S_EXHAUST_MASS_KG
+
+# Channels kept in the tube-delay ring buffer, one sample per substep boundary.
+HISTORY_NAMES = ("spool_position_m", "p1_pa", "p2_pa")
+H_X_S, H_P1, H_P2 = 0, 1, 2
+N_HISTORY = len(HISTORY_NAMES)
+
+# Outputs written once per control step.
+OUTPUT_NAMES = ("p1_pa", "p2_pa", "piston_position_m", "force_n", "piston_velocity_m_per_s",
+                "spool_position_m", "exhaust_mass_kg")
+O_P1, O_P2, O_X, O_F, O_V, O_X_S, O_EXHAUST = range(7)
+N_OUTPUT = len(OUTPUT_NAMES)
+
+del _g, _i, _name
