@@ -90,6 +90,7 @@ CLIP_MIN_RUN = 5
 _NUMBER = r"[ \t]*[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?[ \t]*"
 _NUMBER_RE = re.compile(_NUMBER)
 _ODD_CHAR_RE = re.compile(r"[^0-9.eE+\- \t]")
+_ODD_BODY_RE = re.compile(r"[^0-9.eE+\- \t,\n]")
 _NONFINITE_WORDS = {"nan", "inf", "infinity"}
 
 
@@ -464,6 +465,8 @@ def _read_csv(csv_path: Path) -> tuple[np.ndarray, dict[str, np.ndarray], list[s
         return RecordingError(f"{where}: {message}", file=name, line=line, column=column)
 
     header = [h.strip() for h in next(csv.reader([lines[0]]))]
+    if not any(header):
+        raise err(1, "empty line: the first line must be the header (column names)")
     if len(header) == 1 and (";" in header[0] or "\t" in header[0]):
         raise err(1, f"the header {lines[0]!r} has a single column: the separator must be ','")
     if all(_NUMBER_RE.fullmatch(h) for h in header):
@@ -488,6 +491,19 @@ def _read_csv(csv_path: Path) -> tuple[np.ndarray, dict[str, np.ndarray], list[s
                         + ", ".join(COLUMNS))
 
     ncol = len(header)
+    if len(lines) >= 3 and all(h in COLUMNS for h in header):
+        # Fast path for clean files: numpy's C parser on plain numeric text. Any
+        # irregularity (blank line, quote, odd character, bad cell) falls through to
+        # the row-by-row reader below, which locates it exactly.
+        body = lines[1:]
+        if not _ODD_BODY_RE.search("\n".join(body)):
+            try:
+                table = np.loadtxt(body, delimiter=",", dtype=np.float64, comments=None, ndmin=2)
+            except ValueError:
+                table = None
+            if table is not None and table.shape == (len(body), ncol) and np.all(np.isfinite(table)):
+                data = {h: np.ascontiguousarray(table[:, j]) for j, h in enumerate(header)}
+                return _finish_csv(name, data, warn)
     rows = list(csv.reader(lines[1:]))
     for k, row in enumerate(rows):
         if len(row) != ncol:
@@ -519,6 +535,10 @@ def _read_csv(csv_path: Path) -> tuple[np.ndarray, dict[str, np.ndarray], list[s
                 raise err(k + 2, _cell_problem(c), column=h)
         raise AssertionError(f"{name}: column {h!r} failed to parse but no bad cell found")  # pragma: no cover
 
+    return _finish_csv(name, data, warn)
+
+
+def _finish_csv(name, data, warn):
     t = data.pop("t")
     _check_time(t, lambda k, col: f"{name} line {k + 2}, column {col!r}")
     channels = {h: data[h] for h in COLUMNS if h in data}
@@ -616,10 +636,8 @@ def write_recording(path, t, channels: dict, rig: dict, *, overwrite: bool = Fal
                 raise FileExistsError(f"{p} exists; pass overwrite=True to replace it")
 
     names = ["t", *cols]
-    columns = [t.tolist(), *(c.tolist() for c in cols.values())]
-    lines = [",".join(names)]
-    lines.extend(",".join(map(repr, row)) for row in zip(*columns))
-    csv_text = "\n".join(lines) + "\n"
+    columns = [list(map(repr, c.tolist())) for c in (t, *cols.values())]
+    csv_text = ",".join(names) + "\n" + "\n".join(map(",".join, zip(*columns))) + "\n"
 
     for p, content in ((csv_path, csv_text), (json_path, json_text)):
         tmp = p.parent / f".{p.name}.tmp{os.getpid()}"

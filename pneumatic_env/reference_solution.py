@@ -81,6 +81,7 @@ IX_XS, IX_VS, IX_XD, IX_VD, IX_P1, IX_P2, IX_X, IX_V = range(8)
 N_Y = 8
 
 PISTON_FIXED, PISTON_FREE, PISTON_SPRING = 0, 1, 2
+FIRST_STEP_AFTER_EDGE = 1e-11  # s, first step after the delayed spool crosses a hole edge
 COUPLING_COMMAND, COUPLING_LITERAL = 0, 1
 
 # Valve-tube paths: (chamber index 0/1, upstream reservoir "supply"/"ambient", area sign).
@@ -398,7 +399,18 @@ class _HybridSimulation:
         self.stop_side = 0.0  # -1/+1 while resting at an end stop
         self._cache_key = None
         self._cache_val = None
+        self._surf_key = None
+        self._surf_val = None
+        self.kinds = self.surface_kinds()
+        self.fired: dict[int, tuple[float, float]] = {}  # kink surface -> (time, side)
+        self.fire_count: dict[int, int] = {}  # kink surface -> firings in this sub-interval
+        # below this distance a kink surface counts as "on the surface" at a restart
+        tiny = 10.0 * max(rtol, 1e-13)
+        self.surface_noise = np.array(
+            [0.0 if kind == "regime" else tiny * (m.r_h if j < 4 else m.p_a)
+             for kind, j in self.kinds])
         self.n_events = 0
+        self.small_first_step = 0.0
 
     # ---- delayed quantities -----------------------------------------------------------
     def delayed_pressures(self, t: float) -> tuple[float, float]:
@@ -412,14 +424,19 @@ class _HybridSimulation:
         return float(yy[IX_P1]), float(yy[IX_P2])
 
     # ---- right-hand side --------------------------------------------------------------
+    def valve_pressures(self, t: float, y: np.ndarray) -> tuple[float, float]:
+        """Chamber pressures the valve flows are evaluated with: current (command
+        coupling) or delayed (literal coupling, Eq. 55 as printed)."""
+        if self.literal:
+            return self.delayed_pressures(t)
+        return y[IX_P1], y[IX_P2]
+
     def valve_flows(self, t: float, y: np.ndarray) -> tuple[float, float, float, float]:
-        """Signed valve flows into the chambers of the four paths (before the tube)."""
+        """Signed valve flows into the chambers of the four paths (before the tube),
+        evaluated with the delayed spool position ``x_s(t - tau)``."""
         m = self.m
         x_d = y[IX_XD]
-        if self.literal:
-            p1b, p2b = self.delayed_pressures(t)
-        else:
-            p1b, p2b = y[IX_P1], y[IX_P2]
+        p1b, p2b = self.valve_pressures(t, y)
         a_in = orifice_area(m, x_d)
         a_ex = orifice_area(m, -x_d)
         return (orifice_mass_flow(m, a_in, m.p_s, p1b),
@@ -491,14 +508,68 @@ class _HybridSimulation:
         return pneumatic_force(m, y[IX_P1], y[IX_P2]) - load_force(m, y[IX_X])
 
     # ---- events -----------------------------------------------------------------------
-    def make_events(self) -> list[_Event]:
+    # Switching surfaces g(t, y) = 0 of the right-hand side. "regime" surfaces switch the
+    # tube flow regime of a path (a jump of the right-hand side); "kink" surfaces only
+    # restart the integration where the right-hand side loses smoothness, so that no
+    # step of the high-order method straddles them.
+    def surface_kinds(self) -> list[tuple[str, int]]:
+        m = self.m
+        kinds: list[tuple[str, int]] = []
+        if self.use_tube:
+            kinds += [("regime", j) for j in range(4)]
+        kinds += [("kink", j) for j in range(4)]  # delayed spool at the hole edges
+        n_pairs = 5 if m.a_leak > 0.0 else 4
+        kinds += [("kink", 4 + j) for j in range(n_pairs)]  # flow reversal (alpha switch)
+        kinds += [("kink", 9 + j) for j in range(n_pairs)]  # choking ratio P_cr
+        if m.r_lin < 1.0:
+            kinds += [("kink", 14 + j) for j in range(n_pairs)]  # linearisation ratio
+        return kinds
+
+    def surfaces(self, t: float, y: np.ndarray) -> np.ndarray:
+        key = (t, y.tobytes())
+        if key == self._surf_key:
+            return self._surf_val
+        m = self.m
+        x_d = y[IX_XD]
+        p1b, p2b = self.valve_pressures(t, y)
+        pairs = [(m.p_s, p1b), (m.p_a, p1b), (m.p_s, p2b), (m.p_a, p2b)]
+        if m.a_leak > 0.0:
+            pairs.append((y[IX_P2], y[IX_P1]))
+        vals = []
+        if self.use_tube:
+            q = self.valve_flows(t, y)
+            vals += [reynolds_number(m, qj) - m.re_t for qj in q]
+        e0, e1 = m.p_w - m.r_h, m.p_w + m.r_h
+        vals += [x_d - e0, -x_d - e0, x_d - e1, -x_d - e1]
+        vals += [b - a for a, b in pairs]
+        vals += [max(a, b) * m.p_cr - min(a, b) for a, b in pairs]
+        if m.r_lin < 1.0:
+            vals += [max(a, b) * m.r_lin - min(a, b) for a, b in pairs]
+        self._surf_key = key
+        self._surf_val = np.asarray(vals)
+        return self._surf_val
+
+    def make_events(self, t0: float) -> list[_Event]:
         m = self.m
         events: list[_Event] = []
-        if self.use_tube:
-            for j in range(4):
-                def g(t, y, j=j):
-                    return reynolds_number(m, self.evaluate(t, y)[1][j]) - m.re_t
-                events.append(_Event(g, -1.0 if self.turbulent[j] else 1.0, ("regime", j)))
+        g0 = self.surfaces(t0, self.y)
+        for e, (kind, j) in enumerate(self.kinds):
+            if kind == "regime":
+                direction = -1.0 if self.turbulent[j] else 1.0
+            elif self.fire_count.get(e, 0) >= 3:
+                # the solution hovers on a kink (e.g. a chamber pressure converging to
+                # the supply pressure): stop restarting there until the next sub-interval
+                continue
+            elif e in self.fired and t0 - self.fired[e][0] <= 1e-12 * max(1.0, t0):
+                direction = -self.fired[e][1]  # just crossed: watch the way back
+            elif abs(g0[e]) <= self.surface_noise[e]:
+                continue  # on the surface (e.g. a chamber at exactly ambient)
+            elif g0[e] > 0.0:
+                direction = -1.0
+            else:
+                direction = 1.0
+            events.append(_Event(lambda t, y, e=e: self.surfaces(t, y)[e], direction,
+                                 (kind, j, e, direction)))
         half = 0.5 * m.stroke
         if self.piston == "slip":
             s = self.slip_dir
@@ -528,11 +599,19 @@ class _HybridSimulation:
                 self.stop_side = 0.0
                 return
 
-    def apply(self, action) -> None:
+    def apply(self, action, t: float) -> None:
         kind = action[0]
         if kind == "regime":
             j = action[1]
             self.turbulent[j] = not self.turbulent[j]
+        elif kind == "kink":
+            e = action[2]
+            self.fired[e] = (t, action[3])
+            self.fire_count[e] = self.fire_count.get(e, 0) + 1
+            if action[1] < 4:
+                # a hole edge: the area grows like x_e^(3/2) from here, a singularity
+                # that embedded error estimates miss; start with a tiny step
+                self.small_first_step = FIRST_STEP_AFTER_EDGE
         elif kind == "velocity_zero":
             self.stop_side = 0.0
             self.settle_at_rest()
@@ -549,6 +628,7 @@ class _HybridSimulation:
         else:  # pragma: no cover
             raise AssertionError(kind)
         self._cache_key = None
+        self._surf_key = None
 
     def init_discrete_state(self) -> None:
         m = self.m
@@ -639,13 +719,19 @@ class _HybridSimulation:
                 self.delayed_active = True
                 self.i_delayed = self.i_now
             self._cache_key = None
+            self._surf_key = None
+            self.fire_count.clear()
             t = a
             stalls = 0
             while b - t > 1e-14 * max(1.0, b):
-                events = self.make_events()
+                events = self.make_events(t)
+                options = {}
+                if self.small_first_step:
+                    options["first_step"] = min(self.small_first_step, 0.5 * (b - t))
+                    self.small_first_step = 0.0
                 sol = solve_ivp(self.rhs, (t, b), self.y, method=self.method, rtol=self.rtol,
                                 atol=self.atol, events=events or None,
-                                dense_output=self.literal)
+                                dense_output=self.literal, **options)
                 if not sol.success:
                     raise RuntimeError(f"integration failed at t = {t}: {sol.message}")
                 t_new = float(sol.t[-1])
@@ -655,9 +741,10 @@ class _HybridSimulation:
                     self.hist_sol.append(sol.sol)
                 self.y = sol.y[:, -1].copy()
                 self._cache_key = None
+                self._surf_key = None
                 if sol.status == 1:
                     fired = [j for j, te in enumerate(sol.t_events) if len(te)]
-                    self.apply(events[fired[0]].action)
+                    self.apply(events[fired[0]].action, t_new)
                     self.n_events += 1
                     stalls = stalls + 1 if t_new - t <= 1e-13 * max(1.0, t_new) else 0
                     if stalls > 50:

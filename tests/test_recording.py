@@ -284,6 +284,22 @@ def test_error_too_few_rows(tmp_path):
     _err(tmp_path, "t,i_c,p1\n", r"^run1\.csv: 0 data rows; a recording needs at least 2$")
 
 
+def test_error_blank_first_line(tmp_path):
+    _err(tmp_path, "\n" + "\n".join(_good_csv()),
+         r"^run1\.csv line 1: empty line: the first line must be the header \(column names\)$")
+
+
+def test_quoted_cells_take_the_careful_path_and_read_the_same(tmp_path):
+    plain = _read_quiet(_write_raw(tmp_path, "\n".join(_good_csv()), name="plain"))
+    rows = _good_csv()
+    rows[0] = '"t","i_c","p1"'
+    rows[4] = ",".join(f'"{c}"' for c in rows[4].split(","))
+    quoted = _read_quiet(_write_raw(tmp_path, "\n".join(rows), name="quoted"))
+    np.testing.assert_array_equal(plain.t, quoted.t)
+    for k in plain.channels:
+        np.testing.assert_array_equal(plain.channels[k], quoted.channels[k])
+
+
 def test_error_empty_file(tmp_path):
     _err(tmp_path, "", r"^run1\.csv: empty file")
 
