@@ -680,6 +680,26 @@ class _HybridSimulation:
             pts = np.asarray(sub)
         return pts
 
+    def integrate(self, t0: float, t1: float, y0: np.ndarray, events, **options):
+        """One ``solve_ivp`` call in the present discrete state."""
+        if t1 <= t0:  # an event right at the start: nothing to integrate
+            class _Empty:
+                status, t, y, sol = 0, np.array([t0]), y0.reshape(-1, 1).copy(), None
+            return _Empty()
+        sol = solve_ivp(self.rhs, (t0, t1), y0, method=self.method, rtol=self.rtol,
+                        atol=self.atol, events=events or None, dense_output=self.literal,
+                        **options)
+        if not sol.success:
+            raise RuntimeError(f"integration failed at t = {t0}: {sol.message}")
+        return sol
+
+    def add_history(self, t0: float, t1: float, sol) -> None:
+        """Keep the dense output of ``[t0, t1]`` for the delayed pressures (literal)."""
+        if self.literal and t1 > t0 and sol.sol is not None:
+            self.hist_t0.append(t0)
+            self.hist_t1.append(t1)
+            self.hist_sol.append(sol.sol)
+
     def current_at(self, t: float) -> float:
         k = int(math.floor(t / self.dt))
         return float(self.currents[min(max(k, 0), len(self.currents) - 1)])
@@ -729,17 +749,21 @@ class _HybridSimulation:
                 if self.small_first_step:
                     options["first_step"] = min(self.small_first_step, 0.5 * (b - t))
                     self.small_first_step = 0.0
-                sol = solve_ivp(self.rhs, (t, b), self.y, method=self.method, rtol=self.rtol,
-                                atol=self.atol, events=events or None,
-                                dense_output=self.literal, **options)
-                if not sol.success:
-                    raise RuntimeError(f"integration failed at t = {t}: {sol.message}")
+                sol = self.integrate(t, b, self.y, events, **options)
                 t_new = float(sol.t[-1])
-                if self.literal:
-                    self.hist_t0.append(t)
-                    self.hist_t1.append(t_new)
-                    self.hist_sol.append(sol.sol)
-                self.y = sol.y[:, -1].copy()
+                if sol.status == 1 and len(sol.t) > 1:
+                    # The step that found the event straddled the switching surface, so
+                    # its interpolant at the root is polluted by right-hand-side values
+                    # from beyond the surface: redo that last step up to the root.
+                    t_prev = float(sol.t[-2])
+                    if t_prev > t:
+                        self.add_history(t, t_prev, sol)
+                    redo = self.integrate(t_prev, t_new, sol.y[:, -2], None)
+                    self.add_history(t_prev, t_new, redo)
+                    self.y = redo.y[:, -1].copy()
+                else:
+                    self.add_history(t, t_new, sol)
+                    self.y = sol.y[:, -1].copy()
                 self._cache_key = None
                 self._surf_key = None
                 if sol.status == 1:

@@ -146,9 +146,13 @@ class BatchSimulator:
         fn = kernel.step_parallel if self.parallel else kernel.step_serial
         fn(self.params, self.state, self.history, self.head, coil_current_a, self.control_dt_s,
            self.n_substeps, self.outputs)
-        self.head = (self.head + self.n_substeps) % self.history.shape[1]
-        self.time_s += self.control_dt_s
+        self.advance_clock()
         return self.outputs
+
+    def advance_clock(self, n_steps: int = 1) -> None:
+        """Move the ring-buffer head and the clocks after the kernel advanced ``n_steps`` periods."""
+        self.head = (self.head + n_steps * self.n_substeps) % self.history.shape[1]
+        self.time_s += n_steps * self.control_dt_s
 
     def rollout(self, coil_current_a: np.ndarray) -> np.ndarray:
         """Open-loop run of ``coil_current_a[step, env]`` in one jitted call.
@@ -164,8 +168,7 @@ class BatchSimulator:
         out = np.empty((currents.shape[0], L.N_OUTPUT, self.n_envs))
         kernel.rollout_serial(self.params, self.state, self.history, self.head, currents,
                               self.control_dt_s, self.n_substeps, out)
-        self.head = (self.head + currents.shape[0] * self.n_substeps) % self.history.shape[1]
-        self.time_s += currents.shape[0] * self.control_dt_s
+        self.advance_clock(currents.shape[0])
         if currents.shape[0]:
             self.outputs[:] = out[-1]
         return out

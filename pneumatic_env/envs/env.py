@@ -53,7 +53,8 @@ class PneumaticTrackingEnv(gym.Env):
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
-        self.core.reset_envs(np.array([0]), [self.np_random])
+        self._rngs = [self.np_random]
+        self.core.reset_envs(np.array([0]), self._rngs)
         if self.render_mode is not None:
             from .render import Trace
             self._trace = Trace()
@@ -62,11 +63,10 @@ class PneumaticTrackingEnv(gym.Env):
 
     def step(self, action):
         current = self.core.check_action(action)
-        reward, info = self.core.step(current, [self.np_random])
+        reward = self.core.step(current, self._rngs)
         if self._trace is not None:
             self._trace.record(self.core, 0)
-        return (self.core.observation()[0], float(reward[0]), False, False,
-                {k: v[0].item() for k, v in info.items()})
+        return self.core.observation()[0], float(reward[0]), False, False, self.core.info(0)
 
     def render(self):
         if self.render_mode is None:
@@ -120,7 +120,8 @@ class PneumaticTrackingVectorEnv(VectorEnv):
 
     def step(self, actions):
         current = self.core.check_action(actions)
-        reward, info = self.core.step(current, self._rngs)
+        reward = self.core.step(current, self._rngs).copy()
+        info = self.core.info()
         terminated = np.zeros(self.num_envs, dtype=bool)
         truncated = self.core.step_count >= self.max_episode_steps
         obs = self.core.observation()

@@ -16,6 +16,7 @@ from .. import params as P
 from ..physics import layout as L
 from ..references import make_reference, ReferenceSpec
 from ..simulator import BatchSimulator
+from . import task_kernel
 
 OBSERVED_CHANNELS = ("p1", "p2", "x", "f")
 _CHANNEL_OUTPUT = {"p1": L.O_P1, "p2": L.O_P2, "x": L.O_X, "f": L.O_F}
@@ -154,6 +155,11 @@ class TaskCore:
         self.measured = np.zeros((n_envs, len(OBSERVED_CHANNELS)))
         self._noise_std = np.array([(self.options.sensor_noise or {}).get(c, 0.0)
                                     for c in OBSERVED_CHANNELS])
+        self._noise_on = bool(np.any(self._noise_std > 0))
+        self._noise = np.zeros((n_envs, len(OBSERVED_CHANNELS)))
+        self.last_reward, self.last_error = np.zeros(n_envs), np.zeros(n_envs)
+        self.last_reference, self.last_applied = np.zeros(n_envs), np.zeros(n_envs)
+        self._last_action = np.zeros(n_envs)
         self._lag = (np.exp(-control_dt / self.options.sensor_lag_s)
                      if self.options.sensor_lag_s > 0 else 0.0)
         self._out_rows = np.array([_CHANNEL_OUTPUT[c] for c in OBSERVED_CHANNELS])
@@ -203,63 +209,70 @@ class TaskCore:
         self.measured[envs] = self.sim.outputs[self._out_rows][:, envs].T
         self._add_noise(envs, rngs)
 
-    def _add_noise(self, envs, rngs):
-        if np.any(self._noise_std > 0):
+    def _draw_noise(self, envs, rngs) -> np.ndarray:
+        """Sensor noise for ``envs``, drawn from each env's own generator (zeros when off)."""
+        self._noise[:] = 0.0
+        if self._noise_on:
             for env in envs:
-                self.measured[env] += self._noise_std * rngs[env].standard_normal(len(OBSERVED_CHANNELS))
+                self._noise[env] = self._noise_std * rngs[env].standard_normal(len(OBSERVED_CHANNELS))
+        return self._noise
 
-    def check_action(self, action: np.ndarray) -> np.ndarray:
+    def _add_noise(self, envs, rngs):
+        if self._noise_on:
+            self.measured[envs] += self._draw_noise(envs, rngs)[envs]
+
+    def check_action(self, action) -> np.ndarray:
         """Coil currents as float64 (n_envs,); clear errors for NaN, inf and wrong shapes."""
         a = np.asarray(action, dtype=np.float64)
         if a.size != self.n_envs or a.ndim > 2:
             raise ValueError(f"action has shape {a.shape}, expected ({self.n_envs}, 1) or "
                              f"({self.n_envs},): one coil current (A) per environment")
         a = a.reshape(self.n_envs)
-        if not np.all(np.isfinite(a)):
+        if not np.isfinite(a).all():
             raise ValueError(f"action contains {a[~np.isfinite(a)][0]}: the coil current must be "
                              f"finite, in [-{self.i_max}, {self.i_max}] A")
         return a
 
-    def step(self, coil_current_a: np.ndarray, rngs: list) -> tuple[np.ndarray, dict]:
-        """Advance all envs one control period; returns the reward and per-env info arrays."""
-        applied = np.clip(coil_current_a, -self.i_max, self.i_max)
-        out = self.sim.step(applied)
-        self.step_count += 1
-        lagged = self.measured * self._lag if self._lag else None
-        self.measured[:] = out[self._out_rows].T
-        self._add_noise(range(self.n_envs), rngs)
-        if lagged is not None:
-            self.measured *= 1 - self._lag
-            self.measured += lagged
-        idx = np.minimum(self.step_count, self.references.shape[1] - 1)
-        ref = self.references[np.arange(self.n_envs), idx]
-        error = out[self._tracked_row] - ref
-        reward = -np.minimum(np.abs(error) / self.scale, 1.0)
-        reward -= self.options.effort_weight * (applied / self.i_max) ** 2
-        reward -= self.options.chatter_weight * ((applied - self.prev_action) / (2 * self.i_max)) ** 2
-        self.prev_action = applied
-        info = {"tracking_error": error, "reference": ref, "coil_current_a": applied,
-                "action_clipped": applied != coil_current_a,
-                "exhaust_mass_kg": out[L.O_EXHAUST].copy()}
-        return reward, info
+    def step(self, coil_current_a: np.ndarray, rngs: list) -> np.ndarray:
+        """Advance all envs one control period (one jitted call); returns the reward.
+
+        Per-env details are left in ``self.last_*`` arrays: tracking error, reference,
+        applied (clipped) current.
+        """
+        sim = self.sim
+        self._last_action = coil_current_a
+        noise = self._draw_noise(range(self.n_envs), rngs) if self._noise_on else self._noise
+        step = task_kernel.task_step_parallel if sim.parallel else task_kernel.task_step_serial
+        step(sim.params, sim.state, sim.history, sim.head, coil_current_a, sim.control_dt_s,
+             sim.n_substeps, sim.outputs, self.i_max, self.references, self.step_count,
+             self.prev_action, self.measured, noise, self._lag, self._out_rows,
+             self._tracked_row, self.scale, self.options.effort_weight,
+             self.options.chatter_weight, self.last_reward, self.last_error,
+             self.last_reference, self.last_applied)
+        sim.advance_clock()
+        return self.last_reward
+
+    def info(self, env: int | None = None) -> dict:
+        """The step's info: arrays over envs, or floats for one ``env``."""
+        o = self.sim.outputs
+        if env is None:
+            return {"tracking_error": self.last_error.copy(),
+                    "reference": self.last_reference.copy(),
+                    "coil_current_a": self.last_applied.copy(),
+                    "action_clipped": self.last_applied != self._last_action,
+                    "exhaust_mass_kg": o[L.O_EXHAUST].copy()}
+        return {"tracking_error": float(self.last_error[env]),
+                "reference": float(self.last_reference[env]),
+                "coil_current_a": float(self.last_applied[env]),
+                "action_clipped": bool(self.last_applied[env] != self._last_action[env]),
+                "exhaust_mass_kg": float(o[L.O_EXHAUST, env])}
 
     def observation(self) -> np.ndarray:
         """[p1, p2, x, f, ref(k), ref(k+1..k+H)] per env, float32 (SI or normalised)."""
-        n, h = self.n_envs, self.options.preview_steps
-        cols = self.step_count[:, None] + np.arange(h + 1)[None, :]
-        np.minimum(cols, self.references.shape[1] - 1, out=cols)
-        refs = np.take_along_axis(self.references, cols, axis=1)
-        obs = np.empty((n, self.obs_dim), dtype=np.float32)
-        if self.options.normalize_observation:
-            span = self.ps - self.pa
-            obs[:, 0] = (self.measured[:, 0] - self.pa) / span
-            obs[:, 1] = (self.measured[:, 1] - self.pa) / span
-            obs[:, 2] = self.measured[:, 2] / self.half_stroke
-            obs[:, 3] = self.measured[:, 3] / self.scale
-            obs[:, 4:] = refs / self.scale
-        else:
-            obs[:, :4] = self.measured
-            obs[:, 4:] = refs
+        obs = np.empty((self.n_envs, self.obs_dim), dtype=np.float32)
+        task_kernel.fill_observation(self.measured, self.references, self.step_count,
+                                     self.options.normalize_observation, self.pa, self.ps,
+                                     self.half_stroke, self.scale, obs)
         return obs
 
     def observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
