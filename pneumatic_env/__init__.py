@@ -35,8 +35,7 @@ def _register_all() -> None:
                     entry_point="pneumatic_env.envs.env:PneumaticTrackingEnv",
                     vector_entry_point="pneumatic_env.envs.env:PneumaticTrackingVectorEnv",
                     max_episode_steps=EPISODE_STEPS,
-                    kwargs={"task": task, "cylinder": cylinder, "tube_length_m": length,
-                            "episode_steps": EPISODE_STEPS},
+                    kwargs={"task": task, "cylinder": cylinder, "tube_length_m": length},
                 )
 
 

@@ -71,7 +71,9 @@ class BatchSimulator:
         envs = np.atleast_1d(np.asarray(envs, dtype=np.int64))
         columns = np.asarray(columns, dtype=np.float64).reshape(L.N_PARAMS, len(envs))
         if not np.all(np.isfinite(columns)):
-            raise ValueError("set_params: every parameter must be finite")
+            row, col = np.argwhere(~np.isfinite(columns))[0]
+            raise ValueError(f"set_params: {L.PARAMETER_NAMES[row]} of environment {envs[col]} "
+                             f"is {columns[row, col]}, must be finite")
         self.params[:, envs] = columns
         slots = self._slots_needed()
         if slots > self.history.shape[1]:  # a longer tube than the buffer holds: grow it
@@ -122,6 +124,7 @@ class BatchSimulator:
             col[:] = 0.0
             col[L.S_X_S], col[L.S_P1], col[L.S_P2] = s["x_s"], s["p1"], s["p2"]
             col[L.S_X], col[L.S_V] = s["x"], s["v"]
+            col[L.S_T1] = col[L.S_T2] = p[L.P_TEMPERATURE_K]  # gas temperatures (effects)
             self.history[int(env), :, L.H_X_S] = s["x_s"]
             self.history[int(env), :, L.H_P1] = s["p1"]
             self.history[int(env), :, L.H_P2] = s["p2"]
@@ -143,11 +146,23 @@ class BatchSimulator:
     # -- stepping ------------------------------------------------------------------------
     def step(self, coil_current_a: np.ndarray) -> np.ndarray:
         """Advance all environments by one control period; returns ``outputs[O_*, env]`` (a view)."""
+        coil_current_a = self._check_currents(coil_current_a, (self.n_envs,))
         fn = kernel.step_parallel if self.parallel else kernel.step_serial
         fn(self.params, self.state, self.history, self.head, coil_current_a, self.control_dt_s,
            self.n_substeps, self.outputs)
         self.advance_clock()
         return self.outputs
+
+    def _check_currents(self, currents, shape) -> np.ndarray:
+        """Coil currents as a C-contiguous float64 array of ``shape``, all finite."""
+        a = np.ascontiguousarray(currents, dtype=np.float64)
+        if a.shape != shape:
+            raise ValueError(f"coil_current_a has shape {a.shape}, expected {shape} "
+                             "(steps x environments for rollout, environments for step)")
+        if not np.isfinite(a).all():
+            raise ValueError(f"coil_current_a contains {a[~np.isfinite(a)][0]}: coil currents "
+                             "must be finite (A)")
+        return a
 
     def advance_clock(self, n_steps: int = 1) -> None:
         """Move the ring-buffer head and the clocks after the kernel advanced ``n_steps`` periods."""
@@ -159,12 +174,10 @@ class BatchSimulator:
 
         Returns ``outputs[step, O_*, env]`` after each control period.
         """
-        currents = np.ascontiguousarray(coil_current_a, dtype=np.float64)
-        if currents.ndim == 1:
+        currents = np.asarray(coil_current_a, dtype=np.float64)
+        if currents.ndim == 1 and self.n_envs == 1:
             currents = currents[:, None]
-        if currents.shape[1] != self.n_envs:
-            raise ValueError(f"coil_current_a has {currents.shape[1]} columns, expected "
-                             f"{self.n_envs} (one per environment)")
+        currents = self._check_currents(currents, (currents.shape[0], self.n_envs))
         out = np.empty((currents.shape[0], L.N_OUTPUT, self.n_envs))
         kernel.rollout_serial(self.params, self.state, self.history, self.head, currents,
                               self.control_dt_s, self.n_substeps, out)

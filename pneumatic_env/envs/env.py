@@ -9,7 +9,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from .tasks import TASKS, EnvOptions, TaskCore
+from .tasks import DEFAULT_EPISODE_STEPS, TASKS, EnvOptions, TaskCore
 
 _OPTION_NAMES = set(EnvOptions.__dataclass_fields__)
 
@@ -17,6 +17,11 @@ _OPTION_NAMES = set(EnvOptions.__dataclass_fields__)
 def _split_kwargs(kwargs: dict) -> tuple[EnvOptions, dict]:
     options = EnvOptions(**{k: v for k, v in kwargs.items() if k in _OPTION_NAMES})
     return options, {k: v for k, v in kwargs.items() if k not in _OPTION_NAMES}
+
+
+def _check_render_mode(render_mode) -> None:
+    if render_mode not in (None, "rgb_array"):
+        raise ValueError(f"render_mode = {render_mode!r} is not allowed: use 'rgb_array' or None")
 
 
 def _task(name: str):
@@ -39,10 +44,8 @@ class PneumaticTrackingEnv(gym.Env):
                  tube_length_m: float | None = None, params=None, render_mode: str | None = None,
                  **kwargs):
         options, overrides = _split_kwargs(kwargs)
+        _check_render_mode(render_mode)
         self.core = TaskCore(_task(task), 1, cylinder, tube_length_m, params, options, **overrides)
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode = {render_mode!r} is not allowed: use one of "
-                             f"{self.metadata['render_modes']} or None")
         self.render_mode = render_mode
         i_max = np.float32(self.core.i_max)
         self.action_space = gym.spaces.Box(-i_max, i_max, shape=(1,), dtype=np.float32)
@@ -79,7 +82,8 @@ class PneumaticTrackingEnv(gym.Env):
 class PneumaticTrackingVectorEnv(VectorEnv):
     """``num_envs`` actuators advanced in one jitted call per step (``gym.make_vec``).
 
-    Episodes are truncated after ``max_episode_steps`` inside the env and reset in the same
+    Episodes are truncated after ``max_episode_steps`` (the registered 2000 unless given)
+    inside the env and reset in the same
     step (``AutoresetMode.SAME_STEP``): the returned observation is the new episode's first,
     the last one is in ``info["final_obs"]``. Env ``i`` seeded with ``seed + i`` reproduces the
     single env seeded with ``seed + i`` exactly.
@@ -93,12 +97,16 @@ class PneumaticTrackingVectorEnv(VectorEnv):
         if int(num_envs) != num_envs or num_envs < 1:
             raise ValueError(f"num_envs = {num_envs!r} is not allowed: must be an integer >= 1")
         options, overrides = _split_kwargs(kwargs)
-        if max_episode_steps is not None:
-            options.episode_steps = int(max_episode_steps)
+        _check_render_mode(render_mode)
         self.num_envs = int(num_envs)
         self.core = TaskCore(_task(task), self.num_envs, cylinder, tube_length_m, params, options,
                              **overrides)
-        self.max_episode_steps = options.episode_steps
+        if max_episode_steps is None:
+            max_episode_steps = DEFAULT_EPISODE_STEPS
+        if int(max_episode_steps) != max_episode_steps or max_episode_steps < 1:
+            raise ValueError(f"max_episode_steps = {max_episode_steps!r} is not allowed: must be "
+                             "an integer >= 1")
+        self.max_episode_steps = int(max_episode_steps)
         self.render_mode = render_mode
         i_max = np.float32(self.core.i_max)
         self.single_action_space = gym.spaces.Box(-i_max, i_max, shape=(1,), dtype=np.float32)

@@ -61,8 +61,11 @@ def task_step_parallel(params, state, history, head, action, control_dt_s, n_sub
 
 @njit(cache=True)
 def fill_observation(measured, references, step_count, normalize, ambient_pa, supply_pa,
-                     half_stroke_m, scale, obs):
-    """obs[env] = [p1, p2, x, f, ref(k), ..., ref(k+H)] in SI units or normalised."""
+                     half_stroke_m, force_scale_n, reference_scale, obs):
+    """obs[env] = [p1, p2, x, f, ref(k), ..., ref(k+H)] in SI units or normalised.
+
+    Normalised: pressures (p - P_a)/(P_s - P_a), x/(L/2), f/force_scale, ref/reference_scale.
+    """
     n_ref = references.shape[1]
     n_channels = measured.shape[1]
     for env in range(obs.shape[0]):
@@ -71,10 +74,10 @@ def fill_observation(measured, references, step_count, normalize, ambient_pa, su
             obs[env, 0] = (measured[env, 0] - ambient_pa) / span
             obs[env, 1] = (measured[env, 1] - ambient_pa) / span
             obs[env, 2] = measured[env, 2] / half_stroke_m
-            obs[env, 3] = measured[env, 3] / scale
+            obs[env, 3] = measured[env, 3] / force_scale_n
         else:
             for ch in range(n_channels):
                 obs[env, ch] = measured[env, ch]
         for j in range(obs.shape[1] - n_channels):
             value = references[env, min(step_count[env] + j, n_ref - 1)]
-            obs[env, n_channels + j] = value / scale if normalize else value
+            obs[env, n_channels + j] = value / reference_scale if normalize else value

@@ -19,6 +19,7 @@ from ..simulator import BatchSimulator
 from . import task_kernel
 
 OBSERVED_CHANNELS = ("p1", "p2", "x", "f")
+DEFAULT_EPISODE_STEPS = 2000  # the registered max_episode_steps: 2 s at the 1 ms control period
 _CHANNEL_OUTPUT = {"p1": L.O_P1, "p2": L.O_P2, "x": L.O_X, "f": L.O_F}
 
 
@@ -38,10 +39,9 @@ FORCE_TRACK = TaskSpec(
     name="ForceTrack", piston_mode="fixed", tracked="f",
     reference={"kind": "mixture", "choices": [
         {"kind": "random_step", "amplitude": 0.6, "hold_min_s": 0.1, "hold_max_s": 0.5},
-        {"kind": "sine", "amplitude": 0.5, "frequency_hz": 2.0, "offset": 0.1},
-        {"kind": "multisine", "amplitude": 0.5, "frequencies_hz": [1.0, 3.0, 7.0],
+        {"kind": "multisine", "amplitude": 0.5, "frequencies_hz": [0.5, 2.0, 5.0],
          "offset": 0.1},
-        {"kind": "chirp", "amplitude": 0.4, "f0_hz": 0.5, "f1_hz": 15.0, "duration_s": 2.0,
+        {"kind": "multisine", "amplitude": 0.5, "frequencies_hz": [1.0, 3.0, 7.0, 12.0],
          "offset": 0.1},
     ]},
     description="rod clamped to a load cell at mid-stroke; track a force reference (N)",
@@ -51,8 +51,8 @@ POSITION_TRACK = TaskSpec(
     name="PositionTrack", piston_mode="free", tracked="x",
     reference={"kind": "mixture", "choices": [
         {"kind": "random_step", "amplitude": 0.6, "hold_min_s": 0.2, "hold_max_s": 0.6},
-        {"kind": "sine", "amplitude": 0.6, "frequency_hz": 1.0},
-        {"kind": "sine", "amplitude": 0.4, "frequency_hz": 5.0},
+        {"kind": "multisine", "amplitude": 0.6, "frequencies_hz": [0.5, 1.0, 2.0]},
+        {"kind": "multisine", "amplitude": 0.4, "frequencies_hz": [1.0, 3.0, 5.0]},
     ]},
     description="rod free, no load; track a piston position reference (m)",
 )
@@ -67,6 +67,11 @@ def scale_of(task: TaskSpec, param: dict) -> float:
     """
     if task.tracked == "x":
         return 0.5 * param["stroke_m"]
+    return force_scale(param)
+
+
+def force_scale(param: dict) -> float:
+    """The force the cylinder can hold in both directions, (P_s - P_a) min(A1, A2) (N)."""
     a1 = 0.25 * np.pi * param["bore_diameter_m"] ** 2
     ar = 0.25 * np.pi * param["rod_diameter_m"] ** 2
     push = (param["supply_pressure_pa"] - param["ambient_pressure_pa"]) * a1
@@ -91,7 +96,7 @@ def _scale_spec(spec: dict, scale: float) -> dict:
 class EnvOptions:
     """Options of a tracking env beyond the physical parameters (all keyword arguments)."""
 
-    episode_steps: int = 2000
+    reference_steps: int = DEFAULT_EPISODE_STEPS  # reference length; held at its end
     preview_steps: int = 10
     reference: dict | ReferenceSpec | None = None  # in the tracked channel's SI unit
     normalize_observation: bool = False
@@ -106,8 +111,8 @@ class EnvOptions:
     def validate(self) -> None:
         def bad(name, value, allowed):
             raise ValueError(f"{name} = {value!r} is not allowed: {allowed}")
-        if int(self.episode_steps) != self.episode_steps or self.episode_steps < 1:
-            bad("episode_steps", self.episode_steps, "must be an integer >= 1")
+        if int(self.reference_steps) != self.reference_steps or self.reference_steps < 1:
+            bad("reference_steps", self.reference_steps, "must be an integer >= 1")
         if int(self.preview_steps) != self.preview_steps or self.preview_steps < 0:
             bad("preview_steps", self.preview_steps, "must be an integer >= 0")
         for name in ("effort_weight", "chatter_weight", "sensor_lag_s"):
@@ -142,14 +147,17 @@ class TaskCore:
         self.sim = BatchSimulator(P.parameter_array([base] * n_envs), control_dt, substeps)
         self.dt = control_dt
         self.scale = scale_of(task, base)
+        self.force_scale = force_scale(base)
         self.reference_spec = make_reference(
             self.options.reference if self.options.reference is not None
             else _scale_spec(task.reference, self.scale))
         self.i_max = base["coil_current_max_a"]
         self.pa, self.ps = base["ambient_pressure_pa"], base["supply_pressure_pa"]
         self.half_stroke = 0.5 * base["stroke_m"]
-        n_ref = self.options.episode_steps + self.options.preview_steps + 1
-        self.references = np.zeros((n_envs, n_ref))
+        # Generated per episode for `reference_steps` (not the episode length, which a single
+        # env under gym.make cannot see), so single and vector envs draw alike.
+        self.references = np.zeros((n_envs, self.options.reference_steps
+                                    + self.options.preview_steps + 1))
         self.step_count = np.zeros(n_envs, dtype=np.int64)
         self.prev_action = np.zeros(n_envs)
         self.measured = np.zeros((n_envs, len(OBSERVED_CHANNELS)))
@@ -272,7 +280,7 @@ class TaskCore:
         obs = np.empty((self.n_envs, self.obs_dim), dtype=np.float32)
         task_kernel.fill_observation(self.measured, self.references, self.step_count,
                                      self.options.normalize_observation, self.pa, self.ps,
-                                     self.half_stroke, self.scale, obs)
+                                     self.half_stroke, self.force_scale, self.scale, obs)
         return obs
 
     def observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,63 @@
+"""Shared fixtures and helpers of the physics and environment tests."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pneumatic_env.params import load_numerics, load_parameters, parameter_array
+from pneumatic_env.simulator import BatchSimulator
+
+
+@pytest.fixture
+def default_params() -> dict:
+    """The reference parameter set: Numatics cylinder, 0.5 m tubes, rod clamped at mid-stroke."""
+    return load_parameters()
+
+
+def run_batch(param_sets, currents, control_dt_s=None, substeps=None, initial=None,
+              parallel=False) -> np.ndarray:
+    """Open-loop run of one BatchSimulator over ``param_sets`` (one env each).
+
+    ``currents`` is (n_steps,) for a current common to all envs or (n_steps, n_envs);
+    returns ``outputs[step, O_*, env]`` after each control period. ``control_dt_s`` and
+    ``substeps`` default to ``load_numerics()``.
+    """
+    num = load_numerics()
+    sim = BatchSimulator(parameter_array(list(param_sets)),
+                         control_dt_s or num["control_dt_s"], substeps or num["substeps"],
+                         parallel=parallel)
+    if initial is not None:
+        sim.reset(initial=initial)
+    currents = np.asarray(currents, dtype=float)
+    if currents.ndim == 1:
+        currents = np.repeat(currents[:, None], sim.n_envs, axis=1)
+    return sim.rollout(currents)
+
+
+def areas(param: dict) -> tuple[float, float, float]:
+    """Cap area A1, annulus A2 = A1 - A_r and rod area A_r (m^2) from the diameters."""
+    a1 = np.pi * param["bore_diameter_m"] ** 2 / 4.0
+    ar = np.pi * param["rod_diameter_m"] ** 2 / 4.0
+    return a1, a1 - ar, ar
+
+
+def volumes(param: dict, x) -> tuple[np.ndarray, np.ndarray]:
+    """Chamber volumes of Eq. 15, written out independently of physics/chamber.py."""
+    a1, a2, _ = areas(param)
+    half = 0.5 * param["stroke_m"]
+    x = np.asarray(x, dtype=float)
+    return (param["dead_volume_cap_m3"] + a1 * (half + x),
+            param["dead_volume_rod_m3"] + a2 * (half - x))
+
+
+def first_crossing_time(t_s: np.ndarray, values: np.ndarray, threshold: float) -> float:
+    """Time at which ``values`` (sampled at ``t_s``) first reaches ``threshold``, linearly
+    interpolated between the two samples around the crossing."""
+    above = np.flatnonzero(values >= threshold)
+    if not above.size:
+        raise AssertionError(f"never reached {threshold}")
+    k = int(above[0])
+    if k == 0:
+        return float(t_s[0])
+    v0, v1 = values[k - 1], values[k]
+    return float(t_s[k - 1] + (threshold - v0) / (v1 - v0) * (t_s[k] - t_s[k - 1]))

@@ -1,0 +1,356 @@
+"""Acceptance tests of the Gymnasium environments (pneumatic_env/envs).
+
+Single env (gym.make) and native vector env (gym.make_vec) of every registered id:
+Gymnasium's env checker, exact single/vector equality through same-step autoreset,
+seeding, action and keyword validation, parameter overrides, rendering, reward bounds.
+"""
+from __future__ import annotations
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import pneumatic_env
+from conftest import areas
+from pneumatic_env.params import ConfigError, load_parameters, save_parameters
+
+FORCE_ID = "pneumatic_env/ForceTrack-Numatics-0.5m-v0"
+POSITION_ID = "pneumatic_env/PositionTrack-Airpel-2m-v0"
+EPISODE = 50  # short episodes so a few hundred steps cross several truncations
+SHORT = dict(max_episode_steps=EPISODE)
+RANDOMIZED = dict(
+    domain_randomization={"supply_pressure_pa": 0.2, "tube_length_m": (0.5, 3.0),
+                          "dynamic_friction_n": 0.5},
+    sensor_noise={"p1": 1000.0, "p2": 1000.0, "x": 1e-4, "f": 0.5},
+    sensor_lag_s=2e-3,
+)
+# Gymnasium's checker recommends a normalised action space and finite observation bounds;
+# the action is a coil current in A and sensor noise makes the observation unbounded.
+KNOWN_CHECKER_WARNINGS = ("Box observation space minimum value is -infinity",
+                          "Box observation space maximum value is infinity",
+                          "we recommend using a symmetric and normalized space")
+
+
+def _actions(n_steps, shape, seed=0, low=-2.5, high=2.5):
+    """Random currents, some beyond the +-2 A range (they must be clipped)."""
+    return np.random.default_rng(seed).uniform(low, high, size=(n_steps,) + shape).astype(
+        np.float32)
+
+
+# --------------------------------------------------------------------------- env checker
+
+@pytest.mark.parametrize("env_id", pneumatic_env.registered_ids())
+def test_check_env_passes(env_id):
+    env = gym.make(env_id)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped)
+    unexpected = [str(w.message) for w in caught
+                  if not any(k in str(w.message) for k in KNOWN_CHECKER_WARNINGS)]
+    assert not unexpected
+    env.close()
+
+
+def test_registered_ids_cover_tasks_cylinders_tubes():
+    ids = pneumatic_env.registered_ids()
+    assert len(ids) == len(set(ids)) == 2 * 2 * 4
+    for env_id in ids:
+        spec = gym.spec(env_id)
+        assert spec.vector_entry_point is not None
+        env = gym.make(env_id)
+        core = env.unwrapped.core
+        assert core.base_params["tube_length_m"] == spec.kwargs["tube_length_m"]
+        assert core.base_params["piston_mode"] == (0.0 if "ForceTrack" in env_id else 1.0)
+        env.close()
+
+
+# --------------------------------------------------------------------------- single == vector
+
+@pytest.mark.parametrize("env_id", [FORCE_ID, POSITION_ID])
+@pytest.mark.parametrize("extra", [{}, RANDOMIZED], ids=["plain", "randomized-noisy"])
+def test_vector_env_equals_single_envs(env_id, extra):
+    """make_vec(num_envs=4) seeded s == four gym.make envs seeded s + i, through two
+    truncations with same-step autoreset (final_obs holds the last observation)."""
+    n, seed, n_steps = 4, 11, 2 * EPISODE + 10
+    venv = gym.make_vec(env_id, num_envs=n, **SHORT, **extra)
+    envs = [gym.make(env_id, **SHORT, **extra) for _ in range(n)]
+    vobs, _ = venv.reset(seed=seed)
+    obs = np.stack([e.reset(seed=seed + i)[0] for i, e in enumerate(envs)])
+    assert np.array_equal(vobs, obs)
+    truncations = 0
+    for action in _actions(n_steps, (n, 1)):
+        vobs, vrew, vterm, vtrunc, vinfo = venv.step(action)
+        for i, env in enumerate(envs):
+            o, r, term, trunc, info = env.step(action[i])
+            assert r == vrew[i]
+            assert (term, trunc) == (bool(vterm[i]), bool(vtrunc[i]))
+            assert info["tracking_error"] == vinfo["tracking_error"][i]
+            assert info["action_clipped"] == vinfo["action_clipped"][i]
+            if trunc or term:
+                truncations += 1
+                assert vinfo["_final_obs"][i]
+                assert np.array_equal(vinfo["final_obs"][i], o)
+                o, _ = env.reset()
+            assert np.array_equal(vobs[i], o)
+    assert truncations == 2 * n
+    venv.close()
+
+
+def test_vector_env_equals_single_envs_given_only_max_episode_steps():
+    venv = gym.make_vec(FORCE_ID, num_envs=2, max_episode_steps=EPISODE)
+    envs = [gym.make(FORCE_ID, max_episode_steps=EPISODE) for _ in range(2)]
+    vobs, _ = venv.reset(seed=3)
+    assert np.array_equal(vobs, np.stack([e.reset(seed=3 + i)[0] for i, e in enumerate(envs)]))
+
+
+# --------------------------------------------------------------------------- seeding
+
+@pytest.mark.parametrize("env_id", [FORCE_ID, POSITION_ID])
+def test_same_seed_same_episode(env_id):
+    runs = []
+    for _ in range(2):
+        env = gym.make(env_id, **RANDOMIZED)
+        obs = [env.reset(seed=5)[0]]
+        rewards = []
+        for a in _actions(200, (1,), seed=3):
+            o, r, *_ = env.step(a)
+            obs.append(o)
+            rewards.append(r)
+        runs.append((np.array(obs), np.array(rewards)))
+    assert np.array_equal(runs[0][0], runs[1][0])
+    assert np.array_equal(runs[0][1], runs[1][1])
+
+
+def _references(env_id, seeds):
+    env = gym.make(env_id, **SHORT)
+    out = []
+    for s in seeds:
+        env.reset(seed=s)
+        out.append(env.unwrapped.core.references[0].copy())
+    return out
+
+
+@pytest.mark.parametrize("env_id", [FORCE_ID, POSITION_ID])
+def test_seeds_change_the_reference(env_id):
+    refs = _references(env_id, range(10))
+    distinct = {r.tobytes() for r in refs}
+    assert len(distinct) >= 3
+
+
+@pytest.mark.parametrize("env_id", [FORCE_ID, POSITION_ID])
+def test_different_seeds_give_different_references(env_id):
+    refs = _references(env_id, range(10))
+    assert len({r.tobytes() for r in refs}) == len(refs)
+
+
+# --------------------------------------------------------------------------- actions
+
+def test_bad_actions_single_env():
+    env = gym.make(FORCE_ID)
+    env.reset(seed=0)
+    for bad, shown in ((np.nan, "nan"), (np.inf, "inf"), (-np.inf, "-inf")):
+        with pytest.raises(ValueError) as err:
+            env.step(np.array([bad], dtype=np.float32))
+        assert str(err.value) == (f"action contains {shown}: the coil current must be finite, "
+                                  f"in [-2.0, 2.0] A")
+    with pytest.raises(ValueError) as err:
+        env.step(np.zeros(2, dtype=np.float32))
+    assert str(err.value) == ("action has shape (2,), expected (1, 1) or (1,): one coil "
+                              "current (A) per environment")
+
+
+def test_bad_actions_vector_env():
+    venv = gym.make_vec(FORCE_ID, num_envs=3)
+    venv.reset(seed=0)
+    with pytest.raises(ValueError) as err:
+        venv.step(np.zeros((3, 2), dtype=np.float32))
+    assert str(err.value) == ("action has shape (3, 2), expected (3, 1) or (3,): one coil "
+                              "current (A) per environment")
+    with pytest.raises(ValueError) as err:
+        venv.step(np.array([[0.1], [np.nan], [0.0]], dtype=np.float32))
+    assert str(err.value) == ("action contains nan: the coil current must be finite, "
+                              "in [-2.0, 2.0] A")
+
+
+def test_out_of_range_actions_are_clipped_and_reported():
+    clipped, exact = gym.make(FORCE_ID), gym.make(FORCE_ID)
+    clipped.reset(seed=1)
+    exact.reset(seed=1)
+    for over, limit in ((5.0, 2.0), (-3.0, -2.0), (2.0, 2.0), (0.3, 0.3)):
+        o1, r1, _, _, info1 = clipped.step(np.array([over], dtype=np.float32))
+        o2, r2, _, _, info2 = exact.step(np.array([limit], dtype=np.float32))
+        assert np.array_equal(o1, o2) and r1 == r2
+        assert info1["action_clipped"] == (over != limit)
+        assert not info2["action_clipped"]
+        assert info1["coil_current_a"] == float(np.float32(limit))
+    venv = gym.make_vec(FORCE_ID, num_envs=3)
+    venv.reset(seed=0)
+    *_, info = venv.step(np.array([[2.5], [-1.0], [-9.0]], dtype=np.float32))
+    assert info["action_clipped"].tolist() == [True, False, True]
+    assert info["coil_current_a"].tolist() == [2.0, -1.0, -2.0]
+
+
+# --------------------------------------------------------------------------- keyword validation
+
+@pytest.mark.parametrize("make", [gym.make, lambda i, **kw: gym.make_vec(i, num_envs=2, **kw)],
+                         ids=["single", "vector"])
+def test_bad_keyword_arguments(make):
+    with pytest.raises(ConfigError) as err:
+        make(FORCE_ID, supply_presure_pa=5e5)
+    assert str(err.value) == ("override 'supply_presure_pa' is not a known parameter; "
+                              "did you mean 'supply_pressure_pa'?")
+    with pytest.raises(ConfigError, match=r"^override 'supply_pressure_pa' = -1\.0 is not "
+                                          r"allowed: must be in "):
+        make(FORCE_ID, supply_pressure_pa=-1.0)
+    with pytest.raises(ValueError) as err:
+        make(FORCE_ID, reference_steps=0)
+    assert str(err.value) == "reference_steps = 0 is not allowed: must be an integer >= 1"
+    with pytest.raises(ValueError) as err:
+        make(FORCE_ID, sensor_noise={"q": 1.0})
+    assert str(err.value) == ("sensor_noise key = 'q' is not allowed: must be one of "
+                              "['p1', 'p2', 'x', 'f']")
+    with pytest.raises(ValueError) as err:
+        make(FORCE_ID, sensor_noise={"f": -1.0})
+    assert str(err.value) == ("sensor_noise['f'] = -1.0 is not allowed: must be a finite "
+                              "number >= 0")
+    with pytest.raises(ValueError) as err:
+        make(FORCE_ID, effort_weight=np.nan)
+    assert str(err.value) == "effort_weight = nan is not allowed: must be a finite number >= 0"
+    with pytest.raises(ValueError) as err:
+        make(FORCE_ID, task="Balance")
+    assert str(err.value) == ("task = 'Balance' is not known: allowed "
+                              "['ForceTrack', 'PositionTrack']")
+    with pytest.raises(ValueError, match=r"^domain_randomization\['supply_pressure_pa'\] = 1\.5 "
+                                         r"is not allowed: "):
+        make(FORCE_ID, domain_randomization={"supply_pressure_pa": 1.5})
+
+
+def test_bad_max_episode_steps_vector_env():
+    with pytest.raises(ValueError) as err:
+        gym.make_vec(FORCE_ID, num_envs=2, max_episode_steps=0)
+    assert str(err.value) == "max_episode_steps = 0 is not allowed: must be an integer >= 1"
+
+
+def test_bad_render_mode_single_env():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # gym.make's own warning about the unknown mode
+        with pytest.raises(ValueError) as err:
+            gym.make(FORCE_ID, render_mode="bogus")
+    assert str(err.value) == "render_mode = 'bogus' is not allowed: use 'rgb_array' or None"
+
+
+def test_bad_render_mode_vector_env():
+    with pytest.raises(ValueError, match=r"^render_mode = 'bogus' is not allowed"):
+        gym.make_vec(FORCE_ID, num_envs=2, render_mode="bogus")
+
+
+# --------------------------------------------------------------------------- parameters
+
+def _steady_force(env, n_steps=300, current=1.0):
+    env.reset(seed=0)
+    for _ in range(n_steps):
+        obs, *_ = env.step(np.array([current], dtype=np.float32))
+    return float(obs[3])
+
+
+def _clamped_steady_force(param):
+    """Rod clamped, valve open: P1 = P_s, P2 = P_a, so F = P_s A1 - P_a A2 - P_a A_r."""
+    a1, _, _ = areas(param)
+    return (param["supply_pressure_pa"] - param["ambient_pressure_pa"]) * a1
+
+
+def test_parameter_override_changes_the_steady_force():
+    default = _steady_force(gym.make(FORCE_ID))
+    lowered = _steady_force(gym.make(FORCE_ID, supply_pressure_pa=5e5))
+    assert default == pytest.approx(_clamped_steady_force(load_parameters()), rel=1e-3)
+    assert lowered == pytest.approx(
+        _clamped_steady_force(load_parameters(supply_pressure_pa=5e5)), rel=1e-3)
+
+
+def test_params_file_from_save_parameters(tmp_path):
+    path = tmp_path / "fitted.yaml"
+    save_parameters(path, {"supply_pressure_pa": 5.0e5, "dynamic_friction_n": 0.6},
+                    notes="test fit")
+    env = gym.make(FORCE_ID, params=str(path))
+    base = env.unwrapped.core.base_params
+    assert base["supply_pressure_pa"] == 5.0e5 and base["dynamic_friction_n"] == 0.6
+    assert base["tube_length_m"] == 0.5 and base["piston_mode"] == 0.0  # the id's own settings
+    force = _steady_force(env)
+    assert force == pytest.approx(_steady_force(gym.make(FORCE_ID, supply_pressure_pa=5e5)),
+                                  rel=1e-12)
+    assert force == pytest.approx(_clamped_steady_force(base), rel=1e-3)
+
+
+# --------------------------------------------------------------------------- rendering
+
+def test_render_rgb_array_changes_with_the_state():
+    env = gym.make(FORCE_ID, render_mode="rgb_array")
+    env.reset(seed=0)
+    first = env.render()
+    assert first.ndim == 3 and first.shape[2] == 3 and first.dtype == np.uint8
+    for _ in range(50):
+        env.step(np.array([2.0], dtype=np.float32))
+    second = env.render()
+    assert second.shape == first.shape and second.dtype == np.uint8
+    assert not np.array_equal(first, second)
+    env.close()
+
+
+# --------------------------------------------------------------------------- reward, observation
+
+@pytest.mark.parametrize("env_id", [FORCE_ID, POSITION_ID])
+def test_reward_formula_and_bounds(env_id):
+    w_effort, w_chatter = 0.3, 0.2
+    env = gym.make(env_id, effort_weight=w_effort, chatter_weight=w_chatter)
+    env.reset(seed=2)
+    core = env.unwrapped.core
+    i_max, scale = core.i_max, core.scale
+    if "ForceTrack" in env_id:  # a force both chambers can hold: (P_s - P_a) A2
+        a1, a2, _ = areas(core.base_params)
+        assert scale == pytest.approx((core.ps - core.pa) * min(a1, a2), rel=1e-12)
+    else:
+        assert scale == pytest.approx(0.5 * core.base_params["stroke_m"], rel=1e-12)
+    previous, rewards = 0.0, []
+    for a in _actions(400, (1,), seed=4, low=-3.0, high=3.0):
+        _, r, _, _, info = env.step(a)
+        applied = info["coil_current_a"]
+        expected = (-min(abs(info["tracking_error"]) / scale, 1.0)
+                    - w_effort * (applied / i_max) ** 2
+                    - w_chatter * ((applied - previous) / (2 * i_max)) ** 2)
+        assert r == pytest.approx(expected, rel=1e-9, abs=1e-12)
+        previous = applied
+        rewards.append(r)
+    rewards = np.array(rewards)
+    assert np.all(rewards <= 0.0) and np.all(rewards >= -1.0 - w_effort - w_chatter)
+    assert rewards.min() < -0.5  # the bound is not trivially met
+
+
+@pytest.mark.parametrize("env_id", [
+    FORCE_ID,
+    POSITION_ID,
+])
+def test_normalized_observation(env_id):
+    """normalize_observation=True: O(1) values, the SI observation mapped by
+    (p - P_a)/(P_s - P_a), x/(L/2), f/((P_s - P_a) min(A1, A2)), ref/scale."""
+    raw_env = gym.make(env_id)
+    norm_env = gym.make(env_id, normalize_observation=True)
+    raw, norm = [raw_env.reset(seed=3)[0]], [norm_env.reset(seed=3)[0]]
+    for a in _actions(300, (1,), seed=6):
+        raw.append(raw_env.step(a)[0])
+        norm.append(norm_env.step(a)[0])
+    raw, norm = np.array(raw, dtype=np.float64), np.array(norm, dtype=np.float64)
+    core = raw_env.unwrapped.core
+    span = core.ps - core.pa
+    a1, a2, _ = areas(core.base_params)
+    expected = np.empty_like(raw)
+    expected[:, :2] = (raw[:, :2] - core.pa) / span
+    expected[:, 2] = raw[:, 2] / (0.5 * core.base_params["stroke_m"])
+    expected[:, 3] = raw[:, 3] / (span * min(a1, a2))
+    expected[:, 4:] = raw[:, 4:] / core.scale  # the reference in the tracked channel's scale
+    assert np.abs(norm).max() < 2.0
+    np.testing.assert_allclose(norm, expected, rtol=1e-5, atol=1e-5)
+    assert np.abs(norm).max() > 0.3  # not all near zero either
+    assert np.abs(raw[:, :2]).max() > 1e5  # the raw observation is in SI units
