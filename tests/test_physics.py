@@ -509,14 +509,19 @@ def test_batch_simulator_rejects_bad_initial_state(default_params):
                               f"[{-half}, {half}] m")
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "simulator.py BatchSimulator.step/rollout do not validate the currents: NaN currents "
-    "silently poison the state, a (n_envs, 1) array raises a Numba TypingError, and a too "
-    "short array is read out of bounds by the kernel"))
 def test_batch_simulator_rejects_bad_currents(default_params):
     sim = BatchSimulator(parameter_array([default_params] * 3))
-    with pytest.raises(ValueError, match="coil_current_a"):
+    with pytest.raises(ValueError) as err:
         sim.rollout(np.full((4, 3), np.nan))
-    with pytest.raises(ValueError, match="coil_current_a"):
+    assert str(err.value) == "coil_current_a contains nan: coil currents must be finite (A)"
+    with pytest.raises(ValueError) as err:
         sim.step(np.zeros((3, 1)))
+    assert str(err.value) == ("coil_current_a has shape (3, 1), expected (3,) (steps x "
+                              "environments for rollout, environments for step)")
+    with pytest.raises(ValueError, match=r"^coil_current_a has shape \(2,\), expected \(3,\)"):
+        sim.step(np.zeros(2))
+    before = sim.state.copy()
+    with pytest.raises(ValueError):
+        sim.step(np.array([0.1, np.inf, 0.0]))
+    assert np.array_equal(sim.state, before)  # nothing advanced on bad input
 
