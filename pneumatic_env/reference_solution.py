@@ -2,11 +2,11 @@
 
 This module is an *independent* implementation of the model (it shares nothing with the
 fixed-step kernel in :mod:`pneumatic_env.physics` but the parameter names). It integrates
-the model with an adaptive, high-order Runge-Kutta method
-(:func:`scipy.integrate.solve_ivp`, DOP853 by default) at tight tolerances and treats
-every discontinuity of the model as a hybrid-system switch located by event detection,
-so that its result can serve as the "exact" solution the kernel is tested against.
-It is slow (pure Python); use it for tests and for checking the kernel, not for training.
+the model with an adaptive, high-order Runge-Kutta method (scipy's ``DOP853`` stepper by
+default, driven step by step) at tight tolerances and treats every discontinuity of the
+model as a hybrid-system switch located by event detection, so that its result can serve
+as the "exact" solution the kernel is tested against. It is slow (pure Python, about
+1-5 s per simulated second); use it for tests, not for training.
 
 Equation numbers refer to Richer & Hurmuzlu, *A High Performance Pneumatic Force Actuator
 System: Part I* (ASME JDSMC 122, 2000), with the corrections of ``docs/model.md``.
@@ -37,16 +37,24 @@ Discrete state, changed only at located events (the integration restarts there):
 Sub-intervals are further split at every control-step boundary ``t_k`` (the current
 changes) and at every ``t_k + tau`` (the delayed current changes). With the literal
 coupling (``tube_coupling = 1``) the delayed chamber pressures ``P_i(t - tau)`` are
-needed; they are read from the dense outputs of the already computed sub-intervals, and
+needed; they are read from the dense outputs of the already computed steps, and
 sub-intervals are then no longer than ``tau`` so that ``t - tau`` always lies in the
 computed past (method of steps).
 
-Remaining non-smooth points that are *not* located (the adaptive step control resolves
-them): the orifice area is only C1 in the spool position at the edges of the holes
-(Eq. 44), the linearised reduced flow has a slope jump at ``r = flow_linear_ratio``, the
-polytropic coefficient switches between ``alpha_in`` and ``alpha_out`` when a flow
-reverses (a slope jump), and with the literal coupling kinks of the past propagate
-through the delay.
+Points where the right-hand side is continuous but not smooth are located too and the
+integration restarts there ("kink" surfaces), because a high-order step straddling them
+loses its accuracy without its error estimate noticing: the delayed spool at the hole
+edges (the area grows like ``x_e^(3/2)``, Eq. 44), a path's pressure ratio at ``P_cr``
+and at ``flow_linear_ratio``, and a flow reversal (``alpha_in``/``alpha_out`` switch).
+Event functions are checked at several points inside every step, and the step that
+found an event is recomputed up to the root, so that no right-hand-side value from
+beyond a switching surface pollutes the state at the switch.
+
+Limits: with the literal coupling, kinks of the past propagate through the delay and are
+not located. Grazing switches (the Reynolds number just touching ``Re_t``, the piston
+velocity touching zero with the applied force at the stick threshold) make the solution
+depend non-smoothly on the data; there two tolerances can disagree by more than the
+tolerance.
 """
 
 from __future__ import annotations
@@ -56,7 +64,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import solve_ivp
+from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
+from scipy.optimize import brentq
 
 __all__ = [
     "ModelConstants",
@@ -81,18 +90,18 @@ IX_XS, IX_VS, IX_XD, IX_VD, IX_P1, IX_P2, IX_X, IX_V = range(8)
 N_Y = 8
 
 PISTON_FIXED, PISTON_FREE, PISTON_SPRING = 0, 1, 2
-FIRST_STEP_AFTER_EDGE = 1e-11  # s, first step after the delayed spool crosses a hole edge
 COUPLING_COMMAND, COUPLING_LITERAL = 0, 1
 
-# Valve-tube paths: (chamber index 0/1, upstream reservoir "supply"/"ambient", area sign).
-# Chamber 1 is fed through A_in(x_s) and exhausted through A_ex(x_s) = A_in(-x_s);
-# chamber 2 is fed through A_ex(x_s) and exhausted through A_in(x_s).
-PATHS = (
-    (0, "supply", +1.0),   # chamber 1 <-> supply through A_in(x_s)
-    (0, "ambient", -1.0),  # chamber 1 <-> exhaust through A_ex(x_s)
-    (1, "supply", -1.0),   # chamber 2 <-> supply through A_ex(x_s)
-    (1, "ambient", +1.0),  # chamber 2 <-> exhaust through A_in(x_s)
-)
+# The four valve-tube paths, in this order (and the chamber each one feeds):
+#   0: chamber 1 <-> supply  through A_in(x_s)
+#   1: chamber 1 <-> exhaust through A_ex(x_s) = A_in(-x_s)
+#   2: chamber 2 <-> supply  through A_ex(x_s)
+#   3: chamber 2 <-> exhaust through A_in(x_s)
+PATH_CHAMBER = (0, 0, 1, 1)
+
+FIRST_STEP_AFTER_EDGE = 1e-9  # s, first step after the delayed spool crosses a hole edge
+EVENT_SAMPLES = 8  # points per integration step at which the event functions are checked
+_METHODS = {"DOP853": DOP853, "Radau": Radau, "LSODA": LSODA, "RK45": RK45, "BDF": BDF}
 
 _REQUIRED = (
     "gas_constant_j_per_kg_k", "heat_capacity_ratio", "temperature_k",
@@ -109,6 +118,22 @@ _REQUIRED = (
     "spring_stiffness_n_per_m", "spring_rest_position_m",
     "flow_linear_ratio",
 )
+
+
+# Effects beyond the paper's model (docs/effects.md) and their neutral values. The
+# reference implements docs/model.md only, so it refuses a parameter set that switches
+# one of them on rather than silently computing a different model.
+NEUTRAL_EFFECTS = {
+    "tube_volume_fraction": 0.0,
+    "rod_seal_leak_area_m2": 0.0,
+    "valve_null_leak_area_m2": 0.0,
+    "exhaust_discharge_ratio": 1.0,
+    "flow_law": 0.0,
+    "supply_resistance_pa_s_per_kg": 0.0,
+    "coil_time_constant_s": 0.0,
+    "wall_heat_transfer_w_per_k": 0.0,
+    "stribeck_velocity_m_per_s": 0.0,
+}
 
 
 # --------------------------------------------------------------------------------------
@@ -186,6 +211,12 @@ class ModelConstants:
         missing = [n for n in _REQUIRED if n not in params]
         if missing:
             raise KeyError(f"parameter set lacks {missing}")
+        switched_on = [n for n, neutral in NEUTRAL_EFFECTS.items()
+                       if n in params and float(params[n]) != neutral]
+        if switched_on:
+            raise NotImplementedError(
+                f"the reference solution implements docs/model.md only; effects switched "
+                f"on: {switched_on} (set them to their neutral values {NEUTRAL_EFFECTS})")
         p = {n: float(params[n]) for n in _REQUIRED}
         R, k, T = p["gas_constant_j_per_kg_k"], p["heat_capacity_ratio"], p["temperature_k"]
         c1, c2, p_cr = flow_constants(k, R)
@@ -357,22 +388,77 @@ def output_force(m: ModelConstants, p1: float, p2: float, x: float) -> float:
 # Hybrid integrator
 # --------------------------------------------------------------------------------------
 
-class _Event:
-    """A terminal event function for solve_ivp with the action to take when it fires."""
+class _EventSet:
+    """The event functions watched during one integration, evaluated all at once:
+    selected switching surfaces, then the piston-mode events."""
 
-    def __init__(self, fun, direction, action):
-        self.fun = fun
-        self.direction = direction
-        self.terminal = True
-        self.action = action
+    def __init__(self, sim: "_HybridSimulation", surface_index: np.ndarray,
+                 directions: np.ndarray, actions: list):
+        self.sim = sim
+        self.surface_index = surface_index
+        self.directions = directions
+        self.actions = actions
+        self.piston_actions = actions[len(surface_index):]
 
-    def __call__(self, t, y):
-        return self.fun(t, y)
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    def values(self, t: float, y: np.ndarray) -> np.ndarray:
+        g = self.sim.surfaces(t, y)[self.surface_index]
+        if self.piston_actions:
+            g = np.concatenate([g, self.sim.piston_event_values(y, self.piston_actions)])
+        return g
+
+
+@dataclass
+class _Piece:
+    """Result of one event-stopped integration."""
+
+    t_end: float
+    y_end: np.ndarray
+    event: int | None  # index of the event that stopped it
+    t_step: float  # start of the last step
+    y_step: np.ndarray
+    dense_steps: list  # (t0, t1, dense output) of the completed steps (literal only)
+
+
+def _active_events(g_old: np.ndarray, g_new: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """Events whose function changed sign in their direction (solve_ivp's convention)."""
+    up = (g_old <= 0) & (g_new >= 0)
+    down = (g_old >= 0) & (g_new <= 0)
+    return np.nonzero((up & (direction > 0)) | (down & (direction < 0))
+                      | ((up | down) & (direction == 0)))[0]
+
+
+def _event_root(events: _EventSet, e: int, dense, t_a: float, t_b: float) -> float:
+    """Root of event ``e`` along the dense output in ``[t_a, t_b]``."""
+    def f(t):
+        return events.values(t, dense(t))[e]
+    fa, fb = f(t_a), f(t_b)
+    if fa == 0.0:
+        # The function starts on the surface (a slip phase starts at v = 0). It first
+        # moves to the side the event watches crossings from, possibly only briefly
+        # (the force can turn back within microseconds): find a point on that side.
+        side = -events.directions[e]
+        for t in t_a + (t_b - t_a) * np.geomspace(1e-9, 1.0, 40)[:-1]:
+            ft = f(t)
+            if ft * side > 0.0:
+                t_a, fa = t, ft
+                break
+        else:
+            return t_a
+    if fb == 0.0:
+        return t_b
+    if fa * fb > 0.0:  # a sign change of round-off size between samples
+        return t_a if abs(fa) < abs(fb) else t_b
+    return brentq(f, t_a, t_b, xtol=4 * np.finfo(float).eps, rtol=4 * np.finfo(float).eps)
 
 
 class _HybridSimulation:
     def __init__(self, m: ModelConstants, currents: np.ndarray, dt: float, y0: np.ndarray,
                  rtol: float, atol, method: str):
+        if method not in _METHODS:
+            raise ValueError(f"method must be one of {sorted(_METHODS)}, got {method!r}")
         self.m = m
         self.currents = currents
         self.dt = dt
@@ -386,7 +472,6 @@ class _HybridSimulation:
         self.literal = m.coupling == COUPLING_LITERAL and self.use_tube
         # literal coupling: dense outputs of the computed past
         self.hist_t0: list[float] = []
-        self.hist_t1: list[float] = []
         self.hist_sol: list = []
         # segment-wise constants
         self.i_now = 0.0
@@ -463,7 +548,7 @@ class _HybridSimulation:
             if self.use_tube:
                 re = reynolds_number(m, qj)
                 qj *= tube_attenuation(m, tube_resistance(m, re, self.turbulent[j]), p_ch[j])
-            c = PATHS[j][0]
+            c = PATH_CHAMBER[j]
             if qj > 0.0:
                 mdot_in[c] += qj
             else:
@@ -549,9 +634,10 @@ class _HybridSimulation:
         self._surf_val = np.asarray(vals)
         return self._surf_val
 
-    def make_events(self, t0: float) -> list[_Event]:
+    def make_events(self, t0: float) -> _EventSet:
+        """The events to watch from ``t0`` on, in the present discrete state."""
         m = self.m
-        events: list[_Event] = []
+        idx, directions, actions = [], [], []
         g0 = self.surfaces(t0, self.y)
         for e, (kind, j) in enumerate(self.kinds):
             if kind == "regime":
@@ -568,21 +654,28 @@ class _HybridSimulation:
                 direction = -1.0
             else:
                 direction = 1.0
-            events.append(_Event(lambda t, y, e=e: self.surfaces(t, y)[e], direction,
-                                 (kind, j, e, direction)))
-        half = 0.5 * m.stroke
+            idx.append(e)
+            directions.append(direction)
+            actions.append((kind, j, e, direction))
         if self.piston == "slip":
             s = self.slip_dir
-            events.append(_Event(lambda t, y: y[IX_V], -s, ("velocity_zero",)))
-            events.append(_Event(lambda t, y: y[IX_X] - s * half, s, ("end_stop", s)))
+            directions += [-s, s]  # velocity back through zero; end stop reached
+            actions += [("velocity_zero",), ("end_stop", s)]
         elif self.piston == "rest":
-            f_th = m.f_stick
             for d in (1.0, -1.0):
-                if d == self.stop_side:
-                    continue  # pushing into the stop does not move the piston
-                events.append(_Event(lambda t, y, d=d: d * self.evaluate(t, y)[2] - f_th,
-                                     1.0, ("break_away", d)))
-        return events
+                if d != self.stop_side:  # pushing into a stop does not move the piston
+                    directions.append(1.0)
+                    actions.append(("break_away", d))
+        return _EventSet(self, np.array(idx, dtype=int), np.array(directions), actions)
+
+    def piston_event_values(self, y: np.ndarray, actions) -> list[float]:
+        """Event functions of the piston mode (see :meth:`make_events`)."""
+        if self.piston == "slip":
+            return [y[IX_V], y[IX_X] - self.slip_dir * 0.5 * self.m.stroke]
+        if self.piston == "rest":
+            f = self.applied_force(y)
+            return [a[1] * f - self.m.f_stick for a in actions]
+        return []
 
     def settle_at_rest(self) -> None:
         """The piston is at rest: stick, or break away at once if the applied force
@@ -680,25 +773,61 @@ class _HybridSimulation:
             pts = np.asarray(sub)
         return pts
 
-    def integrate(self, t0: float, t1: float, y0: np.ndarray, events, **options):
-        """One ``solve_ivp`` call in the present discrete state."""
-        if t1 <= t0:  # an event right at the start: nothing to integrate
-            class _Empty:
-                status, t, y, sol = 0, np.array([t0]), y0.reshape(-1, 1).copy(), None
-            return _Empty()
-        sol = solve_ivp(self.rhs, (t0, t1), y0, method=self.method, rtol=self.rtol,
-                        atol=self.atol, events=events or None, dense_output=self.literal,
-                        **options)
-        if not sol.success:
-            raise RuntimeError(f"integration failed at t = {t0}: {sol.message}")
-        return sol
+    def integrate(self, t0: float, t1: float, y0: np.ndarray, events: _EventSet | None,
+                  first_step: float | None = None) -> _Piece:
+        """Integrate ``[t0, t1]`` in the present discrete state, stopping at the first
+        event.
 
-    def add_history(self, t0: float, t1: float, sol) -> None:
-        """Keep the dense output of ``[t0, t1]`` for the delayed pressures (literal)."""
-        if self.literal and t1 > t0 and sol.sol is not None:
-            self.hist_t0.append(t0)
-            self.hist_t1.append(t1)
-            self.hist_sol.append(sol.sol)
+        The event functions are checked at ``EVENT_SAMPLES`` points of every step's
+        dense output, not only at the step ends as ``solve_ivp`` does, so that a surface
+        crossed twice within one step (a brief excursion of the Reynolds number above
+        ``Re_t``, a velocity reversal) is not missed. The root is then found with
+        ``brentq`` on the dense output.
+        """
+        solver = _METHODS[self.method](self.rhs, t0, y0, t1, rtol=self.rtol, atol=self.atol,
+                                       first_step=first_step)
+        if events is not None and len(events) == 0:
+            events = None
+        if events is not None:
+            directions = events.directions
+            g_old = events.values(t0, y0)
+        dense_steps: list[tuple[float, float, object]] = []
+        while True:
+            t_old, y_old = solver.t, solver.y.copy()
+            solver.step()
+            if solver.status == "failed":
+                raise RuntimeError(f"integration failed at t = {t_old}: "
+                                   f"step size {solver.step_size}")
+            t_new = solver.t
+            dense = solver.dense_output() if (events is not None or self.literal) else None
+            if events is not None:
+                s = t_old + (t_new - t_old) * np.arange(1, EVENT_SAMPLES + 1) / EVENT_SAMPLES
+                s[-1] = t_new
+                ys = dense(s)
+                s_prev, g_prev = t_old, g_old
+                for i in range(EVENT_SAMPLES):
+                    y_i = ys[:, i] if i < EVENT_SAMPLES - 1 else solver.y
+                    g = events.values(s[i], y_i)
+                    active = _active_events(g_prev, g, directions)
+                    if active.size:
+                        roots = [_event_root(events, e, dense, s_prev, s[i]) for e in active]
+                        j = int(np.argmin(roots))
+                        t_ev = roots[j]
+                        y_ev = y_old if t_ev <= t_old else dense(t_ev)
+                        return _Piece(t_ev, y_ev, int(active[j]), t_old, y_old, dense_steps)
+                    s_prev, g_prev = s[i], g
+                g_old = g_prev
+            if self.literal:
+                dense_steps.append((t_old, t_new, dense))
+            if solver.status == "finished":
+                return _Piece(t_new, solver.y.copy(), None, t_old, y_old, dense_steps)
+
+    def add_history(self, dense_steps) -> None:
+        """Keep the dense outputs of the computed past (literal coupling)."""
+        for t0, t1, dense in dense_steps:
+            if t1 > t0:
+                self.hist_t0.append(t0)
+                self.hist_sol.append(dense)
 
     def current_at(self, t: float) -> float:
         k = int(math.floor(t / self.dt))
@@ -745,30 +874,27 @@ class _HybridSimulation:
             stalls = 0
             while b - t > 1e-14 * max(1.0, b):
                 events = self.make_events(t)
-                options = {}
+                first_step = None
                 if self.small_first_step:
-                    options["first_step"] = min(self.small_first_step, 0.5 * (b - t))
+                    first_step = min(self.small_first_step, 0.5 * (b - t))
                     self.small_first_step = 0.0
-                sol = self.integrate(t, b, self.y, events, **options)
-                t_new = float(sol.t[-1])
-                if sol.status == 1 and len(sol.t) > 1:
+                res = self.integrate(t, b, self.y, events, first_step)
+                t_new = res.t_end
+                if res.event is not None and t_new > res.t_step:
                     # The step that found the event straddled the switching surface, so
                     # its interpolant at the root is polluted by right-hand-side values
-                    # from beyond the surface: redo that last step up to the root.
-                    t_prev = float(sol.t[-2])
-                    if t_prev > t:
-                        self.add_history(t, t_prev, sol)
-                    redo = self.integrate(t_prev, t_new, sol.y[:, -2], None)
-                    self.add_history(t_prev, t_new, redo)
-                    self.y = redo.y[:, -1].copy()
+                    # from beyond the surface: redo that step up to the root.
+                    self.add_history(res.dense_steps)
+                    redo = self.integrate(res.t_step, t_new, res.y_step, None)
+                    self.add_history(redo.dense_steps)
+                    self.y = redo.y_end.copy()
                 else:
-                    self.add_history(t, t_new, sol)
-                    self.y = sol.y[:, -1].copy()
+                    self.add_history(res.dense_steps)
+                    self.y = res.y_end.copy()
                 self._cache_key = None
                 self._surf_key = None
-                if sol.status == 1:
-                    fired = [j for j, te in enumerate(sol.t_events) if len(te)]
-                    self.apply(events[fired[0]].action, t_new)
+                if res.event is not None:
+                    self.apply(events.actions[res.event], t_new)
                     self.n_events += 1
                     stalls = stalls + 1 if t_new - t <= 1e-13 * max(1.0, t_new) else 0
                     if stalls > 50:

@@ -1,0 +1,606 @@
+"""Reproduce the experiments of Richer & Hurmuzlu (2000), Part I, on the model.
+
+``pneumatic-env paper --out DIR`` writes one PNG per experiment and ``table.md`` /
+``table.json`` with the quantities the paper states facts about:
+
+(a) valve flow vs coil current and vs downstream pressure (Figs. 7, 9; Eqs. 39, 44, 46);
+(b) rod clamped at mid-stroke, 0.5 A coil step, 0.5 m and 2 m tubes, both tube couplings
+    (Figs. 15-16): pressures and force vs time, the extra delay of the long tube and the
+    ratio of the times to reach the final force;
+(c) free rod, no load, 5 Hz sinusoidal coil current, both cylinders (Figs. 17-18);
+(d) the tube alone (Fig. 3): Eq. 31 against a numerical solution of Eqs. 19-20.
+
+The experiment settings below are the paper's (Sec. 2.3, Sec. 4) except where marked
+as a choice; every model parameter comes from ``configs/`` through ``load_parameters``.
+All results are simulated: nothing here is measured data.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+from .params import DEFAULT_CYLINDER, load_parameters
+from .physics.flow import flow_constants, orifice_mass_flow, subsonic_reduced_flow
+from .physics.tube import reynolds_number, sound_speed, tube_attenuation, tube_resistance
+from .physics.valve import orifice_area, steady_spool_position
+from .replay import simulate_currents
+
+__all__ = [
+    "CYLINDERS", "STEP_CURRENT_A", "STEP_TUBES_M", "COUPLINGS", "SINE_AMPLITUDE_A",
+    "SINE_FREQUENCY_HZ", "Scenario", "clamped_step_scenario", "free_sine_scenario",
+    "run_scenario", "valve_flow_vs_current", "valve_flow_vs_downstream", "valve_numbers",
+    "clamped_step_runs", "step_metrics", "free_sine_runs", "tube_response", "reproduce",
+]
+
+CYLINDERS = ("numatics-0750D02-03A", "airpel-E16D3.0N")
+
+# (b) Sec. 4, Figs. 15-16: piston fixed at mid-stroke, 0.5 A coil step, 0.5 m and 2 m tubes.
+STEP_CURRENT_A = 0.5
+STEP_TUBES_M = (0.5, 2.0)
+COUPLINGS = ("command", "literal")
+STEP_DURATION_S = 0.2
+STEP_SAMPLE_S = 1e-4  # output sampling; the substep stays the default one
+# "First rise" of p1: above its initial value by this fraction of supply - ambient
+# (0.1 %, 0.55 kPa at the default pressures: small, but clearly above zero).
+RISE_FRACTION = 1e-3
+# "Time to reach the final force": to this fraction of the steady force (P_s - P_a) A1.
+FINAL_FRACTION = 0.95
+# Window at the end of the step run over which the oscillation near supply is measured.
+OSCILLATION_WINDOW_S = 0.05
+
+# (c) Sec. 4, Figs. 17-18: rod free, no load, 5 Hz sinusoidal coil current.
+SINE_FREQUENCY_HZ = 5.0
+# Choice: the paper states "1.5 V" without the amplifier gain; 0.5 A is assumed.
+SINE_AMPLITUDE_A = 0.5
+SINE_DURATION_S = 1.0
+SINE_CONTROL_DT_S = 1e-3
+# Choice: the tube of Figs. 17-18 is not stated; the default (short) tube is used.
+SINE_TUBE_M = None
+
+# (d) Sec. 2.3, Fig. 3: 3.2 mm x 3 m tube, sinusoidal inlet flow 6e-3 kg/s at 30 Hz.
+TUBE_LENGTH_M = 3.0
+TUBE_FLOW_AMPLITUDE_KG_S = 6e-3
+TUBE_FLOW_FREQUENCY_HZ = 30.0
+# Choice: the paper does not state the pressure in the tube; phi (Eq. 30) and the
+# density of Eq. 19 are evaluated at this mean absolute pressure.
+TUBE_MEAN_PRESSURE_PA = 4.0e5
+TUBE_DURATION_S = 0.1
+TUBE_CELLS = 200  # grid of the method-of-characteristics solution
+
+# (a) Figs. 7 and 9.
+VALVE_CURRENTS_A = np.linspace(-2.0, 2.0, 401)
+DOWNSTREAM_CURRENTS_A = (0.3, 0.5, 0.8, 1.5)
+
+
+# --------------------------------------------------------------------------- scenarios
+
+@dataclass(frozen=True, eq=False)
+class Scenario:
+    """One open-loop experiment: the rig (cylinder + parameter settings), the coil current
+    of each control period and the period."""
+
+    name: str
+    cylinder: str
+    settings: dict
+    coil_current_a: np.ndarray = field(repr=False)
+    control_dt_s: float
+
+    def parameters(self, **overrides) -> dict:
+        """The scenario's parameter set (``load_parameters``), with ``overrides`` on top."""
+        return load_parameters(self.cylinder, **{**self.settings, **overrides})
+
+    @property
+    def params(self) -> dict:
+        return self.parameters()
+
+    @property
+    def duration_s(self) -> float:
+        return len(self.coil_current_a) * self.control_dt_s
+
+
+def _steps(duration_s: float, control_dt_s: float) -> int:
+    if not (duration_s > 0 and control_dt_s > 0):
+        raise ValueError(f"duration_s = {duration_s} and control_dt_s = {control_dt_s} "
+                         "must both be > 0")
+    return max(1, int(round(duration_s / control_dt_s)))
+
+
+def clamped_step_scenario(tube_length_m: float, coupling: str = "command",
+                          duration_s: float = STEP_DURATION_S,
+                          control_dt_s: float = STEP_SAMPLE_S,
+                          cylinder: str = DEFAULT_CYLINDER) -> Scenario:
+    """(b): rod clamped at mid-stroke, coil current stepped to 0.5 A at t = 0 (Figs. 15-16)."""
+    settings = dict(tube_length_m=tube_length_m, tube_coupling=coupling, piston_mode="fixed",
+                    fixed_position_m=0.0)
+    n = _steps(duration_s, control_dt_s)
+    return Scenario(f"(b) step, {tube_length_m:g} m tube, {coupling} coupling", cylinder,
+                    settings, np.full(n, STEP_CURRENT_A), control_dt_s)
+
+
+def free_sine_scenario(cylinder: str, duration_s: float = SINE_DURATION_S,
+                       control_dt_s: float = SINE_CONTROL_DT_S,
+                       amplitude_a: float = SINE_AMPLITUDE_A,
+                       tube_length_m: float | None = SINE_TUBE_M) -> Scenario:
+    """(c): rod free, no load, i_c = A sin(2 pi 5 Hz t) held per period (Figs. 17-18)."""
+    settings = dict(piston_mode="free", load_mass_kg=0.0, load_force_n=0.0)
+    if tube_length_m is not None:
+        settings["tube_length_m"] = tube_length_m
+    n = _steps(duration_s, control_dt_s)
+    t = control_dt_s * np.arange(n)
+    return Scenario(f"(c) sine, {cylinder}", cylinder, settings,
+                    amplitude_a * np.sin(2.0 * np.pi * SINE_FREQUENCY_HZ * t), control_dt_s)
+
+
+def run_scenario(scenario: Scenario, substeps: int | None = None, **overrides) -> dict:
+    """Simulate a scenario (rows at t_k, row 0 the initial state); ``overrides`` change parameters."""
+    return simulate_currents(scenario.parameters(**overrides), scenario.coil_current_a,
+                             scenario.control_dt_s, substeps=substeps)
+
+
+# --------------------------------------------------------------------------- (a) valve
+
+def _flow_args(p: dict) -> tuple:
+    """Constant arguments of ``orifice_mass_flow`` after the pressures (Eqs. 40, 52)."""
+    k, gas = p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"]
+    c1, c2, p_cr = flow_constants(k, gas)
+    r_lin = p["flow_linear_ratio"]
+    slope = subsonic_reduced_flow(r_lin, k, c2) / (1.0 - r_lin)
+    return 1.0 / math.sqrt(p["temperature_k"]), k, c1, c2, p_cr, r_lin, slope
+
+
+def _area(p: dict, spool_m: float) -> float:
+    return orifice_area(spool_m, p["hole_radius_m"], p["spool_half_width_m"], p["holes_per_path"])
+
+
+def _spool(p: dict, current_a: float) -> float:
+    return steady_spool_position(current_a, p["spool_spring_n_per_m"], p["coil_force_n_per_a"])
+
+
+def valve_flow_vs_current(params: dict, currents_a=VALVE_CURRENTS_A,
+                          chamber_pa: float | None = None) -> dict:
+    """Steady valve flow from supply into a chamber held at ``chamber_pa`` (default ambient).
+
+    The spool sits at its steady position (Eq. 46); path A (supply -> chamber 1) opens with
+    A_in(x_s), path B (supply -> chamber 2) with A_ex(x_s) = A_in(-x_s) (Eqs. 44-45);
+    the flow is Eq. 39 with the paper's reduced flow (Eq. 52, linearised above
+    ``flow_linear_ratio`` as in the kernel); effect parameters beyond the paper (e.g.
+    ``flow_law``) are not applied. Returns ``current_a``, ``chamber1_kg_s``, ``chamber2_kg_s``.
+    """
+    p = params
+    chamber = p["ambient_pressure_pa"] if chamber_pa is None else float(chamber_pa)
+    args = _flow_args(p)
+    currents = np.asarray(currents_a, dtype=float)
+    one, two = [], []
+    for i in currents:
+        x_s = _spool(p, i)
+        one.append(orifice_mass_flow(_area(p, x_s), p["discharge_coefficient"],
+                                     p["supply_pressure_pa"], chamber, *args))
+        two.append(orifice_mass_flow(_area(p, -x_s), p["discharge_coefficient"],
+                                     p["supply_pressure_pa"], chamber, *args))
+    return {"current_a": currents, "chamber1_kg_s": np.array(one), "chamber2_kg_s": np.array(two)}
+
+
+def valve_flow_vs_downstream(params: dict, current_a: float, downstream_pa) -> np.ndarray:
+    """Steady flow through path A at ``current_a`` from supply to ``downstream_pa`` (Fig. 9)."""
+    p = params
+    area = _area(p, _spool(p, current_a))
+    args = _flow_args(p)
+    return np.array([orifice_mass_flow(area, p["discharge_coefficient"], p["supply_pressure_pa"],
+                                       float(pd), *args) for pd in np.asarray(downstream_pa)])
+
+
+def valve_numbers(params: dict) -> dict:
+    """Spool displacement at 0.5 A (Eq. 46), full-open area (Eq. 44) and its choked flow (Eq. 39)."""
+    p = params
+    full_area = p["holes_per_path"] * math.pi * p["hole_radius_m"] ** 2
+    fully_open_spool = p["spool_half_width_m"] + p["hole_radius_m"]  # x_e = 2 R_h
+    full_current = fully_open_spool * 2.0 * p["spool_spring_n_per_m"] / p["coil_force_n_per_a"]
+    return {
+        "spool_displacement_at_step_m": _spool(p, STEP_CURRENT_A),
+        "full_open_area_m2": _area(p, fully_open_spool),
+        "full_open_area_formula_m2": full_area,
+        "full_open_current_a": full_current,
+        "choked_flow_full_open_kg_s": orifice_mass_flow(
+            full_area, p["discharge_coefficient"], p["supply_pressure_pa"],
+            p["ambient_pressure_pa"], *_flow_args(p)),
+    }
+
+
+# --------------------------------------------------------------------------- (b) clamped step
+
+def clamped_step_runs(duration_s: float = STEP_DURATION_S, control_dt_s: float = STEP_SAMPLE_S,
+                      substeps: int | None = None) -> dict:
+    """(b) for both tubes and both couplings: ``{(coupling, tube_m): run}``."""
+    return {(c, L): run_scenario(clamped_step_scenario(L, c, duration_s, control_dt_s), substeps)
+            for c in COUPLINGS for L in STEP_TUBES_M}
+
+
+def first_rise_s(run: dict, params: dict) -> float:
+    """Time at which p1 first exceeds its initial value by RISE_FRACTION (supply - ambient).
+
+    Linear interpolation between samples. NaN if it never does.
+    """
+    threshold = run["p1"][0] + RISE_FRACTION * (params["supply_pressure_pa"]
+                                                - params["ambient_pressure_pa"])
+    return _crossing(run["t"], run["p1"], threshold)
+
+
+def _crossing(t, y, level) -> float:
+    above = np.flatnonzero(y >= level)
+    if above.size == 0:
+        return float("nan")
+    k = int(above[0])
+    if k == 0:
+        return float(t[0])
+    return float(t[k - 1] + (level - y[k - 1]) / (y[k] - y[k - 1]) * (t[k] - t[k - 1]))
+
+
+def steady_force_n(params: dict) -> float:
+    """Clamped rod, chamber 1 at supply, chamber 2 at ambient: F = (P_s - P_a) A1 (Eq. 1)."""
+    a1 = 0.25 * math.pi * params["bore_diameter_m"] ** 2
+    return (params["supply_pressure_pa"] - params["ambient_pressure_pa"]) * a1
+
+
+def time_to_final_force_s(run: dict, params: dict) -> float:
+    """Time from the step until the force first reaches FINAL_FRACTION of the steady force."""
+    return _crossing(run["t"], run["f"], FINAL_FRACTION * steady_force_n(params))
+
+
+def step_metrics(runs: dict) -> dict:
+    """Numbers of (b): delays, extra delay of the long tube, times to final force, ratios."""
+    short, long_ = STEP_TUBES_M
+    out = {}
+    for coupling in COUPLINGS:
+        params = {L: clamped_step_scenario(L, coupling).params for L in STEP_TUBES_M}
+        rise = {L: first_rise_s(runs[(coupling, L)], params[L]) for L in STEP_TUBES_M}
+        final = {L: time_to_final_force_s(runs[(coupling, L)], params[L]) for L in STEP_TUBES_M}
+        tau = {L: L / _sound_speed(params[L]) for L in STEP_TUBES_M}
+        out[coupling] = {
+            "first_rise_s": {str(L): rise[L] for L in STEP_TUBES_M},
+            "extra_delay_s": rise[long_] - rise[short],
+            "expected_extra_delay_s": tau[long_] - tau[short],
+            "time_to_final_force_s": {str(L): final[L] for L in STEP_TUBES_M},
+            "final_force_time_ratio": final[long_] / final[short],
+            "steady_force_n": steady_force_n(params[short]),
+            "p1_oscillation_amplitude_pa": {
+                str(L): _half_range_at_end(runs[(coupling, L)], "p1") for L in STEP_TUBES_M},
+            "spool_position_at_end_m": runs[(coupling, short)]["x_s"][-1],
+        }
+    return out
+
+
+def _half_range_at_end(run: dict, name: str) -> float:
+    window = run["t"] >= run["t"][-1] - OSCILLATION_WINDOW_S
+    return 0.5 * float(np.ptp(run[name][window]))
+
+
+def _sound_speed(p: dict) -> float:
+    return sound_speed(p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"], p["temperature_k"])
+
+
+# --------------------------------------------------------------------------- (c) free sine
+
+def free_sine_runs(duration_s: float = SINE_DURATION_S, substeps: int | None = None) -> dict:
+    """(c) for both cylinders: ``{cylinder: run}`` (the run also holds ``i_c``)."""
+    runs = {}
+    for cylinder in CYLINDERS:
+        s = free_sine_scenario(cylinder, duration_s)
+        run = run_scenario(s, substeps)
+        run["i_c"] = np.append(s.coil_current_a, s.coil_current_a[-1])
+        runs[cylinder] = run
+    return runs
+
+
+# --------------------------------------------------------------------------- (d) tube
+
+@njit(cache=True)
+def _resistance(mass_flow, diameter_m, viscosity, reynolds_turbulent):
+    """R_t (Eq. 33 or 35) of each flow value, by its Reynolds number."""
+    out = np.empty(mass_flow.shape[0])
+    for j in range(mass_flow.shape[0]):
+        re = reynolds_number(mass_flow[j], diameter_m, viscosity)
+        out[j] = tube_resistance(re, diameter_m, viscosity, reynolds_turbulent)
+    return out
+
+
+def tube_response(params: dict | None = None, duration_s: float = TUBE_DURATION_S,
+                  length_m: float = TUBE_LENGTH_M, amplitude_kg_s: float = TUBE_FLOW_AMPLITUDE_KG_S,
+                  frequency_hz: float = TUBE_FLOW_FREQUENCY_HZ,
+                  mean_pressure_pa: float = TUBE_MEAN_PRESSURE_PA, cells: int = TUBE_CELLS) -> dict:
+    """(d) Outlet flow of a tube for a sinusoidal inlet flow h(t) = A sin(2 pi f t).
+
+    ``outlet_eq31``: Eq. 31, h(t - tau) phi with phi of Eq. 30 at ``mean_pressure_pa`` and
+    R_t by the Reynolds number of the delayed inlet flow (``physics.tube.tube_attenuation``).
+    ``outlet_wave``: Eqs. 19-20 (linearised about ``mean_pressure_pa``, R_t by the local
+    Reynolds number) solved by the method of characteristics on ``cells`` cells with the
+    grid step c dt; the outlet is non-reflecting (no incoming wave), the inlet imposes h.
+    With q = (A_t / c) P, the Riemann variables a = m + q, b = m - q obey
+    da/dt + c da/ds = -(R_t / rho) m and db/dt - c db/ds = -(R_t / rho) m, integrated
+    along the characteristics with Heun's method.
+    """
+    p = load_parameters(DEFAULT_CYLINDER) if params is None else params
+    gas_rt = p["gas_constant_j_per_kg_k"] * p["temperature_k"]
+    c = _sound_speed(p)
+    tau = length_m / c
+    diameter, mu, re_t = p["tube_inner_diameter_m"], p["air_viscosity_pa_s"], p["reynolds_turbulent"]
+    omega = 2.0 * np.pi * frequency_hz
+
+    def inlet(t):
+        return amplitude_kg_s * np.sin(omega * t) * (np.asarray(t) >= 0.0)
+
+    dt = length_m / cells / c
+    n_steps = int(math.ceil(duration_s / dt))
+    t = dt * np.arange(n_steps + 1)
+    rho = mean_pressure_pa / gas_rt
+    a = np.zeros(cells + 1)
+    b = np.zeros(cells + 1)
+    outlet = np.zeros(n_steps + 1)
+
+    def source(a_, b_):
+        m = 0.5 * (a_ + b_)
+        return -_resistance(m, diameter, mu, re_t) / rho * m
+
+    for n in range(n_steps):
+        h_new = float(inlet(t[n + 1]))
+        s0 = source(a, b)
+        a1, b1 = np.empty_like(a), np.empty_like(b)
+        a1[1:] = a[:-1] + dt * s0[:-1]
+        b1[:-1] = b[1:] + dt * s0[1:]
+        b1[-1] = 0.0
+        a1[0] = 2.0 * h_new - b1[0]
+        s1 = source(a1, b1)
+        a[1:], b[:-1] = a[:-1] + 0.5 * dt * (s0[:-1] + s1[1:]), b[1:] + 0.5 * dt * (s0[1:] + s1[:-1])
+        b[-1] = 0.0
+        a[0] = 2.0 * h_new - b[0]
+        outlet[n + 1] = 0.5 * (a[-1] + b[-1])
+
+    delayed = inlet(t - tau)
+    phi = np.array([tube_attenuation(m, mean_pressure_pa, gas_rt, tau, diameter, mu, re_t)
+                    for m in delayed])
+    phi_laminar = tube_attenuation(0.0, mean_pressure_pa, gas_rt, tau, diameter, mu, re_t)
+    steady = t >= 2.0 * tau + 1.0 / frequency_hz  # after the first wave and one period
+    return {
+        "t": t, "inlet_kg_s": inlet(t), "outlet_eq31_kg_s": phi * delayed,
+        "outlet_eq31_laminar_kg_s": phi_laminar * delayed,
+        "outlet_wave_kg_s": outlet, "delay_s": tau,
+        "phi_at_peak_flow": tube_attenuation(amplitude_kg_s, mean_pressure_pa, gas_rt, tau,
+                                             diameter, mu, re_t),
+        "phi_laminar": phi_laminar,
+        "amplitude_ratio_eq31": float(np.abs(phi * delayed)[steady].max() / amplitude_kg_s),
+        "amplitude_ratio_wave": float(np.abs(outlet)[steady].max() / amplitude_kg_s),
+        "mean_pressure_pa": mean_pressure_pa,
+    }
+
+
+# --------------------------------------------------------------------------- figures
+
+def _pyplot():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _figure_valve(plt, params, out: Path) -> list[Path]:
+    flows = valve_flow_vs_current(params)
+    numbers = valve_numbers(params)
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    ax.plot(flows["current_a"], 1e3 * flows["chamber1_kg_s"], label="supply -> chamber 1 (A_in)")
+    ax.plot(flows["current_a"], 1e3 * flows["chamber2_kg_s"], "--",
+            label="supply -> chamber 2 (A_ex)")
+    ax.axhline(1e3 * numbers["choked_flow_full_open_kg_s"], color="k", lw=0.6, ls=":",
+               label="choked flow, fully open")
+    ax.set(xlabel="coil current i_c [A]", ylabel="mass flow [g/s]",
+           title="Valve flow vs coil current, chamber at ambient (cf. Fig. 7)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    paths = [out / "valve_flow_vs_current.png"]
+    fig.tight_layout()
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    downstream = np.linspace(params["ambient_pressure_pa"], params["supply_pressure_pa"], 400)
+    for i in DOWNSTREAM_CURRENTS_A:
+        ax.plot(1e-5 * downstream, 1e3 * valve_flow_vs_downstream(params, i, downstream),
+                label=f"i_c = {i:g} A")
+    p_cr = flow_constants(params["heat_capacity_ratio"], params["gas_constant_j_per_kg_k"])[2]
+    ax.axvline(1e-5 * p_cr * params["supply_pressure_pa"], color="k", lw=0.6, ls=":",
+               label="P_cr P_s (choked below)")
+    ax.set(xlabel="downstream pressure [bar abs]", ylabel="mass flow [g/s]",
+           title=f"Valve flow vs downstream pressure, upstream "
+                 f"{1e-5 * params['supply_pressure_pa']:g} bar (cf. Fig. 9)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    paths.append(out / "valve_flow_vs_downstream.png")
+    fig.tight_layout()
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+    return paths
+
+
+def _figure_step(plt, runs, out: Path) -> list[Path]:
+    fig, axes = plt.subplots(2, 2, figsize=(10, 6.5), sharex=True)
+    styles = {"command": "-", "literal": "--"}
+    for col, L in enumerate(STEP_TUBES_M):
+        for coupling in COUPLINGS:
+            r = runs[(coupling, L)]
+            t_ms = 1e3 * r["t"]
+            ls = styles[coupling]
+            axes[0, col].plot(t_ms, 1e-5 * r["p1"], ls, color="C0", label=f"p1, {coupling}")
+            axes[0, col].plot(t_ms, 1e-5 * r["p2"], ls, color="C1", label=f"p2, {coupling}")
+            axes[1, col].plot(t_ms, r["f"], ls, color="C2", label=f"force, {coupling}")
+        axes[0, col].set(title=f"{L:g} m tubes", ylabel="pressure [bar abs]")
+        axes[1, col].set(xlabel="time after the 0.5 A step [ms]", ylabel="force [N]")
+        for ax in axes[:, col]:
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7)
+    fig.suptitle("Clamped rod at mid-stroke, 0.5 A coil step (cf. Figs. 15-16); "
+                 "solid: command coupling (default), dashed: literal Eq. 55")
+    fig.tight_layout()
+    path = out / "clamped_step.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return [path]
+
+
+def _figure_sine(plt, runs, out: Path) -> list[Path]:
+    fig, axes = plt.subplots(len(CYLINDERS), 1, figsize=(8, 6), sharex=True)
+    for ax, cylinder in zip(axes, CYLINDERS):
+        r = runs[cylinder]
+        ax.plot(r["t"], 1e3 * r["x"], color="C0", label="piston position x")
+        ax.set(ylabel="x [mm]", title=cylinder)
+        ax.grid(alpha=0.3)
+        twin = ax.twinx()
+        twin.step(r["t"], r["i_c"], where="post", color="C3", lw=0.8, label="coil current")
+        twin.set_ylabel("i_c [A]", color="C3")
+        ax.legend(loc="upper left", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(f"Free rod, no load, {SINE_AMPLITUDE_A:g} A {SINE_FREQUENCY_HZ:g} Hz "
+                 "sinusoidal coil current (cf. Figs. 17-18)")
+    fig.tight_layout()
+    path = out / "free_sine.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return [path]
+
+
+def _figure_tube(plt, tube, out: Path) -> list[Path]:
+    fig, ax = plt.subplots(figsize=(8, 4.2))
+    t_ms = 1e3 * tube["t"]
+    ax.plot(t_ms, 1e3 * tube["inlet_kg_s"], color="k", lw=0.8, label="inlet flow")
+    ax.plot(t_ms, 1e3 * tube["outlet_eq31_kg_s"], color="C0",
+            label="outlet, Eq. 31 (R_t by Reynolds number)")
+    ax.plot(t_ms, 1e3 * tube["outlet_eq31_laminar_kg_s"], ":", color="C0",
+            label="outlet, Eq. 31 with laminar R_t (Eq. 33)")
+    ax.plot(t_ms, 1e3 * tube["outlet_wave_kg_s"], "--", color="C3",
+            label="outlet, Eqs. 19-20 (characteristics, R_t by Reynolds number)")
+    ax.set(xlabel="time [ms]", ylabel="mass flow [g/s]",
+           title=f"{TUBE_LENGTH_M:g} m x 3.2 mm tube, {TUBE_FLOW_FREQUENCY_HZ:g} Hz inlet flow, "
+                 f"P = {1e-5 * tube['mean_pressure_pa']:g} bar (cf. Fig. 3)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)
+    fig.tight_layout()
+    path = out / "tube_outlet_flow.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return [path]
+
+
+# --------------------------------------------------------------------------- table
+
+def _table_rows(table: dict) -> list[tuple[str, str, str, str]]:
+    """(quantity, value, unit, paper / expected) rows of table.md."""
+    v, s, t = table["valve"], table["step"], table["tube"]
+    cmd, lit = s["command"], s["literal"]
+    rows = [
+        ("steady spool displacement at 0.5 A (Eq. 46)",
+         f"{1e3 * v['spool_displacement_at_step_m']:.4f}", "mm", "K_fc 0.5 / (2 k_s)"),
+        ("simulated spool position at the end of the 0.5 A step",
+         f"{1e3 * cmd['spool_position_at_end_m']:.4f}", "mm", "same"),
+        ("current that opens the valve fully", f"{v['full_open_current_a']:.3f}", "A", ""),
+        ("full-open area per path (Eq. 44)", f"{1e6 * v['full_open_area_m2']:.3f}", "mm^2",
+         "pi n_h R_h^2"),
+        ("choked flow, fully open, supply -> ambient (Eq. 39)",
+         f"{1e3 * v['choked_flow_full_open_kg_s']:.3f}", "g/s", ""),
+    ]
+    for name, m in (("command", cmd), ("literal", lit)):
+        rise = m["first_rise_s"]
+        final = m["time_to_final_force_s"]
+        rows += [
+            (f"[{name}] first p1 rise, 0.5 m / 2 m tube",
+             f"{1e3 * rise['0.5']:.2f} / {1e3 * rise['2.0']:.2f}", "ms", ""),
+            (f"[{name}] extra delay of the 2 m tube", f"{1e3 * m['extra_delay_s']:.2f}", "ms",
+             f"1.5 m / c = {1e3 * m['expected_extra_delay_s']:.2f} ms (paper: about 5 ms)"),
+            (f"[{name}] time to {100 * FINAL_FRACTION:g}% of the final force, 0.5 m / 2 m",
+             f"{1e3 * final['0.5']:.1f} / {1e3 * final['2.0']:.1f}", "ms", ""),
+            (f"[{name}] ratio 2 m / 0.5 m of that time", f"{m['final_force_time_ratio']:.2f}",
+             "-", "more than 2"),
+            (f"[{name}] p1 half peak-to-peak over the last {1e3 * OSCILLATION_WINDOW_S:g} ms, "
+             "0.5 m / 2 m",
+             f"{1e-3 * m['p1_oscillation_amplitude_pa']['0.5']:.2f} / "
+             f"{1e-3 * m['p1_oscillation_amplitude_pa']['2.0']:.2f}", "kPa",
+             "0 (command); oscillation near supply (literal)"),
+        ]
+    rows += [
+        ("tube 3 m: delay L / c", f"{1e3 * t['delay_s']:.2f}", "ms", ""),
+        (f"tube 3 m: phi at {1e3 * TUBE_FLOW_AMPLITUDE_KG_S:g} g/s (turbulent) / laminar, "
+         f"P = {1e-5 * t['mean_pressure_pa']:g} bar",
+         f"{t['phi_at_peak_flow']:.3f} / {t['phi_laminar']:.3f}", "-", ""),
+        ("tube 3 m: outlet / inlet amplitude, Eq. 31 / Eqs. 19-20",
+         f"{t['amplitude_ratio_eq31']:.3f} / {t['amplitude_ratio_wave']:.3f}", "-",
+         "attenuated"),
+    ]
+    return rows
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    return x
+
+
+def reproduce(out_dir: str | Path, quick: bool = False, figures: bool = True) -> dict:
+    """Run (a)-(d), write the PNGs and ``table.md`` / ``table.json`` to ``out_dir``.
+
+    ``quick`` shortens the runs (0.15 s step, 0.3 s sine, 0.06 s tube) for tests.
+    Returns the table (also in ``table.json``) with the list of files written.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    params = load_parameters(DEFAULT_CYLINDER)
+    step_runs = clamped_step_runs(0.15 if quick else STEP_DURATION_S)
+    sine_runs = free_sine_runs(0.3 if quick else SINE_DURATION_S)
+    tube = tube_response(params, duration_s=0.06 if quick else TUBE_DURATION_S)
+    table = {
+        "valve": valve_numbers(params),
+        "step": step_metrics(step_runs),
+        "tube": {k: v for k, v in tube.items() if not isinstance(v, np.ndarray)},
+        "sine": {c: {"x_min_m": float(r["x"].min()), "x_max_m": float(r["x"].max())}
+                 for c, r in sine_runs.items()},
+        "settings": {
+            "step_current_a": STEP_CURRENT_A, "sine_amplitude_a": SINE_AMPLITUDE_A,
+            "sine_frequency_hz": SINE_FREQUENCY_HZ, "rise_fraction": RISE_FRACTION,
+            "final_fraction": FINAL_FRACTION, "tube_mean_pressure_pa": TUBE_MEAN_PRESSURE_PA,
+            "quick": quick,
+        },
+    }
+    files = []
+    if figures:
+        plt = _pyplot()
+        files += _figure_valve(plt, params, out)
+        files += _figure_step(plt, step_runs, out)
+        files += _figure_sine(plt, sine_runs, out)
+        files += _figure_tube(plt, tube, out)
+    (out / "table.json").write_text(json.dumps(_jsonable(table), indent=2) + "\n")
+    lines = ["| quantity | value | unit | paper / expected |", "|---|---|---|---|"]
+    lines += [f"| {a} | {b} | {c} | {d} |" for a, b, c, d in _table_rows(table)]
+    (out / "table.md").write_text("\n".join(lines) + "\n")
+    files += [out / "table.json", out / "table.md"]
+    table["files"] = [str(f) for f in files]
+    return table
+
+
+# --------------------------------------------------------------------------- CLI
+
+def add_arguments(p) -> None:
+    p.add_argument("--out", metavar="DIR", required=True,
+                   help="directory for the PNG figures and table.md / table.json")
+    p.add_argument("--quick", action="store_true",
+                   help="shorter runs (for tests); the table's numbers stay meaningful")
+
+
+def run(args) -> int:
+    table = reproduce(args.out, quick=args.quick)
+    cmd = table["step"]["command"]
+    print(f"wrote {len(table['files'])} files to {args.out}: extra delay 2 m vs 0.5 m "
+          f"{1e3 * cmd['extra_delay_s']:.2f} ms (1.5/c = {1e3 * cmd['expected_extra_delay_s']:.2f}"
+          f" ms), time-to-final-force ratio {cmd['final_force_time_ratio']:.2f}")
+    return 0
