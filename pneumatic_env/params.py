@@ -67,7 +67,8 @@ CYLINDERS: dict[str, tuple[str, ...]] = {
 }
 DEFAULT_CYLINDER = "numatics-0750D02-03A"
 
-BASE_FILES = ("air.yaml", "valve.yaml", "tube.yaml", "load.yaml", "numerics.yaml")
+BASE_FILES = ("air.yaml", "valve.yaml", "tube.yaml", "load.yaml", "numerics.yaml",
+              "effects.yaml")
 CYLINDER_PARAMETERS = (
     "bore_diameter_m",
     "rod_diameter_m",

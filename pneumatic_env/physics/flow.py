@@ -3,6 +3,9 @@ import math
 
 from numba import njit
 
+FLOW_LAW_PAPER = 0  # Eq. 52
+FLOW_LAW_ISO = 1  # ISO 6358-1 elliptic law with critical ratio b (docs/effects.md)
+
 
 @njit(cache=True)
 def flow_constants(heat_capacity_ratio, gas_constant):
@@ -22,29 +25,45 @@ def subsonic_reduced_flow(pressure_ratio, heat_capacity_ratio, c2):
 
 
 @njit(cache=True)
+def iso_subsonic_reduced_flow(pressure_ratio, c1, critical_ratio_b):
+    """ISO 6358-1 subsonic branch (replaces Eq. 52's): C1 sqrt(1 - ((r - b)/(1 - b))^2).
+
+    It meets the choked value C1 at r = b and falls to 0 at r = 1 (an ellipse).
+    """
+    z = (pressure_ratio - critical_ratio_b) / (1.0 - critical_ratio_b)
+    return c1 * math.sqrt(max(1.0 - z * z, 0.0))
+
+
+@njit(cache=True)
 def reduced_flow(pressure_ratio, heat_capacity_ratio, c1, c2, critical_ratio,
-                 linear_ratio, linear_slope):
+                 linear_ratio, linear_slope, flow_law=FLOW_LAW_PAPER):
     """Reduced flow m_r(P_d/P_u) of Eq. 52, linearised above ``linear_ratio``.
 
     Eq. 52 has an infinite slope at r -> 1, which a fixed-step integrator cannot follow;
     above ``linear_ratio`` the function is replaced by the straight line
     ``linear_slope * (1 - r)`` that meets it at ``linear_ratio`` (continuous, finite slope,
     zero at r = 1). ``linear_slope = m_r(linear_ratio) / (1 - linear_ratio)``.
+    With ``flow_law = FLOW_LAW_ISO`` the subsonic branch is ISO 6358's ellipse and
+    ``critical_ratio`` is its b (docs/effects.md); the linearisation is the same.
     """
     if pressure_ratio <= critical_ratio:
         return c1
     if pressure_ratio < linear_ratio:
+        if flow_law == FLOW_LAW_ISO:
+            return iso_subsonic_reduced_flow(pressure_ratio, c1, critical_ratio)
         return subsonic_reduced_flow(pressure_ratio, heat_capacity_ratio, c2)
     return linear_slope * (1.0 - pressure_ratio)
 
 
 @njit(cache=True)
 def orifice_mass_flow(area_m2, discharge_coefficient, p_from_pa, p_to_pa, inv_sqrt_temperature,
-                      heat_capacity_ratio, c1, c2, critical_ratio, linear_ratio, linear_slope):
+                      heat_capacity_ratio, c1, c2, critical_ratio, linear_ratio, linear_slope,
+                      flow_law=FLOW_LAW_PAPER):
     """Signed mass flow (kg/s) from node ``from`` to node ``to`` through an orifice (Eq. 39).
 
     The flow always runs from the higher to the lower pressure; a negative value means
-    the air flows from ``to`` to ``from``.
+    the air flows from ``to`` to ``from``. ``flow_law`` selects the reduced flow
+    (:func:`reduced_flow`).
     """
     if area_m2 <= 0.0 or p_from_pa == p_to_pa:
         return 0.0
@@ -53,5 +72,5 @@ def orifice_mass_flow(area_m2, discharge_coefficient, p_from_pa, p_to_pa, inv_sq
     else:
         upstream, downstream, sign = p_to_pa, p_from_pa, -1.0
     m_r = reduced_flow(downstream / upstream, heat_capacity_ratio, c1, c2, critical_ratio,
-                       linear_ratio, linear_slope)
+                       linear_ratio, linear_slope, flow_law)
     return sign * discharge_coefficient * area_m2 * upstream * inv_sqrt_temperature * m_r

@@ -6,6 +6,10 @@ buffer holding the spool position and chamber pressures at substep boundaries; d
 values between boundaries are interpolated linearly. Piston friction and end stops are
 handled between substeps (``piston.motion_direction`` / ``piston.end_of_substep``), so
 each RK4 substep integrates a smooth right-hand side.
+
+The effects beyond the paper's model (docs/effects.md, ``effects.py``) are switched per
+environment by their parameter rows; ``env_constants`` turns each into a flag or a
+neutral constant once per control period, so an effect that is off costs a branch.
 """
 import math
 from collections import namedtuple
@@ -15,11 +19,17 @@ from numba import njit, prange
 
 from . import layout as L
 from .chamber import chamber_volumes, pressure_rate
-from .flow import flow_constants, orifice_mass_flow, subsonic_reduced_flow
+from .effects import (chamber_energy_rates, coil_decay, dead_volume_with_tube,
+                      drooped_supply_pressure, lagged_coil_current, stribeck_friction)
+from .flow import (FLOW_LAW_ISO, flow_constants, iso_subsonic_reduced_flow, orifice_mass_flow,
+                   subsonic_reduced_flow)
 from .piston import (MODE_FIXED, end_of_substep, external_force, motion_direction,
                      output_force, piston_acceleration, pneumatic_force)
 from .tube import sound_speed, tube_attenuation
 from .valve import orifice_area, spool_acceleration
+
+# advance_env integrates the state rows 0 .. S_T2 with RK4 and sets S_COIL exactly.
+assert (L.S_T1, L.S_T2, L.S_COIL, L.N_STATE) == (7, 8, 9, 10), "kernel assumes this state layout"
 
 Constants = namedtuple("Constants", (
     "gas_rt", "inv_sqrt_t", "k", "c1", "c2", "critical_ratio", "linear_ratio", "linear_slope",
@@ -29,6 +39,10 @@ Constants = namedtuple("Constants", (
     "literal", "area_cap", "area_rod", "rod_area", "half_stroke", "dead_cap", "dead_rod",
     "moving_mass", "dynamic_friction", "stick_threshold", "viscous", "leak_area", "mode",
     "load_force", "spring_k", "spring_rest",
+    # effects (docs/effects.md)
+    "discharge_ex", "null_leak", "seal_leak", "flow_law", "supply_resistance", "coil_lag",
+    "coil_decay_half", "coil_decay_full", "energy", "gas", "temperature", "heat_conductance",
+    "static_friction", "stribeck", "stribeck_v",
 ))
 
 
@@ -41,12 +55,24 @@ def env_constants(params, env, substep_s):
     temperature = p[L.P_TEMPERATURE_K]
     c1, c2, critical_ratio = flow_constants(k, gas)
     linear_ratio = p[L.P_FLOW_LINEAR_RATIO]
-    linear_slope = subsonic_reduced_flow(linear_ratio, k, c2) / (1.0 - linear_ratio)
-    delay_s = p[L.P_TUBE_LENGTH_M] / sound_speed(k, gas, temperature)
+    flow_law = int(p[L.P_FLOW_LAW])
+    if flow_law == FLOW_LAW_ISO:
+        critical_ratio = p[L.P_ISO_CRITICAL_RATIO_B]
+        linear_slope = (iso_subsonic_reduced_flow(linear_ratio, c1, critical_ratio)
+                        / (1.0 - linear_ratio))
+    else:
+        linear_slope = subsonic_reduced_flow(linear_ratio, k, c2) / (1.0 - linear_ratio)
+    tube_length = p[L.P_TUBE_LENGTH_M]
+    tube_diameter = p[L.P_TUBE_INNER_DIAMETER_M]
+    delay_s = tube_length / sound_speed(k, gas, temperature)
     bore = p[L.P_BORE_DIAMETER_M]
     rod = p[L.P_ROD_DIAMETER_M]
     area_cap = 0.25 * math.pi * bore * bore
     rod_area = 0.25 * math.pi * rod * rod
+    tube_fraction = p[L.P_TUBE_VOLUME_FRACTION]
+    coil_tau = p[L.P_COIL_TIME_CONSTANT_S]
+    heat_conductance = p[L.P_WALL_HEAT_TRANSFER_W_PER_K]
+    stribeck_v = p[L.P_STRIBECK_VELOCITY_M_PER_S]
     return Constants(
         gas * temperature, 1.0 / math.sqrt(temperature), k, c1, c2, critical_ratio,
         linear_ratio, linear_slope,
@@ -55,21 +81,32 @@ def env_constants(params, env, substep_s):
         p[L.P_SPOOL_MASS_KG], p[L.P_SPOOL_DAMPING_N_S_PER_M], p[L.P_SPOOL_SPRING_N_PER_M],
         p[L.P_COIL_FORCE_N_PER_A], p[L.P_DISCHARGE_COEFFICIENT], p[L.P_HOLE_RADIUS_M],
         p[L.P_SPOOL_HALF_WIDTH_M], p[L.P_HOLES_PER_PATH],
-        delay_s, delay_s / substep_s, p[L.P_TUBE_INNER_DIAMETER_M], p[L.P_REYNOLDS_TURBULENT],
+        delay_s, delay_s / substep_s, tube_diameter, p[L.P_REYNOLDS_TURBULENT],
         p[L.P_TUBE_COUPLING] == 1.0,
         area_cap, area_cap - rod_area, rod_area, 0.5 * p[L.P_STROKE_M],
-        p[L.P_DEAD_VOLUME_CAP_M3], p[L.P_DEAD_VOLUME_ROD_M3],
+        dead_volume_with_tube(p[L.P_DEAD_VOLUME_CAP_M3], tube_fraction, tube_diameter,
+                              tube_length),
+        dead_volume_with_tube(p[L.P_DEAD_VOLUME_ROD_M3], tube_fraction, tube_diameter,
+                              tube_length),
         p[L.P_PISTON_MASS_KG] + p[L.P_LOAD_MASS_KG], p[L.P_DYNAMIC_FRICTION_N],
         max(p[L.P_STATIC_FRICTION_N], p[L.P_DYNAMIC_FRICTION_N]),
         p[L.P_VISCOUS_FRICTION_N_S_PER_M], p[L.P_LEAKAGE_AREA_M2], int(p[L.P_PISTON_MODE]),
         p[L.P_LOAD_FORCE_N], p[L.P_SPRING_STIFFNESS_N_PER_M], p[L.P_SPRING_REST_POSITION_M],
+        p[L.P_DISCHARGE_COEFFICIENT] * p[L.P_EXHAUST_DISCHARGE_RATIO],
+        p[L.P_VALVE_NULL_LEAK_AREA_M2], p[L.P_ROD_SEAL_LEAK_AREA_M2], flow_law,
+        p[L.P_SUPPLY_RESISTANCE_PA_S_PER_KG], coil_tau > 0.0,
+        coil_decay(coil_tau, 0.5 * substep_s), coil_decay(coil_tau, substep_s),
+        heat_conductance > 0.0, gas, temperature, heat_conductance,
+        p[L.P_STATIC_FRICTION_N], stribeck_v > 0.0, stribeck_v,
     )
 
 
 @njit(cache=True)
-def _flow(c, area, p_from, p_to):
-    return orifice_mass_flow(area, c.discharge, p_from, p_to, c.inv_sqrt_t, c.k, c.c1, c.c2,
-                             c.critical_ratio, c.linear_ratio, c.linear_slope)
+def _flow(c, discharge, area, p_from, p_to, inv_sqrt_t_from, inv_sqrt_t_to):
+    """Eq. 39 from node ``from`` to node ``to``, at the upstream node's temperature."""
+    inv_sqrt_t = inv_sqrt_t_from if p_from >= p_to else inv_sqrt_t_to
+    return orifice_mass_flow(area, discharge, p_from, p_to, inv_sqrt_t, c.k, c.c1, c.c2,
+                             c.critical_ratio, c.linear_ratio, c.linear_slope, c.flow_law)
 
 
 @njit(cache=True)
@@ -78,51 +115,153 @@ def _tube(c, mass_flow, chamber_pa):
                                         c.tube_diameter, c.viscosity, c.reynolds_turbulent)
 
 
+SUPPLY_DROOP_RTOL = 1e-10  # solver accuracy of the supply droop, relative to P_s (not physics)
+SUPPLY_DROOP_MAX_ITERATIONS = 60  # a safeguard; the root is usually found in 1-4 steps
+
+
 @njit(cache=True)
-def valve_chamber_flows(c, spool_delayed_m, valve_p1_pa, valve_p2_pa, p1_pa, p2_pa):
+def _supply_flow(c, supply_pa, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1,
+                 inv_sqrt_t2):
+    """Total valve flow out of the supply (both paths, before the tubes), >= 0."""
+    return max(_flow(c, c.discharge, area_a, supply_pa, valve_p1_pa, c.inv_sqrt_t, inv_sqrt_t1)
+               + _flow(c, c.discharge, area_b, supply_pa, valve_p2_pa, c.inv_sqrt_t,
+                       inv_sqrt_t2), 0.0)
+
+
+@njit(cache=True)
+def supply_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1,
+                             inv_sqrt_t2):
+    """Supply pressure the valve sees through the supply resistance (effect, docs/effects.md).
+
+    The root of f(P) = P - P_s + R_sup mdot_s(P), mdot_s the total supply flow (its
+    positive part: a back flow does not raise the supply); f increases with P, so the root
+    is unique and bracketed by [max(P_s - R_sup mdot_s(P_s), min(P1, P2)), P_s]. Started
+    at the choked estimate (``effects.drooped_supply_pressure``, exact while choked), then
+    Illinois regula falsi to ``SUPPLY_DROOP_RTOL``. No flow means no droop.
+    """
+    supply_pa = c.supply_pa
+    resistance = c.supply_resistance
+    flow_at_supply = _supply_flow(c, supply_pa, area_a, area_b, valve_p1_pa, valve_p2_pa,
+                                  inv_sqrt_t1, inv_sqrt_t2)
+    if flow_at_supply <= 0.0:
+        return supply_pa
+    tolerance = SUPPLY_DROOP_RTOL * supply_pa
+    hi = supply_pa
+    f_hi = resistance * flow_at_supply
+    lo = max(supply_pa - f_hi, min(valve_p1_pa, valve_p2_pa))
+    f_lo = lo - supply_pa + resistance * _supply_flow(c, lo, area_a, area_b, valve_p1_pa,
+                                                      valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2)
+    if f_lo >= 0.0:
+        return lo
+    guess = drooped_supply_pressure(supply_pa, flow_at_supply, resistance)
+    side = 0
+    for _ in range(SUPPLY_DROOP_MAX_ITERATIONS):
+        f_guess = guess - supply_pa + resistance * _supply_flow(
+            c, guess, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2)
+        if abs(f_guess) <= tolerance:
+            return guess
+        if f_guess > 0.0:
+            hi, f_hi = guess, f_guess
+            if side == 1:
+                f_lo *= 0.5
+            side = 1
+        else:
+            lo, f_lo = guess, f_guess
+            if side == -1:
+                f_hi *= 0.5
+            side = -1
+        guess = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
+    return guess
+
+
+@njit(cache=True)
+def valve_chamber_flows(c, spool_delayed_m, valve_p1_pa, valve_p2_pa, p1_pa, p2_pa,
+                        inv_sqrt_t1, inv_sqrt_t2):
     """Mass flows into (+) each chamber through its tube: supply and exhaust paths (Eqs. 50-55).
 
     ``spool_delayed_m`` is x_s(t - tau); ``valve_p*`` are the chamber pressures the valve
     flow is evaluated with (current ones for the command coupling, delayed ones for the
-    literal Eq. 55); ``p*_pa`` are the current tube-end pressures used by the attenuation.
+    literal Eq. 55); ``p*_pa`` are the current tube-end pressures used by the attenuation;
+    ``inv_sqrt_t*`` are 1/sqrt(T) of the chamber air (of ``temperature_k`` unless the
+    energy model is on). Effects: null leakage adds to both areas, the exhaust paths use
+    their own discharge coefficient, the supply pressure droops with the supply flow.
     Returns (supply->1, 1->exhaust, supply->2, 2->exhaust) as flows at the chamber end.
     """
-    area_a = orifice_area(spool_delayed_m, c.hole_radius, c.half_width, c.holes)
-    area_b = orifice_area(-spool_delayed_m, c.hole_radius, c.half_width, c.holes)
-    supply_1 = _tube(c, _flow(c, area_a, c.supply_pa, valve_p1_pa), p1_pa)
-    exhaust_1 = _tube(c, _flow(c, area_b, valve_p1_pa, c.ambient_pa), p1_pa)
-    supply_2 = _tube(c, _flow(c, area_b, c.supply_pa, valve_p2_pa), p2_pa)
-    exhaust_2 = _tube(c, _flow(c, area_a, valve_p2_pa, c.ambient_pa), p2_pa)
+    area_a = orifice_area(spool_delayed_m, c.hole_radius, c.half_width, c.holes) + c.null_leak
+    area_b = orifice_area(-spool_delayed_m, c.hole_radius, c.half_width, c.holes) + c.null_leak
+    supply_pa = c.supply_pa
+    if c.supply_resistance > 0.0:
+        supply_pa = supply_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa,
+                                             inv_sqrt_t1, inv_sqrt_t2)
+    supply_1 = _tube(c, _flow(c, c.discharge, area_a, supply_pa, valve_p1_pa, c.inv_sqrt_t,
+                              inv_sqrt_t1), p1_pa)
+    exhaust_1 = _tube(c, _flow(c, c.discharge_ex, area_b, valve_p1_pa, c.ambient_pa, inv_sqrt_t1,
+                               c.inv_sqrt_t), p1_pa)
+    supply_2 = _tube(c, _flow(c, c.discharge, area_b, supply_pa, valve_p2_pa, c.inv_sqrt_t,
+                              inv_sqrt_t2), p2_pa)
+    exhaust_2 = _tube(c, _flow(c, c.discharge_ex, area_a, valve_p2_pa, c.ambient_pa, inv_sqrt_t2,
+                               c.inv_sqrt_t), p2_pa)
     return supply_1, exhaust_1, supply_2, exhaust_2
 
 
 @njit(cache=True)
-def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, direction, spool_delayed,
+def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, spool_delayed,
                 valve_p1, valve_p2):
-    """Right-hand side of the state (x_s, v_s, P1, P2, x, v, exhaust mass)."""
+    """Right-hand side of the state (x_s, v_s, P1, P2, x, v, exhaust mass, T1, T2).
+
+    ``coil_current_a`` is the current driving the spool (lagged if the coil lag is on).
+    T1, T2 change only with the energy model on (``wall_heat_transfer_w_per_k > 0``).
+    """
+    if c.energy:
+        inv_sqrt_t1 = 1.0 / math.sqrt(t1)
+        inv_sqrt_t2 = 1.0 / math.sqrt(t2)
+    else:
+        inv_sqrt_t1 = c.inv_sqrt_t
+        inv_sqrt_t2 = c.inv_sqrt_t
     supply_1, exhaust_1, supply_2, exhaust_2 = valve_chamber_flows(
-        c, spool_delayed, valve_p1, valve_p2, p1, p2)
-    leak_12 = _flow(c, c.leak_area, p1, p2)
+        c, spool_delayed, valve_p1, valve_p2, p1, p2, inv_sqrt_t1, inv_sqrt_t2)
+    leak_12 = _flow(c, c.discharge, c.leak_area, p1, p2, inv_sqrt_t1, inv_sqrt_t2)
+    seal_2 = _flow(c, c.discharge, c.seal_leak, p2, c.ambient_pa, inv_sqrt_t2, c.inv_sqrt_t)
     in_1 = max(supply_1, 0.0) + max(-exhaust_1, 0.0) + max(-leak_12, 0.0)
     out_1 = max(-supply_1, 0.0) + max(exhaust_1, 0.0) + max(leak_12, 0.0)
-    in_2 = max(supply_2, 0.0) + max(-exhaust_2, 0.0) + max(leak_12, 0.0)
-    out_2 = max(-supply_2, 0.0) + max(exhaust_2, 0.0) + max(-leak_12, 0.0)
+    in_2 = max(supply_2, 0.0) + max(-exhaust_2, 0.0) + max(leak_12, 0.0) + max(-seal_2, 0.0)
+    out_2 = max(-supply_2, 0.0) + max(exhaust_2, 0.0) + max(-leak_12, 0.0) + max(seal_2, 0.0)
     velocity = v if direction != 0.0 else 0.0
     v1, v2 = chamber_volumes(x, c.half_stroke, c.area_cap, c.area_rod, c.dead_cap, c.dead_rod)
-    dp1 = pressure_rate(p1, v1, c.area_cap * velocity, in_1, out_1, c.gas_rt,
-                        c.alpha_in, c.alpha_out, c.alpha_motion)
-    dp2 = pressure_rate(p2, v2, -c.area_rod * velocity, in_2, out_2, c.gas_rt,
-                        c.alpha_in, c.alpha_out, c.alpha_motion)
+    if c.energy:
+        # air from the supply or the atmosphere enters at temperature_k, leakage air at
+        # the temperature of the chamber it left
+        enthalpy_1 = ((max(supply_1, 0.0) + max(-exhaust_1, 0.0)) * c.temperature
+                      + max(-leak_12, 0.0) * t2)
+        enthalpy_2 = ((max(supply_2, 0.0) + max(-exhaust_2, 0.0) + max(-seal_2, 0.0))
+                      * c.temperature + max(leak_12, 0.0) * t1)
+        dp1, dt1 = chamber_energy_rates(p1, t1, v1, c.area_cap * velocity, in_1, out_1,
+                                        enthalpy_1, c.gas, c.k, c.heat_conductance,
+                                        c.temperature)
+        dp2, dt2 = chamber_energy_rates(p2, t2, v2, -c.area_rod * velocity, in_2, out_2,
+                                        enthalpy_2, c.gas, c.k, c.heat_conductance,
+                                        c.temperature)
+    else:
+        dp1 = pressure_rate(p1, v1, c.area_cap * velocity, in_1, out_1, c.gas_rt,
+                            c.alpha_in, c.alpha_out, c.alpha_motion)
+        dp2 = pressure_rate(p2, v2, -c.area_rod * velocity, in_2, out_2, c.gas_rt,
+                            c.alpha_in, c.alpha_out, c.alpha_motion)
+        dt1 = 0.0
+        dt2 = 0.0
     accel = 0.0
     if direction != 0.0:
         applied = (pneumatic_force(p1, p2, c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
                    - external_force(c.mode, x, c.load_force, c.spring_k, c.spring_rest))
-        accel = piston_acceleration(applied, velocity, direction, c.dynamic_friction,
+        friction = c.dynamic_friction
+        if c.stribeck:
+            friction = stribeck_friction(velocity, c.dynamic_friction, c.static_friction,
+                                         c.stribeck_v)
+        accel = piston_acceleration(applied, velocity, direction, friction,
                                     c.viscous, c.moving_mass)
     a_s = spool_acceleration(x_s, v_s, coil_current_a, c.spool_mass, c.spool_damping,
                              c.spool_spring, c.coil_force)
-    exhaust_rate = max(exhaust_1, 0.0) + max(exhaust_2, 0.0)
-    return v_s, a_s, dp1, dp2, velocity, accel, exhaust_rate
+    exhaust_rate = max(exhaust_1, 0.0) + max(exhaust_2, 0.0) + max(seal_2, 0.0)
+    return v_s, a_s, dp1, dp2, velocity, accel, exhaust_rate, dt1, dt2
 
 
 @njit(cache=True)
@@ -146,7 +285,7 @@ def delayed_value(history, env, channel, head, stage_substeps, delay_substeps, v
     return lower + weight * (upper - lower)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # inlined: a call would pass every constant as an argument
 def _stage(c, history, env, head, frac, coil_current_a, y, y0, direction):
     spool_delayed = delayed_value(history, env, L.H_X_S, head, frac, c.delay_substeps, y0[0], y[0])
     if c.literal:
@@ -155,14 +294,15 @@ def _stage(c, history, env, head, frac, coil_current_a, y, y0, direction):
     else:
         valve_p1 = y[2]
         valve_p2 = y[3]
-    return derivatives(c, coil_current_a, y[0], y[1], y[2], y[3], y[4], y[5], direction,
-                       spool_delayed, valve_p1, valve_p2)
+    return derivatives(c, coil_current_a, y[0], y[1], y[2], y[3], y[4], y[5], y[7], y[8],
+                       direction, spool_delayed, valve_p1, valve_p2)
 
 
 @njit(cache=True)
 def _axpy(y, h, k):
     return (y[0] + h * k[0], y[1] + h * k[1], y[2] + h * k[2], y[3] + h * k[3],
-            y[4] + h * k[4], y[5] + h * k[5], y[6] + h * k[6])
+            y[4] + h * k[4], y[5] + h * k[5], y[6] + h * k[6], y[7] + h * k[7],
+            y[8] + h * k[8])
 
 
 @njit(cache=True)
@@ -173,22 +313,35 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
     c = env_constants(params, env, h)
     n_slots = history.shape[1]
     y = (state[L.S_X_S, env], state[L.S_V_S, env], state[L.S_P1, env], state[L.S_P2, env],
-         state[L.S_X, env], state[L.S_V, env], state[L.S_EXHAUST, env])
+         state[L.S_X, env], state[L.S_V, env], state[L.S_EXHAUST, env], state[L.S_T1, env],
+         state[L.S_T2, env])
     pressure_floor = 1e-3 * c.ambient_pa
+    temperature_floor = 1e-3 * c.temperature
+    coil = state[L.S_COIL, env]
+    coil_start = coil
+    coil_half = coil_current_a
+    coil_end = coil_current_a
     for sub in range(n_substeps):
         head_sub = head + sub
+        if c.coil_lag:  # exact first-order lag over the substep, command held
+            coil_start = coil
+            coil_half = lagged_coil_current(coil_current_a, coil, c.coil_decay_half)
+            coil_end = lagged_coil_current(coil_current_a, coil, c.coil_decay_full)
+            coil = coil_end
+        else:
+            coil_start = coil_current_a
         direction = 0.0
         if c.mode != MODE_FIXED:
             applied = (pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area,
                                        c.ambient_pa)
                        - external_force(c.mode, y[4], c.load_force, c.spring_k, c.spring_rest))
             direction = motion_direction(y[4], y[5], applied, c.stick_threshold, c.half_stroke)
-        k1 = _stage(c, history, env, head_sub, 0.0, coil_current_a, y, y, direction)
-        k2 = _stage(c, history, env, head_sub, 0.5, coil_current_a, _axpy(y, 0.5 * h, k1), y,
+        k1 = _stage(c, history, env, head_sub, 0.0, coil_start, y, y, direction)
+        k2 = _stage(c, history, env, head_sub, 0.5, coil_half, _axpy(y, 0.5 * h, k1), y,
                     direction)
-        k3 = _stage(c, history, env, head_sub, 0.5, coil_current_a, _axpy(y, 0.5 * h, k2), y,
+        k3 = _stage(c, history, env, head_sub, 0.5, coil_half, _axpy(y, 0.5 * h, k2), y,
                     direction)
-        k4 = _stage(c, history, env, head_sub, 1.0, coil_current_a, _axpy(y, h, k3), y,
+        k4 = _stage(c, history, env, head_sub, 1.0, coil_end, _axpy(y, h, k3), y,
                     direction)
         w = h / 6.0
         x_s = y[0] + w * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
@@ -202,13 +355,19 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
                                   y[5] + w * (k1[5] + 2.0 * k2[5] + 2.0 * k3[5] + k4[5]),
                                   direction, c.half_stroke)
         exhaust = y[6] + w * (k1[6] + 2.0 * k2[6] + 2.0 * k3[6] + k4[6])
-        y = (x_s, v_s, p1, p2, x, v, exhaust)
+        t1 = y[7]
+        t2 = y[8]
+        if c.energy:
+            t1 = max(t1 + w * (k1[7] + 2.0 * k2[7] + 2.0 * k3[7] + k4[7]), temperature_floor)
+            t2 = max(t2 + w * (k1[8] + 2.0 * k2[8] + 2.0 * k3[8] + k4[8]), temperature_floor)
+        y = (x_s, v_s, p1, p2, x, v, exhaust, t1, t2)
         slot = (head_sub + 1) % n_slots
         history[env, slot, L.H_X_S] = x_s
         history[env, slot, L.H_P1] = p1
         history[env, slot, L.H_P2] = p2
-    for row in range(L.N_STATE):
+    for row in range(len(y)):  # the RK4 rows are the state rows up to t2_k
         state[row, env] = y[row]
+    state[L.S_COIL, env] = coil if c.coil_lag else coil_current_a
     f_p = pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
     outputs[L.O_P1, env] = y[2]
     outputs[L.O_P2, env] = y[3]

@@ -59,6 +59,18 @@ PARAMETER_NAMES = (
     "spring_rest_position_m",
     # numerics
     "flow_linear_ratio",  # pressure ratio above which the flow function is linearised
+    # effects beyond the paper's model (docs/effects.md, physics/effects.py); each is off
+    # at its neutral value (configs/effects.yaml)
+    "tube_volume_fraction",  # 0: tube air not counted; 1: whole tube added to V0i
+    "rod_seal_leak_area_m2",  # orifice chamber 2 <-> ambient
+    "valve_null_leak_area_m2",  # added to every valve path's area
+    "exhaust_discharge_ratio",  # C_f of the exhaust paths / C_f (1: same)
+    "flow_law",  # 0: paper Eq. 52, 1: ISO 6358 (elliptic, critical ratio b)
+    "iso_critical_ratio_b",
+    "supply_resistance_pa_s_per_kg",  # supply droop P_s - R_sup mdot_supply
+    "coil_time_constant_s",  # first-order coil current lag
+    "wall_heat_transfer_w_per_k",  # lumped hA per chamber; > 0 switches the energy model on
+    "stribeck_velocity_m_per_s",  # Stribeck velocity of the sliding friction
 )
 
 _g = globals()
@@ -70,6 +82,7 @@ N_PARAMS = len(PARAMETER_NAMES)
 DISCRETE_PARAMETERS = {
     "tube_coupling": {0: "command", 1: "literal"},
     "piston_mode": {0: "fixed", 1: "free", 2: "spring"},
+    "flow_law": {0: "paper", 1: "iso6358"},
 }
 
 STATE_NAMES = (
@@ -80,6 +93,9 @@ STATE_NAMES = (
     "piston_position_m",
     "piston_velocity_m_per_s",  # exactly 0.0 while the piston sticks or rests on a stop
     "exhaust_mass_kg",  # air let out of both chambers since reset (air consumption)
+    "t1_k",  # chamber gas temperatures (temperature_k unless wall_heat_transfer_w_per_k > 0)
+    "t2_k",
+    "coil_current_a",  # actual coil current (the held command unless coil_time_constant_s > 0)
 )
 for _i, _name in enumerate(STATE_NAMES):
     _g["S_" + _name.upper()] = _i
@@ -91,6 +107,9 @@ S_P2 = S_P2_PA
 S_X = S_PISTON_POSITION_M
 S_V = S_PISTON_VELOCITY_M_PER_S
 S_EXHAUST = S_EXHAUST_MASS_KG
+S_COIL = S_COIL_CURRENT_A
+S_T1 = S_T1_K
+S_T2 = S_T2_K
 
 # Channels kept in the tube-delay ring buffer, one sample per substep boundary.
 HISTORY_NAMES = ("spool_position_m", "p1_pa", "p2_pa")

@@ -1,0 +1,88 @@
+"""Effects beyond the paper's model (docs/effects.md); each is off at its neutral value.
+
+The kernel decides once per control period (``kernel.env_constants``) which effects are
+on; the functions here are called only for those, or reduce exactly to the paper's
+quantity at the neutral value. The ISO 6358 flow law is in ``flow.py``.
+"""
+import math
+
+from numba import njit
+
+
+@njit(cache=True)
+def dead_volume_with_tube(dead_volume_m3, tube_volume_fraction, tube_inner_diameter_m,
+                          tube_length_m):
+    """Eq. 15's dead volume V0i plus a fraction f of the tube's air, f pi D^2/4 L_t.
+
+    The paper leaves the tube's own air out of the chamber volume (docs/model.md); f = 0
+    is the paper's model, f = 1 counts the whole tube as chamber volume.
+    """
+    tube_volume = 0.25 * math.pi * tube_inner_diameter_m * tube_inner_diameter_m * tube_length_m
+    return dead_volume_m3 + tube_volume_fraction * tube_volume
+
+
+@njit(cache=True)
+def drooped_supply_pressure(supply_pressure_pa, supply_flow_kg_per_s,
+                            supply_resistance_pa_s_per_kg):
+    """First estimate of the supply pressure at the valve, P_s' = P_s - R_sup mdot_s(P_s').
+
+    ``supply_flow_kg_per_s`` is the valve's total supply flow evaluated at P_s. With the
+    flow proportional to the supply pressure (exact while the supply paths are choked,
+    Eq. 39) the root is P_s / (1 + R_sup mdot_s(P_s) / P_s); the kernel refines it
+    (``kernel.supply_pressure_at_valve``). Returns P_s exactly when R_sup = 0.
+    """
+    return supply_pressure_pa / (
+        1.0 + supply_resistance_pa_s_per_kg * max(supply_flow_kg_per_s, 0.0) / supply_pressure_pa)
+
+
+@njit(cache=True)
+def coil_decay(coil_time_constant_s, interval_s):
+    """exp(-dt / tau_c): the part of a coil-current error left after ``interval_s`` (0: no lag)."""
+    if coil_time_constant_s <= 0.0:
+        return 0.0
+    return math.exp(-interval_s / coil_time_constant_s)
+
+
+@njit(cache=True)
+def lagged_coil_current(command_a, current_at_start_a, decay):
+    """Coil current of tau_c di/dt = i_cmd - i with the command held (exact solution).
+
+    ``decay = coil_decay(tau_c, t)`` for the current ``t`` after ``current_at_start_a``.
+    The spool (Eq. 38) is driven by this current instead of the command.
+    """
+    return command_a + (current_at_start_a - command_a) * decay
+
+
+@njit(cache=True)
+def chamber_energy_rates(pressure_pa, temperature_k, volume_m3, volume_rate_m3_per_s,
+                         mass_in_kg_per_s, mass_out_kg_per_s, enthalpy_in_kg_k_per_s,
+                         gas_constant, heat_capacity_ratio, heat_conductance_w_per_k,
+                         wall_temperature_k):
+    """dP/dt and dT/dt of a chamber from the energy equation (Eqs. 5-8), replacing Eq. 14.
+
+    dP/dt = (k-1)/V q + k R/V (sum mdot_in T_in - mdot_out T) - k P Vdot/V with the wall
+    heat flow q = hA (T_wall - T); ``enthalpy_in_kg_k_per_s`` is sum mdot_in T_in. The
+    temperature follows from the ideal gas law T = P V / (m R):
+    dT/dt = T (Pdot/P + Vdot/V) - R T^2 (mdot_in - mdot_out) / (P V).
+    """
+    k = heat_capacity_ratio
+    heat_w = heat_conductance_w_per_k * (wall_temperature_k - temperature_k)
+    dp = ((k - 1.0) * heat_w
+          + k * gas_constant * (enthalpy_in_kg_k_per_s - mass_out_kg_per_s * temperature_k)
+          - k * pressure_pa * volume_rate_m3_per_s) / volume_m3
+    dt = (temperature_k * (dp / pressure_pa + volume_rate_m3_per_s / volume_m3)
+          - gas_constant * temperature_k * temperature_k * (mass_in_kg_per_s - mass_out_kg_per_s)
+          / (pressure_pa * volume_m3))
+    return dp, dt
+
+
+@njit(cache=True)
+def stribeck_friction(velocity_m_per_s, dynamic_friction_n, static_friction_n,
+                      stribeck_velocity_m_per_s):
+    """Sliding friction magnitude F_df + (F_sf - F_df) exp(-(v/v_s)^2) (Stribeck; Eq. 47's F_df).
+
+    The kernel applies it with the sign of the motion; it falls from F_sf at breakaway
+    to F_df at speeds well above v_s.
+    """
+    z = velocity_m_per_s / stribeck_velocity_m_per_s
+    return dynamic_friction_n + (static_friction_n - dynamic_friction_n) * math.exp(-z * z)

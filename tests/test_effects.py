@@ -1,0 +1,321 @@
+"""Effects beyond the paper's model (docs/effects.md): off at their neutral value, and each
+does what its physics says."""
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+import pneumatic_env  # noqa: F401  (registers the environments)
+from pneumatic_env.params import ConfigError, load_parameters, parameter_array, parameter_info
+from pneumatic_env.physics import effects as E
+from pneumatic_env.physics import kernel
+from pneumatic_env.physics import layout as L
+from pneumatic_env.physics.flow import flow_constants, reduced_flow, subsonic_reduced_flow
+from pneumatic_env.physics.valve import orifice_area
+from pneumatic_env.simulator import BatchSimulator
+
+from conftest import areas, run_batch
+
+NEUTRAL = {
+    "tube_volume_fraction": 0.0,
+    "rod_seal_leak_area_m2": 0.0,
+    "valve_null_leak_area_m2": 0.0,
+    "exhaust_discharge_ratio": 1.0,
+    "flow_law": 0.0,
+    "supply_resistance_pa_s_per_kg": 0.0,
+    "coil_time_constant_s": 0.0,
+    "wall_heat_transfer_w_per_k": 0.0,
+    "stribeck_velocity_m_per_s": 0.0,
+}
+# one setting per effect that switches it on
+ON = {
+    "tube_volume_fraction": {"tube_volume_fraction": 1.0},
+    "rod_seal_leak_area_m2": {"rod_seal_leak_area_m2": 2e-8},
+    "valve_null_leak_area_m2": {"valve_null_leak_area_m2": 5e-8},
+    "exhaust_discharge_ratio": {"exhaust_discharge_ratio": 0.6},
+    "flow_law": {"flow_law": "iso6358", "iso_critical_ratio_b": 0.3},
+    "supply_resistance_pa_s_per_kg": {"supply_resistance_pa_s_per_kg": 5e6},
+    "coil_time_constant_s": {"coil_time_constant_s": 0.005},
+    "wall_heat_transfer_w_per_k": {"wall_heat_transfer_w_per_k": 0.05},
+    "stribeck_velocity_m_per_s": {"stribeck_velocity_m_per_s": 0.02},
+}
+T_S = 293.15
+
+
+def _constants(**overrides):
+    """Kernel constants of one environment (substep of the default numerics)."""
+    return kernel.env_constants(parameter_array(load_parameters(**overrides)), 0, 5e-5)
+
+
+def _sim(param_sets, initial=None):
+    sim = BatchSimulator(parameter_array(list(param_sets)), 1e-3, 20, parallel=False)
+    sim.reset(initial=initial)
+    return sim
+
+
+# --------------------------------------------------------------------------- configs
+
+def test_defaults_are_neutral_and_documented():
+    values = load_parameters()
+    for name, neutral in NEUTRAL.items():
+        assert values[name] == neutral, name
+        info = parameter_info(name)
+        assert info["file"].endswith("effects.yaml")
+        assert info["source"].startswith("assumed: ")
+    assert parameter_info("flow_law")["names"] == {0: "paper", 1: "iso6358"}
+    assert load_parameters(flow_law="iso6358")["flow_law"] == 1.0
+    with pytest.raises(ConfigError, match=r"override 'coil_time_constant_s' = -0.001 is not "
+                                          r"allowed: must be in \[0.0, 1.0\] s"):
+        load_parameters(coil_time_constant_s=-0.001)
+
+
+def test_neutral_sub_models_return_the_paper_quantity_exactly():
+    assert E.dead_volume_with_tube(1.0e-6, 0.0, 3.2e-3, 2.0) == 1.0e-6
+    assert E.drooped_supply_pressure(6.5e5, 0.0108, 0.0) == 6.5e5
+    assert E.lagged_coil_current(0.7, -0.3, E.coil_decay(0.0, 5e-5)) == 0.7
+    c1, c2, p_cr = flow_constants(1.4, 287.0)
+    slope = subsonic_reduced_flow(0.995, 1.4, c2) / 0.005
+    for r in (0.3, 0.6, 0.9, 0.998):
+        assert (reduced_flow(r, 1.4, c1, c2, p_cr, 0.995, slope, 0)
+                == reduced_flow(r, 1.4, c1, c2, p_cr, 0.995, slope))
+
+
+def test_effects_switch_per_environment():
+    """A neutral column of a batch with every effect on elsewhere is the lone default run,
+    bit for bit; every effect changes its own column."""
+    base = dict(piston_mode="free", tube_length_m=2.0)
+    sets = [load_parameters(**base)] + [load_parameters(**base, **on) for on in ON.values()]
+    t = np.arange(150) * 1e-3
+    currents = 0.9 * np.sin(2 * np.pi * 10 * t)
+    initial = {"p2": 3e5}
+    batch = run_batch(sets, currents, initial=initial)
+    alone = run_batch(sets[:1], currents, initial=initial)
+    np.testing.assert_array_equal(batch[:, :, :1], alone)
+    for j, name in enumerate(ON, start=1):
+        assert not np.array_equal(batch[:, :, j], alone[:, :, 0]), name
+
+
+def test_effect_through_gym_make():
+    env = gym.make("pneumatic_env/ForceTrack-Numatics-0.5m-v0", coil_time_constant_s=0.005)
+    env.reset(seed=0)
+    sim = env.unwrapped.core.sim
+    assert sim.params[L.P_COIL_TIME_CONSTANT_S, 0] == 0.005
+    for _ in range(3):
+        obs, reward, terminated, truncated, info = env.step(np.ones(env.action_space.shape))
+    assert np.all(np.isfinite(obs)) and np.isfinite(reward)
+    i_max = sim.params[L.P_COIL_CURRENT_MAX_A, 0]
+    # after 3 ms of a constant command the lagged current is 1 - exp(-3/5) = 45 % of it
+    assert 0.0 < abs(sim.state[L.S_COIL, 0]) < 0.5 * i_max
+    env.close()
+
+
+# --------------------------------------------------------------------------- 1 tube volume
+
+def test_tube_volume_adds_whole_tube_to_each_dead_volume():
+    p = load_parameters(tube_length_m=2.0)
+    tube = math.pi / 4 * p["tube_inner_diameter_m"] ** 2 * 2.0
+    assert tube == pytest.approx(16.1e-6, rel=0.01)  # model-notes: a 2 m tube holds ~16 cm^3
+    with_fraction = load_parameters(tube_length_m=2.0, tube_volume_fraction=1.0)
+    bigger_dead = load_parameters(tube_length_m=2.0,
+                                  dead_volume_cap_m3=p["dead_volume_cap_m3"] + tube,
+                                  dead_volume_rod_m3=p["dead_volume_rod_m3"] + tube)
+    out = run_batch([p, with_fraction, bigger_dead], np.full(60, 0.6))
+    np.testing.assert_allclose(out[:, :, 1], out[:, :, 2], rtol=1e-9, atol=1e-9)
+    # the larger volume fills more slowly
+    assert out[20, L.O_P1, 1] < out[20, L.O_P1, 0] - 1e4
+
+
+# --------------------------------------------------------------------------- 2 rod-seal leak
+
+def test_rod_seal_leak_empties_chamber_2_into_the_atmosphere():
+    area = 1e-8
+    p = load_parameters(rod_seal_leak_area_m2=area)
+    sim = _sim([p], initial={"p1": 4e5, "p2": 5e5})
+    out = sim.rollout(np.zeros((200, 1)))  # spool centred: the valve is shut (overlap)
+    a1, a2, _ = areas(p)
+    v2 = p["dead_volume_rod_m3"] + a2 * p["stroke_m"] / 2
+    gas_rt = p["gas_constant_j_per_kg_k"] * p["temperature_k"]
+    assert np.all(out[:, L.O_P1, 0] == 4e5)
+    assert np.all(np.diff(out[:, L.O_P2, 0]) < 0)
+    # every kilogram leaving chamber 2 (isothermal outflow, alpha_out = 1) is counted as exhaust
+    np.testing.assert_allclose(out[:, L.O_EXHAUST, 0], (5e5 - out[:, L.O_P2, 0]) * v2 / gas_rt,
+                               rtol=1e-9)
+    # first millisecond: choked flow of Eq. 39, C_f A P2 C1 / sqrt(T)
+    c1 = math.sqrt(1.4 / 287.0 * (2 / 2.4) ** (2.4 / 0.4))
+    choked = p["discharge_coefficient"] * area * 5e5 * c1 / math.sqrt(p["temperature_k"])
+    assert out[0, L.O_EXHAUST, 0] == pytest.approx(choked * 1e-3, rel=1e-3)
+
+
+# --------------------------------------------------------------------------- 3 null leak
+
+def test_null_leak_holds_centred_chambers_at_the_leak_balance_pressure():
+    leak = 1e-6
+    p = load_parameters(valve_null_leak_area_m2=leak, tube_length_m=0.0)  # no attenuation
+    out = run_batch([load_parameters(), p], np.zeros(500))
+    assert np.all(out[:, L.O_P1, 0] == p["ambient_pressure_pa"])  # paper: sealed at null
+    ps, pa = p["supply_pressure_pa"], p["ambient_pressure_pa"]
+    c1, c2, p_cr = flow_constants(1.4, 287.0)
+    r_lin = p["flow_linear_ratio"]
+    slope = subsonic_reduced_flow(r_lin, 1.4, c2) / (1 - r_lin)
+
+    def m_r(r):
+        return reduced_flow(r, 1.4, c1, c2, p_cr, r_lin, slope)
+
+    # equal areas on the supply and exhaust side; Eq. 14 is steady where
+    # alpha_in mdot_in = alpha_out mdot_out
+    a_in, a_out = p["alpha_in"], p["alpha_out"]
+    p_eq = brentq(lambda q: a_in * ps * m_r(q / ps) - a_out * q * m_r(pa / q),
+                  pa * 1.001, ps * 0.999)
+    assert out[-1, L.O_P1, 1] == pytest.approx(p_eq, rel=2e-3)
+    assert out[-1, L.O_P2, 1] == pytest.approx(p_eq, rel=2e-3)
+
+
+# --------------------------------------------------------------------------- 4 exhaust C_f
+
+def test_exhaust_discharge_ratio_scales_the_choked_blow_down():
+    sets = [load_parameters(tube_length_m=0.0),
+            load_parameters(tube_length_m=0.0, exhaust_discharge_ratio=0.5)]
+    out = run_batch(sets, np.full(40, -1.5), initial={"p1": 5e5})
+    p1 = out[:, L.O_P1, :]
+    choked = np.all(p1 > 2.0e5, axis=1) & (p1[:, 0] < 5e5 - 1.0)
+    assert choked.sum() > 5
+    # choked exhaust: dP1/dt = -C_ex g(t) P1, so ln(P0/P1) is proportional to C_ex
+    ratio = np.log(5e5 / p1[choked, 1]) / np.log(5e5 / p1[choked, 0])
+    np.testing.assert_allclose(ratio, 0.5, rtol=1e-5)
+
+
+# --------------------------------------------------------------------------- 5 ISO 6358
+
+def test_iso_flow_law_follows_the_ellipse_between_b_and_the_linear_region():
+    b = 0.3
+    c = _constants(tube_length_m=0.0, flow_law="iso6358", iso_critical_ratio_b=b)
+    c_paper = _constants(tube_length_m=0.0)
+    p = load_parameters()
+    ps = p["supply_pressure_pa"]
+    x_s = 1.0e-3
+    area = orifice_area(x_s, p["hole_radius_m"], p["spool_half_width_m"], p["holes_per_path"])
+    c1 = math.sqrt(1.4 / 287.0 * (2 / 2.4) ** (2.4 / 0.4))
+    full = p["discharge_coefficient"] * area * ps * c1 / math.sqrt(p["temperature_k"])
+    for r in (0.2, 0.3, 0.45, 0.6, 0.9, 0.99):
+        p1 = r * ps
+        flow = kernel.valve_chamber_flows(c, x_s, p1, 1e5, p1, 1e5, c.inv_sqrt_t,
+                                          c.inv_sqrt_t)[0]
+        expected = full * math.sqrt(1 - (max(r - b, 0.0) / (1 - b)) ** 2)
+        assert flow == pytest.approx(expected, rel=1e-12), r
+        paper = kernel.valve_chamber_flows(c_paper, x_s, p1, 1e5, p1, 1e5, c.inv_sqrt_t,
+                                           c.inv_sqrt_t)[0]
+        if r > 0.528:  # the paper's law is subsonic there and differs
+            assert abs(paper - flow) > 1e-3 * full
+    # above flow_linear_ratio: the straight line to zero at r = 1, continuous at r_lin
+    r_lin = p["flow_linear_ratio"]
+    at_lin = full * math.sqrt(1 - ((r_lin - b) / (1 - b)) ** 2)
+    r = 0.5 * (r_lin + 1)
+    flow = kernel.valve_chamber_flows(c, x_s, r * ps, 1e5, r * ps, 1e5, c.inv_sqrt_t,
+                                      c.inv_sqrt_t)[0]
+    assert flow == pytest.approx(at_lin * (1 - r) / (1 - r_lin), rel=1e-9)
+
+
+# --------------------------------------------------------------------------- 6 supply droop
+
+def test_supply_droop_lowers_the_supply_pressure_by_resistance_times_flow():
+    resistance = 5e6
+    c = _constants(tube_length_m=0.0, supply_resistance_pa_s_per_kg=resistance)
+    ps = c.supply_pa
+    x_s = 1.5e-3  # fully open to chamber 1; path b is shut
+
+    def flow(consts, p1):
+        return kernel.valve_chamber_flows(consts, x_s, p1, 1e5, p1, 1e5, consts.inv_sqrt_t,
+                                          consts.inv_sqrt_t)[0]
+
+    def ideal_flow(supply_pa, p1):  # no resistance, supply at supply_pa
+        return flow(_constants(tube_length_m=0.0, supply_pressure_pa=supply_pa), p1)
+
+    for p1 in (1.5e5, 4.5e5, 6.0e5, 6.45e5):  # choked, subsonic, near the linear region
+        drooped = flow(c, p1)
+        at_valve = brentq(lambda q: q - ps + resistance * ideal_flow(q, p1), p1 + 1e-6, ps)
+        assert at_valve < ps
+        assert drooped == pytest.approx(ideal_flow(at_valve, p1), rel=1e-8), p1
+        assert drooped == pytest.approx((ps - at_valve) / resistance, rel=1e-6), p1
+    assert ps - resistance * flow(c, 1.5e5) < ps - 2e4
+    # no flow, no droop: the chamber still fills to the supply pressure, later
+    out = run_batch([load_parameters(),
+                     load_parameters(supply_resistance_pa_s_per_kg=resistance)], np.full(300, 1.0))
+    assert out[10, L.O_P1, 1] < out[10, L.O_P1, 0] - 5e3
+    assert out[-1, L.O_P1, 1] == pytest.approx(ps, rel=1e-4)
+
+
+# --------------------------------------------------------------------------- 7 coil lag
+
+def test_coil_lag_is_a_first_order_lag_of_the_current():
+    tau = 0.004
+    sim = _sim([load_parameters(), load_parameters(coil_time_constant_s=tau)])
+    assert np.all(sim.state[L.S_COIL] == 0.0)
+    sim.step(np.array([1.0, 1.0]))
+    assert sim.state[L.S_COIL, 0] == 1.0
+    assert sim.state[L.S_COIL, 1] == pytest.approx(1 - math.exp(-1e-3 / tau), rel=1e-12)
+    lagged_spool = sim.outputs[L.O_X_S, 1]
+    assert 0.0 < lagged_spool < 0.5 * sim.outputs[L.O_X_S, 0]
+    i1 = sim.state[L.S_COIL, 1]
+    for _ in range(3):
+        sim.step(np.array([0.0, 0.0]))
+    assert sim.state[L.S_COIL, 1] == pytest.approx(i1 * math.exp(-3e-3 / tau), rel=1e-12)
+    sim.reset()
+    assert np.all(sim.state[L.S_COIL] == 0.0)
+
+
+# --------------------------------------------------------------------------- 8 heat transfer
+
+def test_closed_chamber_cools_to_the_wall_at_constant_mass():
+    h_a = 0.05
+    p = load_parameters(wall_heat_transfer_w_per_k=h_a)
+    sim = _sim([p], initial={"p1": 4e5})
+    assert sim.state[L.S_T1, 0] == sim.state[L.S_T2, 0] == T_S
+    t0 = 350.0
+    sim.state[L.S_T1, 0] = t0
+    out = sim.rollout(np.zeros((300, 1)))  # valve shut: a closed rigid chamber
+    t1 = sim.state[L.S_T1, 0]
+    assert np.all(np.diff(out[:, L.O_P1, 0]) < 0)  # the cooling gas loses pressure ...
+    assert out[-1, L.O_P1, 0] / t1 == pytest.approx(4e5 / t0, rel=1e-9)  # ... at constant m
+    a1, _, _ = areas(p)
+    v1 = p["dead_volume_cap_m3"] + a1 * p["stroke_m"] / 2
+    mass = 4e5 * v1 / (287.0 * t0)
+    tau = mass * 287.0 / 0.4 / h_a  # m c_v / hA
+    assert t1 - T_S == pytest.approx((t0 - T_S) * math.exp(-0.3 / tau), rel=1e-6)
+
+
+def test_adiabatic_filling_heats_the_gas_as_the_first_law_says():
+    p = load_parameters(wall_heat_transfer_w_per_k=1e-9)  # > 0: energy model, ~adiabatic
+    sim = _sim([p])
+    out = sim.rollout(np.full((40, 1), 1.0))
+    a1, _, _ = areas(p)
+    v1 = p["dead_volume_cap_m3"] + a1 * p["stroke_m"] / 2
+    p0, p1, t1 = p["ambient_pressure_pa"], out[-1, L.O_P1, 0], sim.state[L.S_T1, 0]
+    assert p1 > 3e5
+    # rigid tank filled at T_s: (P - P0) V / (k - 1) = (m - m0) c_p T_s
+    mass = p0 * v1 / (287.0 * T_S) + (p1 - p0) * v1 / (1.4 * 287.0 * T_S)
+    assert t1 == pytest.approx(p1 * v1 / (mass * 287.0), rel=1e-6)
+    assert t1 > T_S + 60.0
+    assert sim.state[L.S_T2, 0] == T_S  # chamber 2 untouched (at ambient, valve shut to it)
+
+
+# --------------------------------------------------------------------------- 9 Stribeck
+
+def test_stribeck_friction_falls_from_static_to_dynamic_with_speed():
+    v_s = 0.02
+    p = load_parameters(piston_mode="free", stribeck_velocity_m_per_s=v_s)
+    c = _constants(piston_mode="free", stribeck_velocity_m_per_s=v_s)
+    a1, a2, ar = areas(p)
+    p1, p2 = 3e5, 1.5e5
+    applied = p1 * a1 - p2 * a2 - p["ambient_pressure_pa"] * ar - p["load_force_n"]
+    mass = p["piston_mass_kg"] + p["load_mass_kg"]
+    f_sf, f_df = p["static_friction_n"], p["dynamic_friction_n"]
+    for v in (1e-4, 0.01, 0.02, 0.2):
+        accel = kernel.derivatives(c, 0.0, 0.0, 0.0, p1, p2, 0.0, v, T_S, T_S, 1.0, 0.0,
+                                   p1, p2)[5]
+        friction = f_df + (f_sf - f_df) * math.exp(-(v / v_s) ** 2)
+        expected = (applied - p["viscous_friction_n_s_per_m"] * v - friction) / mass
+        assert accel == pytest.approx(expected, rel=1e-12), v
+    assert E.stribeck_friction(0.0, f_df, f_sf, v_s) == f_sf
+    assert E.stribeck_friction(1.0, f_df, f_sf, v_s) == pytest.approx(f_df, rel=1e-12)
