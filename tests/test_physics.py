@@ -486,7 +486,7 @@ def test_batch_simulator_rejects_bad_params(default_params):
                                          r">= 1$"):
         BatchSimulator(good, n_substeps=0)
     sim = BatchSimulator(np.repeat(good, 2, axis=1))
-    with pytest.raises(ValueError, match=r"^coil_current_a has 3 columns, expected 2 "):
+    with pytest.raises(ValueError, match=r"^coil_current_a has shape \(5, 3\), expected \(5, 2\) "):
         sim.rollout(np.zeros((5, 3)))
 
 

@@ -1,0 +1,168 @@
+"""The controller interface shared by the classical baselines and the learned policies.
+
+A controller sees only the observation ``[p1, p2, x, f, ref(k), ref(k+1..k+H)]``
+(``pneumatic_env.envs.tasks.TaskCore.observation``) and may use the model parameters
+(``env.unwrapped.core.base_params``); the simulator's state is never read. It is batched:
+``act`` maps observations of shape ``(n, obs_dim)`` to coil currents ``(n,)`` in A, keeping
+one internal state (integrator, filters, predictor buffers) per row.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pneumatic_env.envs.tasks import OBSERVED_CHANNELS
+from pneumatic_env import params as P
+from pneumatic_env.physics.valve import steady_spool_position
+
+__all__ = ["OBS_P1", "OBS_P2", "OBS_X", "OBS_F", "OBS_REF", "ControllerContext", "Controller",
+           "ZeroController", "check_gain", "valve_currents"]
+
+OBS_P1 = OBSERVED_CHANNELS.index("p1")
+OBS_P2 = OBSERVED_CHANNELS.index("p2")
+OBS_X = OBSERVED_CHANNELS.index("x")
+OBS_F = OBSERVED_CHANNELS.index("f")
+OBS_REF = len(OBSERVED_CHANNELS)  # ref(k); the preview ref(k+1..k+H) follows
+
+
+@dataclass(frozen=True)
+class ControllerContext:
+    """What a controller may know about the env: model parameters and the observation layout."""
+
+    base_params: dict
+    dt_s: float
+    preview_steps: int
+    scale_n: float  # reference scale of the task (pneumatic_env.envs.tasks.scale_of)
+    normalize_observation: bool
+    force_scale_n: float | None = None  # divides the force channel when normalised
+
+    @classmethod
+    def from_env(cls, env) -> "ControllerContext":
+        """From a single env (any wrappers) or a native vector env."""
+        core = env.unwrapped.core
+        return cls(base_params=dict(core.base_params), dt_s=float(core.dt),
+                   preview_steps=int(core.options.preview_steps), scale_n=float(core.scale),
+                   normalize_observation=bool(core.options.normalize_observation),
+                   force_scale_n=float(getattr(core, "force_scale", core.scale)))
+
+    @property
+    def i_max_a(self) -> float:
+        return float(self.base_params["coil_current_max_a"])
+
+    @property
+    def obs_dim(self) -> int:
+        return OBS_REF + 1 + self.preview_steps
+
+    def param_array(self) -> np.ndarray:
+        """The (N_PARAMS, 1) parameter column for the jitted model functions."""
+        return P.parameter_array([self.base_params])
+
+
+def valve_currents(params: dict) -> tuple[float, float]:
+    """Coil currents (A) at the edge of the dead band and at full opening (Eqs. 43, 44, 46).
+
+    The supply path opens when x_s > p_w - R_h and is fully open at x_s = p_w + R_h; Eq. 46
+    (x_s = K_fc i / (2 k_s)) turns both spool positions into currents.
+    """
+    per_amp = steady_spool_position(1.0, params["spool_spring_n_per_m"],
+                                    params["coil_force_n_per_a"])
+    overlap = params["spool_half_width_m"] - params["hole_radius_m"]
+    full = params["spool_half_width_m"] + params["hole_radius_m"]
+    return max(overlap, 0.0) / per_amp, full / per_amp
+
+
+def check_gain(owner: str, name: str, value, *, ge: float | None = 0.0, gt: float | None = None):
+    """A gain as float or float array, finite and within bounds; clear error otherwise."""
+    arr = np.asarray(value, dtype=np.float64)
+    rule = (f"must be a finite number > {gt:g}" if gt is not None
+            else f"must be a finite number >= {ge:g}" if ge is not None else "must be finite")
+    if not np.all(np.isfinite(arr)) or (gt is not None and np.any(arr <= gt)) or \
+            (ge is not None and np.any(arr < ge)):
+        raise ValueError(f"{owner}: {name} = {value!r} is not allowed: {rule}")
+    return arr if arr.ndim else float(arr)
+
+
+class Controller:
+    """Base class: ``reset(envs=None)``, ``act(obs) -> current (A)``, batched over rows.
+
+    Subclasses implement ``_reset_rows(rows)`` (clear the state of those rows) and
+    ``_act(obs_si) -> current`` on float64 observations in SI units, shape (n, obs_dim).
+    ``env_options`` are the env keyword arguments the controller needs (observation layout).
+    """
+
+    name = "controller"
+
+    def __init__(self, context: ControllerContext):
+        self.context = context
+        self.n_envs: int | None = None
+
+    @property
+    def env_options(self) -> dict:
+        return {"preview_steps": self.context.preview_steps,
+                "normalize_observation": self.context.normalize_observation}
+
+    def reset(self, envs=None) -> None:
+        """Forget the state of every env (``envs=None``) or of the listed env indices."""
+        if envs is None or self.n_envs is None:
+            self.n_envs = None
+            return
+        rows = np.atleast_1d(np.asarray(envs, dtype=np.int64))
+        if rows.size:
+            self._reset_rows(rows)
+
+    def act(self, obs) -> np.ndarray:
+        """Coil current (A) per observation row; a single observation gives shape (1,)."""
+        o = np.asarray(obs, dtype=np.float64)
+        if o.ndim == 1:
+            o = o[None, :]
+        if o.ndim != 2 or o.shape[1] != self.context.obs_dim:
+            raise ValueError(f"{type(self).__name__}.act: observation has shape "
+                             f"{np.shape(obs)}, expected (n, {self.context.obs_dim}) or "
+                             f"({self.context.obs_dim},) = [p1, p2, x, f, ref, "
+                             f"{self.context.preview_steps} preview samples]")
+        if self.n_envs != o.shape[0]:
+            self.n_envs = o.shape[0]
+            self._allocate(self.n_envs)
+        return self._act(self.observation_si(o))
+
+    def observation_si(self, obs: np.ndarray) -> np.ndarray:
+        """Undo ``normalize_observation`` so the controller works in SI.
+
+        ``TaskCore.observation`` normalises pressures to (p - P_a)/(P_s - P_a), x to x / (L/2),
+        the force by the force scale and the references by the reference scale.
+        """
+        if not self.context.normalize_observation:
+            return obs
+        p = self.context.base_params
+        pa, ps = p["ambient_pressure_pa"], p["supply_pressure_pa"]
+        out = obs.copy()
+        out[:, [OBS_P1, OBS_P2]] = pa + obs[:, [OBS_P1, OBS_P2]] * (ps - pa)
+        out[:, OBS_X] = obs[:, OBS_X] * 0.5 * p["stroke_m"]
+        out[:, OBS_F] = obs[:, OBS_F] * (self.context.force_scale_n or self.context.scale_n)
+        out[:, OBS_REF:] = obs[:, OBS_REF:] * self.context.scale_n
+        return out
+
+    def reference_ahead(self, obs: np.ndarray, steps) -> np.ndarray:
+        """ref(k + steps) per row from the preview (steps clipped to the preview length)."""
+        idx = OBS_REF + np.clip(np.asarray(steps, dtype=np.int64), 0, self.context.preview_steps)
+        return obs[np.arange(obs.shape[0]), np.broadcast_to(idx, (obs.shape[0],))]
+
+    # -- to implement ----------------------------------------------------------------------
+    def _allocate(self, n: int) -> None:
+        """Create the per-env state for ``n`` envs (all rows reset)."""
+
+    def _reset_rows(self, rows: np.ndarray) -> None:
+        """Reset the state of ``rows``."""
+
+    def _act(self, obs: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+
+class ZeroController(Controller):
+    """Zero coil current: the valve stays closed (the do-nothing floor of the benchmark)."""
+
+    name = "zero"
+
+    def _act(self, obs):
+        return np.zeros(obs.shape[0])

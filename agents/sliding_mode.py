@@ -1,0 +1,229 @@
+"""Model-based sliding-mode force controller for the clamped rod (derivation: docs/sliding-mode.md).
+
+Per control period and env:
+
+1. Prediction (optional, Smith-predictor-like): the commands of the last d periods have not
+   reached the load cell yet (tube delay tau = L/c, Eq. 31, plus the spool lag c_s/(2 k_s),
+   Eq. 38), so f^(k+d) = f(k) + dt * sum of their model force rates.
+2. Sliding surface on the force error, compared with the reference l = d + extra lead steps
+   ahead (preview): e = f^(k+d) - r(k+l),  s = e + lambda_I * integral(e).
+3. Reaching law with a boundary layer: the force rate wanted is
+   Fdot_d = rdot(k+l) - lambda_I e - k_r s - eta sat(s / Phi).
+4. Equivalent control by inverting the model: Fdot = A1 P1dot - A2 P2dot with the chamber
+   equations (Eq. 14/16, dV = 0) and the valve flows (Eqs. 39, 44, tube attenuation Eq. 30)
+   evaluated at the measured pressures; the spool opening giving Fdot_d is found on a grid of
+   openings (monotone search with interpolation), then x_s (Eq. 43) and the current (Eq. 46).
+
+The controller's model is the paper's nominal model built from the simulator's sub-model
+functions (orifice area, orifice flow, tube attenuation, chamber pressure rate); effects the
+simulator may add beyond the paper (configs/effects.yaml) are model error to it. It reads only
+the observation [p1, p2, x, f, ref, preview] and the parameters.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from pneumatic_env.physics.chamber import chamber_volumes, pressure_rate
+from pneumatic_env.physics.flow import flow_constants, orifice_mass_flow, subsonic_reduced_flow
+from pneumatic_env.physics.tube import sound_speed, tube_attenuation
+from pneumatic_env.physics.valve import orifice_area
+
+from .base import OBS_F, OBS_P1, OBS_P2, OBS_X, Controller, ControllerContext, check_gain
+
+__all__ = ["SlidingModeController", "force_rate", "invert_force_rate", "model_constants",
+           "model_delay_s"]
+
+
+# Nominal model constants of the controller (the paper's model, Eqs. 14, 30, 39, 44), one
+# float64 vector so the jitted functions take a single array.
+(_RT, _INV_SQRT_T, _K, _C1, _C2, _PCR, _LIN_R, _LIN_SLOPE, _PS, _PA, _MU, _A_IN, _A_OUT, _CF,
+ _RH, _PW, _NH, _TAU, _DT, _RE_T, _A1, _A2, _HALF, _V01, _V02, _N_MODEL) = range(26)
+
+
+def model_constants(params: dict) -> np.ndarray:
+    """The constants of the controller's nominal model from a parameter dict."""
+    p = params
+    k, gas, temp = p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"], p["temperature_k"]
+    c1, c2, pcr = flow_constants(k, gas)
+    lin = p["flow_linear_ratio"]
+    a1 = 0.25 * np.pi * p["bore_diameter_m"] ** 2
+    m = np.empty(_N_MODEL)
+    m[[_RT, _INV_SQRT_T, _K, _C1, _C2, _PCR, _LIN_R]] = (gas * temp, temp ** -0.5, k, c1, c2,
+                                                         pcr, lin)
+    m[_LIN_SLOPE] = subsonic_reduced_flow(lin, k, c2) / (1.0 - lin)
+    m[[_PS, _PA, _MU, _A_IN, _A_OUT, _CF]] = (p["supply_pressure_pa"], p["ambient_pressure_pa"],
+                                             p["air_viscosity_pa_s"], p["alpha_in"],
+                                             p["alpha_out"], p["discharge_coefficient"])
+    m[[_RH, _PW, _NH]] = p["hole_radius_m"], p["spool_half_width_m"], p["holes_per_path"]
+    m[_TAU] = model_delay_s(p)[0]
+    m[[_DT, _RE_T]] = p["tube_inner_diameter_m"], p["reynolds_turbulent"]
+    m[[_A1, _A2, _HALF]] = a1, a1 - 0.25 * np.pi * p["rod_diameter_m"] ** 2, 0.5 * p["stroke_m"]
+    m[[_V01, _V02]] = p["dead_volume_cap_m3"], p["dead_volume_rod_m3"]
+    return m
+
+
+@njit(cache=True)
+def _path_flow(m, area, p_from, p_to, p_chamber):
+    """Valve path flow (Eq. 39, signed from -> to) attenuated by its tube (Eq. 30)."""
+    q = orifice_mass_flow(area, m[_CF], p_from, p_to, m[_INV_SQRT_T], m[_K], m[_C1], m[_C2],
+                          m[_PCR], m[_LIN_R], m[_LIN_SLOPE])
+    return q * tube_attenuation(q, p_chamber, m[_RT], m[_TAU], m[_DT], m[_MU], m[_RE_T])
+
+
+@njit(cache=True)
+def force_rate(m, p1, p2, x, spool_m):
+    """dF/dt (N/s) of the clamped rod at pressures p1, p2 with the spool held at ``spool_m``.
+
+    F = P1 A1 - P2 A2 - Pa Ar (Eq. 1) with V fixed: Fdot = A1 P1dot - A2 P2dot, the pressure
+    rates from Eq. 14/16 and the valve flows of Eqs. 39, 44 through the tubes (Eq. 30).
+    Chamber 1 is fed through A(x_s) and exhausted through A(-x_s); chamber 2 the other way.
+    """
+    area_a = orifice_area(spool_m, m[_RH], m[_PW], m[_NH])
+    area_b = orifice_area(-spool_m, m[_RH], m[_PW], m[_NH])
+    s1 = _path_flow(m, area_a, m[_PS], p1, p1)   # supply -> 1
+    e1 = _path_flow(m, area_b, p1, m[_PA], p1)   # 1 -> exhaust
+    s2 = _path_flow(m, area_b, m[_PS], p2, p2)   # supply -> 2
+    e2 = _path_flow(m, area_a, p2, m[_PA], p2)   # 2 -> exhaust
+    v1, v2 = chamber_volumes(x, m[_HALF], m[_A1], m[_A2], m[_V01], m[_V02])
+    dp1 = pressure_rate(p1, v1, 0.0, max(s1, 0.0) + max(-e1, 0.0),
+                        max(-s1, 0.0) + max(e1, 0.0), m[_RT], m[_A_IN], m[_A_OUT], 0.0)
+    dp2 = pressure_rate(p2, v2, 0.0, max(s2, 0.0) + max(-e2, 0.0),
+                        max(-s2, 0.0) + max(e2, 0.0), m[_RT], m[_A_IN], m[_A_OUT], 0.0)
+    return m[_A1] * dp1 - m[_A2] * dp2
+
+
+@njit(cache=True)
+def _invert_one(m, p1, p2, x, fdot_des, openings, blend, refine_iterations):
+    overlap = m[_PW] - m[_RH]
+    target = max(abs(fdot_des), blend)
+    sign = 1.0 if fdot_des >= 0.0 else -1.0
+    prev_open, prev_rate = 0.0, 0.0
+    best_open, best_rate = 0.0, 0.0
+    found = False
+    opening = 0.0
+    for j in range(1, openings.size):
+        op = openings[j]
+        rate = sign * force_rate(m, p1, p2, x, sign * (overlap + op))
+        if rate >= target:  # bracketed: refine by regula falsi on the model itself
+            lo, r_lo, hi, r_hi = prev_open, prev_rate, op, rate
+            for _ in range(refine_iterations):
+                w = (target - r_lo) / (r_hi - r_lo) if r_hi > r_lo else 1.0
+                mid = lo + w * (hi - lo)
+                r_mid = sign * force_rate(m, p1, p2, x, sign * (overlap + mid))
+                if r_mid < target:
+                    lo, r_lo = mid, r_mid
+                else:
+                    hi, r_hi = mid, r_mid
+            w = (target - r_lo) / (r_hi - r_lo) if r_hi > r_lo else 1.0
+            opening = lo + w * (hi - lo)
+            found = True
+            break
+        if rate > best_rate:
+            best_open, best_rate = op, rate
+        prev_open, prev_rate = op, rate
+    if not found:  # the valve cannot deliver the rate: open where the model gives the most
+        opening = best_open
+    spool = sign * (overlap + opening)
+    if abs(fdot_des) < blend:  # through the dead band linearly: no current jump at Fdot_d = 0
+        spool *= abs(fdot_des) / blend
+    return spool, force_rate(m, p1, p2, x, spool)
+
+
+@njit(cache=True)
+def invert_force_rate(m, p1, p2, x, fdot_des, openings, blend, spool_out, rate_out,
+                      refine_iterations=4):
+    """Spool positions (m) giving the force rates ``fdot_des`` (N/s), and the model's rate there.
+
+    ``openings``: grid of effective openings x_e in [0, 2 R_h] (Eq. 43) searched for the first
+    one reaching the rate, then refined by ``refine_iterations`` regula-falsi steps; where no
+    opening reaches it, the one with the largest rate. ``blend`` (N/s): below it the spool
+    moves linearly through the overlap instead of jumping across it.
+    """
+    for i in range(p1.size):
+        spool_out[i], rate_out[i] = _invert_one(m, p1[i], p2[i], x[i], fdot_des[i], openings,
+                                                blend, refine_iterations)
+
+
+def model_delay_s(params: dict) -> tuple[float, float]:
+    """(tube delay L/c of Eq. 31, spool time constant c_s/(2 k_s) of Eq. 38) in s."""
+    c = sound_speed(params["heat_capacity_ratio"], params["gas_constant_j_per_kg_k"],
+                    params["temperature_k"])
+    return (params["tube_length_m"] / c,
+            params["spool_damping_n_s_per_m"] / (2.0 * params["spool_spring_n_per_m"]))
+
+
+class SlidingModeController(Controller):
+    """Sliding-mode force control with model inversion, boundary layer and delay compensation."""
+
+    name = "sliding_mode"
+
+    def __init__(self, context: ControllerContext, *, lambda_integral_per_s, reaching_gain_per_s,
+                 switching_gain_n_per_s, boundary_layer_n, deadband_blend_n_per_s,
+                 extra_lead_s, predictor, opening_grid_points):
+        super().__init__(context)
+        own = "SlidingModeController"
+        self.lam = check_gain(own, "lambda_integral_per_s", lambda_integral_per_s)
+        self.k_r = check_gain(own, "reaching_gain_per_s", reaching_gain_per_s)
+        self.eta = check_gain(own, "switching_gain_n_per_s", switching_gain_n_per_s)
+        self.phi = check_gain(own, "boundary_layer_n", boundary_layer_n, ge=None, gt=0.0)
+        self.blend = float(check_gain(own, "deadband_blend_n_per_s", deadband_blend_n_per_s,
+                                      ge=None, gt=0.0))
+        extra = check_gain(own, "extra_lead_s", extra_lead_s)
+        pred = np.asarray(predictor)
+        if pred.dtype != bool:
+            raise ValueError(f"{own}: predictor = {predictor!r} is not allowed: true or false "
+                             "(or an array of them, one per env)")
+        if int(opening_grid_points) != opening_grid_points or opening_grid_points < 3:
+            raise ValueError(f"{own}: opening_grid_points = {opening_grid_points!r} is not "
+                             "allowed: an integer >= 3")
+        p = context.base_params
+        if p["spool_half_width_m"] < p["hole_radius_m"]:
+            raise ValueError(f"{own}: spool_half_width_m = {p['spool_half_width_m']} < "
+                             f"hole_radius_m = {p['hole_radius_m']}: the inversion assumes an "
+                             "overlapped (closed-centre) valve")
+        tube_s, spool_s = model_delay_s(p)
+        self.delay_s = tube_s + spool_s
+        self.d = int(np.rint(self.delay_s / context.dt_s))  # prediction horizon (steps)
+        self.lead = self.d + np.rint(np.asarray(extra) / context.dt_s).astype(np.int64)
+        if np.any(self.lead + 1 > context.preview_steps):
+            raise ValueError(f"{own}: the delay {self.delay_s * 1e3:.1f} ms + extra_lead_s = "
+                             f"{extra_lead_s!r} needs {int(np.max(self.lead)) + 1} preview steps, "
+                             f"the env gives {context.preview_steps}: raise preview_steps")
+        self.predictor = pred
+        self.openings = np.linspace(0.0, 2.0 * p["hole_radius_m"], int(opening_grid_points))
+        self.model = model_constants(p)
+        self.i_per_m = 2.0 * p["spool_spring_n_per_m"] / p["coil_force_n_per_a"]  # Eq. 46
+
+    def _allocate(self, n):
+        self.integral = np.zeros(n)
+        self.pending = np.zeros((n, max(self.d, 1)))  # model force rates of commands in flight
+        self.head = 0
+
+    def _reset_rows(self, rows):
+        self.integral[rows] = 0.0
+        self.pending[rows] = 0.0
+
+    def _act(self, obs):
+        dt, n = self.context.dt_s, obs.shape[0]
+        f = obs[:, OBS_F]
+        if self.d > 0:
+            f = np.where(self.predictor, f + dt * self.pending.sum(axis=1), f)
+        r = self.reference_ahead(obs, self.lead)
+        rdot = (self.reference_ahead(obs, self.lead + 1) - r) / dt
+        e = f - r
+        s = e + self.lam * self.integral
+        inside = np.abs(s) < self.phi  # integrate only inside the boundary layer (anti-windup)
+        self.integral = np.where(inside, self.integral + e * dt, self.integral)
+        s = e + self.lam * self.integral
+        fdot = rdot - self.lam * e - self.k_r * s - self.eta * np.clip(s / self.phi, -1.0, 1.0)
+        spool, rate = np.empty(n), np.empty(n)
+        invert_force_rate(self.model, np.ascontiguousarray(obs[:, OBS_P1]),
+                          np.ascontiguousarray(obs[:, OBS_P2]), np.ascontiguousarray(obs[:, OBS_X]),
+                          np.ascontiguousarray(fdot), self.openings, self.blend, spool, rate)
+        i_max = self.context.i_max_a
+        current = np.clip(spool * self.i_per_m, -i_max, i_max)
+        if self.d > 0:
+            self.pending[:, self.head] = rate
+            self.head = (self.head + 1) % self.d
+        return current

@@ -1,0 +1,206 @@
+"""Evaluate the diagnosis on the virtual rig: confusion matrix, detection vs strength, FDR.
+
+``python -m pneumatic_env.identification.evaluate [--jobs 2] [--docs docs/identification.md]``
+
+For each true effect (every rig effect whose candidate the kernel has, plus ``none`` and
+``supply_ripple``, which no candidate models; some effects in extra rig set-ups, see
+:data:`EXTRA_SETUPS`) it writes a synthetic recording at strength 1 and diagnoses it with every available candidate (one selection round: the
+first choice is what the confusion matrix counts). For a few effects it repeats this at
+other strengths (detection rate vs strength). The false-discovery rate is the share of
+diagnoses that selected something other than the truth among those that selected
+anything. Results go to ``--out`` (JSON) and, with ``--docs``, replace the block between
+``<!-- evaluate:begin -->`` and ``<!-- evaluate:end -->`` in that Markdown file.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+BEGIN, END = "<!-- evaluate:begin -->", "<!-- evaluate:end -->"
+OUT_OF_CATALOG = ("supply_ripple",)
+#: Rig set-ups besides the default (Numatics, 0.5 m tube, rod clamped) for effects the
+#: default cannot show: (label suffix, run_rig keyword arguments). Stribeck friction
+#: needs a moving piston; the tube volume is also tried with a 2 m tube (16 cm^3 of air).
+EXTRA_SETUPS = {
+    "stribeck": [("spring rod", {"piston": "spring"})],
+    "tube_volume": [("", {}), ("2 m tube", {"tube_length_m": 2.0})],
+}
+
+
+def evaluate_one(job: dict) -> dict:
+    """Make one rig recording and diagnose it; returns what was found."""
+    from .checks import read_checked
+    from .diagnose import diagnose
+    from .virtual_rig import make_recording
+
+    t0 = time.time()
+    suffix = job["label"][len(job["effect"]):].strip(" ()").replace(" ", "_")
+    name = f"{job['effect']}{'_' + suffix if suffix else ''}_s{job['strength']:g}_seed{job['seed']}"
+    path = make_recording(job["workdir"], name=name, effect=job["effect"],
+                          strength=job["strength"], seed=job["seed"],
+                          duration_s=job["duration_s"], overwrite=True, **job["rig"])
+    diag = diagnose([read_checked(path)], candidates=job["candidates"], max_effects=1)
+    data = diag.to_json()
+    return {**{k: job[k] for k in ("effect", "label", "strength", "seed")},
+            "selected": data["selected"], "winner": data["winner"],
+            "runner_up": data["runner_up"],
+            "baseline_nrmse_mean": data["baseline_nrmse_mean"],
+            "after_nrmse_mean": data["after_nrmse_mean"],
+            "scores": {c["name"]: c["score"] for c in data["candidates"]},
+            "seconds": time.time() - t0}
+
+
+def _jobs(args, candidates: list[str]) -> list[dict]:
+    from .virtual_rig import RIG_EFFECTS
+
+    truths = ["none"] + [e for e in RIG_EFFECTS if e in candidates] + list(OUT_OF_CATALOG)
+    jobs = []
+    common = {"duration_s": args.duration, "candidates": candidates, "workdir": str(args.out)}
+    for effect in truths:
+        for suffix, rig in EXTRA_SETUPS.get(effect, [("", {})]):
+            label = f"{effect} ({suffix})" if suffix else effect
+            for seed in args.seeds:
+                jobs.append({"effect": effect, "label": label, "rig": rig, "strength": 1.0,
+                             "seed": seed, **common})
+    for effect in args.strength_effects:
+        suffix, rig = EXTRA_SETUPS.get(effect, [("", {})])[-1]
+        label = f"{effect} ({suffix})" if suffix else effect
+        for s in args.strengths:
+            if s != 1.0:
+                for seed in args.seeds:
+                    jobs.append({"effect": effect, "label": label, "rig": rig, "strength": s,
+                                 "seed": seed, **common})
+    return jobs
+
+
+def summarise(results: list[dict], candidates: list[str]) -> dict:
+    """Confusion counts (truth -> first selection), detection rates, false-discovery rate."""
+    at_one = [r for r in results if r["strength"] == 1.0]
+    confusion: dict[str, dict[str, int]] = {}
+    for r in at_one:
+        found = r["winner"] or "none"
+        confusion.setdefault(r["label"], {}).setdefault(found, 0)
+        confusion[r["label"]][found] += 1
+    detection: dict[str, dict[str, list]] = {}
+    for r in results:
+        if r["effect"] in candidates:
+            d = detection.setdefault(r["label"], {})
+            d.setdefault(f"{r['strength']:g}", []).append(r["winner"] == r["effect"])
+    detection_rate = {e: {s: sum(v) / len(v) for s, v in sorted(d.items(), key=lambda x: float(x[0]))}
+                      for e, d in detection.items()}
+    with_selection = [r for r in results if r["winner"]]
+    false = [r for r in with_selection if r["winner"] != r["effect"]]
+    # the right answer for an effect no candidate models is "none"
+    correct_at_one = [r for r in at_one if (r["winner"] or "none") ==
+                      ("none" if r["effect"] in OUT_OF_CATALOG else r["effect"])]
+    return {"confusion": confusion, "detection_rate": detection_rate,
+            "false_discovery_rate": len(false) / len(with_selection) if with_selection else 0.0,
+            "n_with_selection": len(with_selection), "n_false": len(false),
+            "accuracy_at_strength_1": len(correct_at_one) / len(at_one) if at_one else 0.0,
+            "n_at_strength_1": len(at_one)}
+
+
+def markdown(summary: dict, results: list[dict], args, elapsed_s: float) -> str:
+    lines = [BEGIN, "",
+             f"Generated by `python -m pneumatic_env.identification.evaluate "
+             f"--duration {args.duration:g} --seeds {','.join(map(str, args.seeds))} "
+             f"--strengths {','.join(f'{s:g}' for s in args.strengths)} "
+             f"--strength-effects {','.join(args.strength_effects)}` "
+             f"({len(results)} synthetic recordings of {args.duration:g} s, "
+             f"{elapsed_s / 60:.1f} min with {args.jobs} processes). All data are synthetic "
+             "(virtual rig).", "",
+             f"- Correct first choice at strength 1 (the rig's effect; `none` for `none` and "
+             f"for {', '.join(OUT_OF_CATALOG)}, which no candidate models): "
+             f"{summary['accuracy_at_strength_1'] * summary['n_at_strength_1']:.0f} of "
+             f"{summary['n_at_strength_1']}.",
+             f"- False-discovery rate (a selected effect that is not the truth, over all "
+             f"diagnoses that selected one): {summary['n_false']} of "
+             f"{summary['n_with_selection']} = {summary['false_discovery_rate']:.2f}.", "",
+             "Confusion matrix (rows: effect in the rig at strength 1; columns: first effect "
+             "selected; `none` = nothing accepted):", ""]
+    cols = sorted({c for row in summary["confusion"].values() for c in row} | {"none"})
+    lines.append("| rig effect | " + " | ".join(cols) + " |")
+    lines.append("|---" * (len(cols) + 1) + "|")
+    for truth, row in summary["confusion"].items():
+        lines.append(f"| {truth} | " + " | ".join(str(row.get(c, "")) for c in cols) + " |")
+    strengths = sorted({k for d in summary["detection_rate"].values() for k in d}, key=float)
+    lines += ["", "Detection rate (first choice = the rig's effect) vs strength "
+              "(1 = the realistic value of `configs/identification.yaml`):", "",
+              "| effect | " + " | ".join(strengths) + " |", "|---" * (len(strengths) + 1) + "|"]
+    for effect, rates in summary["detection_rate"].items():
+        lines.append(f"| {effect} | " + " | ".join(
+            f"{rates[s]:.2f}" if s in rates else "" for s in strengths) + " |")
+    lines += ["", "Per recording (held-out mean NRMSE before -> after; runner-up):", "",
+              "| rig effect | strength | seed | selected | runner-up | NRMSE before | after |",
+              "|---|---|---|---|---|---|---|"]
+    for r in sorted(results, key=lambda r: (r["label"], r["strength"], r["seed"])):
+        lines.append(f"| {r['label']} | {r['strength']:g} | {r['seed']} | "
+                     f"{', '.join(r['selected']) or 'none'} | {r['runner_up'] or '-'} | "
+                     f"{r['baseline_nrmse_mean']:.4f} | {r['after_nrmse_mean']:.4f} |")
+    lines += ["", END]
+    return "\n".join(lines)
+
+
+def _replace_block(path: Path, block: str) -> None:
+    text = path.read_text(encoding="utf-8")
+    if BEGIN in text and END in text:
+        head, rest = text.split(BEGIN, 1)
+        _, tail = rest.split(END, 1)
+        text = head + block + tail
+    else:
+        text = text.rstrip("\n") + "\n\n" + block + "\n"
+    path.write_text(text, encoding="utf-8")
+
+
+def _floats(text: str) -> list[float]:
+    return [float(t) for t in text.split(",") if t.strip()]
+
+
+def main(argv: list[str] | None = None) -> int:
+    from .candidates import available_candidates
+
+    p = argparse.ArgumentParser(prog="python -m pneumatic_env.identification.evaluate",
+                                description=__doc__.splitlines()[0])
+    p.add_argument("--out", type=Path, default=Path("runs/identification-eval"))
+    p.add_argument("--duration", type=float, default=1.5, help="recording length in s")
+    p.add_argument("--seeds", type=lambda s: [int(x) for x in s.split(",")], default=[1])
+    p.add_argument("--strengths", type=_floats, default=[0.25, 0.5, 1.0, 2.0])
+    p.add_argument("--strength-effects", type=lambda s: s.split(","),
+                   default=["leakage", "pressure_sensor_lag", "coil_lag"])
+    p.add_argument("--candidates", default=None, help="comma-separated (default: all available)")
+    p.add_argument("--jobs", type=int, default=2)
+    p.add_argument("--docs", type=Path, default=None,
+                   help="Markdown file whose evaluate block is replaced by the results")
+    args = p.parse_args(argv)
+    names = args.candidates.split(",") if args.candidates else None
+    candidates = [c.name for c in available_candidates(names)]
+    args.out.mkdir(parents=True, exist_ok=True)
+    jobs = _jobs(args, candidates)
+    print(f"evaluate: {len(jobs)} recordings, {len(candidates)} candidates, {args.jobs} processes",
+          flush=True)
+    t0 = time.time()
+    results = []
+    with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        for r in pool.map(evaluate_one, jobs):
+            results.append(r)
+            print(f"  {r['label']:28s} s={r['strength']:<5g} seed={r['seed']}: "
+                  f"{', '.join(r['selected']) or 'none':24s} ({r['seconds']:.0f} s, "
+                  f"{time.time() - t0:.0f} s total)", flush=True)
+    elapsed = time.time() - t0
+    summary = summarise(results, candidates)
+    (args.out / "evaluation.json").write_text(json.dumps(
+        {"summary": summary, "results": results, "candidates": candidates,
+         "elapsed_s": elapsed}, indent=2) + "\n", encoding="utf-8")
+    block = markdown(summary, results, args, elapsed)
+    print(block)
+    if args.docs is not None:
+        _replace_block(args.docs, block)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

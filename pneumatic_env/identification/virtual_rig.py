@@ -1,0 +1,366 @@
+"""The virtual rig: synthetic recordings from a plant of higher fidelity than the fit model.
+
+``pneumatic-env rig --effect NAME --strength S --out DIR --seed N`` writes
+``DIR/NAME.csv`` + ``.json`` (:func:`pneumatic_env.recording.write_recording`) and
+``DIR/NAME.truth.json`` (what the plant really was, for evaluation only; the diagnosis
+never reads it, nor the sidecar's notes). The sidecar's notes say "synthetic (virtual
+rig)".
+
+How the plant differs from the fitting model:
+
+- its base parameters are drawn around the configs' defaults (log-normal, relative
+  standard deviations under ``virtual_rig.perturbation``); the sidecar states only the
+  nominal rig (cylinder, tube, nominal supply pressure, rod mode);
+- it is simulated 10x finer (``plant_dt_s``, ``plant_substeps``) and sampled at
+  ``sample_dt_s`` (decimation: every 10th plant sample, the coil current held over each
+  sample period as a digital controller would);
+- sensor noise (white, Gaussian) and ADC quantisation on every measured channel;
+- an optional extra effect at a strength S (strength 1 = ``virtual_rig.effects``).
+  Where feasible the plant's form of the effect differs from the candidate model's:
+
+  ================================  ==========================================================
+  effect                            plant form (candidate form in brackets)
+  ================================  ==========================================================
+  leakage, rod_seal_leak            laminar leak, flow proportional to the pressure
+                                    difference, applied between plant steps (orifice, Eq. 39)
+  coil_lag                          two cascaded first-order lags of tau/2 on the current
+                                    (one first-order lag)
+  pressure_sensor_lag               two cascaded lags of tau/2 at the plant rate (one lag at
+                                    the sample rate)
+  pressure_sensor_offset            offsets that drift by 10 % over the recording (constant)
+  channel_time_skew                 exact shift at the plant rate (interpolated shift)
+  supply_ripple                     not in the catalog: 3 Hz supply-pressure oscillation
+  valve_null_leak, tube_volume,     **same form** as the candidate (the kernel's parameter):
+  exhaust_discharge, iso_flow_law,  an inverse crime, softened only by the finer step, the
+  supply_droop, heat_transfer,      perturbed base and the noise
+  stribeck
+  ================================  ==========================================================
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.signal import lfilter
+
+from pneumatic_env.params import load_parameters, parameter_array
+from pneumatic_env.physics import layout as L
+from pneumatic_env.physics.chamber import chamber_volumes
+from pneumatic_env.physics.flow import flow_constants, orifice_mass_flow, subsonic_reduced_flow
+from pneumatic_env.recording import PISTON_MODES, canonical_cylinder, write_recording
+from pneumatic_env.references import ChirpReference, MultisineReference
+from pneumatic_env.simulator import BatchSimulator
+
+from .config import IdentificationConfig, load_config
+
+__all__ = ["KERNEL_EFFECTS", "RIG_EFFECTS", "RigResult", "excitation", "make_recording",
+           "run_rig", "add_arguments", "run"]
+
+#: Rig effects realised by a kernel parameter (same form as the candidate): name ->
+#: (kernel parameter, value at strength S given the strength-1 reference r).
+KERNEL_EFFECTS = {
+    "valve_null_leak": ("valve_null_leak_area_m2", lambda s, r: s * r),
+    "tube_volume": ("tube_volume_fraction", lambda s, r: min(1.0, s * r)),
+    "exhaust_discharge": ("exhaust_discharge_ratio", lambda s, r: 1.0 - s * (1.0 - r)),
+    "iso_flow_law": ("iso_critical_ratio_b", lambda s, r: 0.528 - s * (0.528 - r)),
+    "supply_droop": ("supply_resistance_pa_s_per_kg", lambda s, r: s * r),
+    "heat_transfer": ("wall_heat_transfer_w_per_k", lambda s, r: s * r),
+    "stribeck": ("stribeck_velocity_m_per_s", lambda s, r: s * r),
+}
+#: Every effect the rig can add.
+RIG_EFFECTS = ("none", "leakage", "rod_seal_leak", "coil_lag", "pressure_sensor_offset",
+               "pressure_sensor_lag", "channel_time_skew", "supply_ripple", *KERNEL_EFFECTS)
+EXCITATIONS = ("identification", "steps", "prbs", "multisine", "chirp", "triangle")
+_SEGMENTS = ("rest", "step_pos", "step_neg", "prbs", "multisine", "chirp", "triangle")
+
+
+# --------------------------------------------------------------------------- excitation
+
+def _segment(kind: str, n: int, dt: float, rng: np.random.Generator,
+             cfg: IdentificationConfig) -> np.ndarray:
+    ex = lambda name: cfg.value("virtual_rig", "excitation", name)  # noqa: E731
+    if n <= 0:
+        return np.zeros(0)
+    if kind == "rest":
+        return np.zeros(n)
+    if kind in ("step_pos", "step_neg"):
+        return np.full(n, float(ex("step_a")) * (1.0 if kind == "step_pos" else -1.0))
+    if kind == "prbs":
+        hold = max(1, int(round(float(ex("prbs_hold_s")) / dt)))
+        levels = rng.choice([-1.0, 1.0], size=n // hold + 1)
+        return float(ex("prbs_a")) * np.repeat(levels, hold)[:n]
+    if kind == "multisine":
+        f_lo, f_hi = (float(f) for f in ex("multisine_band_hz"))
+        period = n * dt
+        k = np.arange(max(1, math.ceil(f_lo * period)), max(2, math.floor(f_hi * period)) + 1)
+        spec = MultisineReference(amplitude=float(ex("multisine_a")),
+                                  frequencies_hz=tuple(k / period), phases="random")
+        return spec.generate(n, dt, rng)
+    if kind == "chirp":
+        f0, f1 = (float(f) for f in ex("chirp_band_hz"))
+        return ChirpReference(amplitude=float(ex("chirp_a")), f0_hz=f0, f1_hz=f1,
+                              duration_s=n * dt).generate(n, dt)
+    if kind == "triangle":
+        a = float(ex("triangle_a"))
+        phase = np.arange(n) / n  # one period: 0 -> +a -> -a -> 0
+        return a * np.where(phase < 0.25, 4 * phase,
+                            np.where(phase < 0.75, 2 - 4 * phase, 4 * phase - 4))
+    raise ValueError(f"excitation segment {kind!r} is not known; allowed: {', '.join(_SEGMENTS)}")
+
+
+def excitation(kind: str, n_samples: int, dt_s: float, rng: np.random.Generator,
+               config: IdentificationConfig | None = None) -> np.ndarray:
+    """Coil current (A) for identification, ``n_samples`` at ``dt_s``.
+
+    ``identification``: two blocks of ``virtual_rig.excitation.block_layout`` (rest
+    periods, steps of both signs, PRBS, multisine, chirp, slow triangle) sized
+    ``train_fraction`` and the rest of the recording, so a time split holds out the same
+    kinds of segment. The other kinds are one segment type over the whole recording
+    (``steps`` alternates +/- steps with rests).
+    """
+    cfg = config or load_config()
+    if kind not in EXCITATIONS:
+        raise ValueError(f"excitation {kind!r} is not known; allowed: {', '.join(EXCITATIONS)}")
+    if kind == "identification":
+        split = int(round(cfg.number("fit", "train_fraction") * n_samples))
+        layout = cfg.value("virtual_rig", "excitation", "block_layout")
+        parts = []
+        for n_block in (split, n_samples - split):
+            shares = np.array([float(s) for _, s in layout])
+            bounds = np.round(np.concatenate([[0], np.cumsum(shares) / shares.sum()]) * n_block)
+            for (seg, _), a, b in zip(layout, bounds[:-1], bounds[1:]):
+                parts.append(_segment(seg, int(b - a), dt_s, rng, cfg))
+        return np.concatenate(parts)
+    if kind == "steps":
+        quarter = n_samples // 4
+        out = np.concatenate([_segment(s, quarter, dt_s, rng, cfg)
+                              for s in ("step_pos", "rest", "step_neg", "rest")])
+        return np.concatenate([out, np.zeros(n_samples - out.size)])
+    return _segment(kind, n_samples, dt_s, rng, cfg)
+
+
+# --------------------------------------------------------------------------- plant
+
+@dataclass
+class RigResult:
+    """A synthetic recording and the truth behind it."""
+
+    t: np.ndarray
+    channels: dict[str, np.ndarray]
+    rig: dict
+    truth: dict = field(default_factory=dict)
+
+
+def _two_lags(y: np.ndarray, total_tau_s: float, dt_s: float) -> np.ndarray:
+    """Two cascaded first-order lags of ``total_tau_s / 2`` (exact for a held input)."""
+    if total_tau_s <= 0:
+        return y
+    a = math.exp(-dt_s / (0.5 * total_tau_s))
+    for _ in range(2):
+        y, _ = lfilter([1.0 - a], [1.0, -a], y, zi=[a * y[0]])
+    return y
+
+
+def _laminar_conductance(p: dict, area_m2: float) -> float:
+    """Laminar leak conductance (kg/s/Pa) passing the same flow as an orifice of
+    ``area_m2`` (Eq. 39, C_f) from supply pressure to half the supply span below it."""
+    c1, c2, pcr = flow_constants(p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"])
+    ps, pa = p["supply_pressure_pa"], p["ambient_pressure_pa"]
+    dp = 0.5 * (ps - pa)
+    lin = p["flow_linear_ratio"]
+    slope = subsonic_reduced_flow(lin, p["heat_capacity_ratio"], c2) / (1.0 - lin)
+    mdot = orifice_mass_flow(area_m2, p["discharge_coefficient"], ps, ps - dp,
+                             1.0 / math.sqrt(p["temperature_k"]), p["heat_capacity_ratio"],
+                             c1, c2, pcr, lin, slope)
+    return mdot / dp
+
+
+def _perturbed(cylinder: str, base: dict, rng: np.random.Generator,
+               cfg: IdentificationConfig) -> dict:
+    """``base`` with each parameter under ``virtual_rig.perturbation`` multiplied by
+    ``exp(sigma z)``, z standard normal; validated by the loader."""
+    out = dict(base)
+    for name in cfg.raw["virtual_rig"]["perturbation"]:
+        sigma = cfg.number("virtual_rig", "perturbation", name, minimum=0.0)
+        out[name] = base[name] * math.exp(sigma * rng.standard_normal())
+    return load_parameters(cylinder, params=out)
+
+
+def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
+            duration_s: float | None = None, cylinder: str = "numatics",
+            tube_length_m: float = 0.5, piston: str = "fixed", excitation_kind: str = "identification",
+            perturb: bool = True, config: IdentificationConfig | None = None) -> RigResult:
+    """Simulate the virtual rig; returns the recording's samples, sidecar and truth."""
+    cfg = config or load_config()
+    if effect not in RIG_EFFECTS:
+        raise ValueError(f"effect {effect!r} is not known to the virtual rig; allowed: "
+                         f"{', '.join(RIG_EFFECTS)}")
+    if not (isinstance(strength, (int, float)) and math.isfinite(strength) and strength >= 0):
+        raise ValueError(f"strength = {strength!r} is not allowed: must be a finite number >= 0")
+    if piston not in PISTON_MODES:
+        raise ValueError(f"piston = {piston!r} is not allowed: must be one of {list(PISTON_MODES)}")
+    if effect in KERNEL_EFFECTS and KERNEL_EFFECTS[effect][0] not in L.PARAMETER_NAMES:
+        raise ValueError(f"effect {effect!r} needs the kernel parameter "
+                         f"{KERNEL_EFFECTS[effect][0]!r}, which this kernel does not have")
+    rng = np.random.default_rng(seed)
+    dt = cfg.number("virtual_rig", "sample_dt_s", positive=True)
+    plant_dt = cfg.number("virtual_rig", "plant_dt_s", positive=True)
+    ratio = int(round(dt / plant_dt))
+    if ratio < 1 or abs(ratio * plant_dt - dt) > 1e-9 * dt:
+        raise ValueError("virtual_rig.sample_dt_s must be a whole multiple of plant_dt_s")
+    duration = float(duration_s if duration_s is not None else cfg.number("virtual_rig", "duration_s"))
+    n = int(round(duration / dt)) + 1
+    cylinder = canonical_cylinder(cylinder)
+
+    piston_rig = {"mode": piston}
+    overrides = {"tube_length_m": tube_length_m, "piston_mode": PISTON_MODES[piston][0]}
+    if piston == "fixed":
+        piston_rig["position_m"] = 0.0
+        overrides["fixed_position_m"] = 0.0
+    elif piston == "free":
+        piston_rig.update(load_mass_kg=0.0, load_force_n=0.0)
+        overrides.update(load_mass_kg=0.0, load_force_n=0.0)
+    else:
+        k_env = cfg.number("virtual_rig", "spring_stiffness_n_per_m", positive=True)
+        m_env = cfg.number("virtual_rig", "spring_load_mass_kg", minimum=0.0)
+        piston_rig.update(stiffness_n_per_m=k_env, rest_position_m=0.0, load_mass_kg=m_env)
+        overrides.update(spring_stiffness_n_per_m=k_env, spring_rest_position_m=0.0,
+                         load_mass_kg=m_env)
+    nominal = load_parameters(cylinder, **overrides)
+    true = _perturbed(cylinder, nominal, rng, cfg) if perturb else dict(nominal)
+
+    i_c = excitation(excitation_kind, n, dt, rng, cfg)
+    ref = float(cfg.number("virtual_rig", "effects", effect)) if effect != "none" else 0.0
+    s = float(strength)
+    if effect in KERNEL_EFFECTS:
+        name, rule = KERNEL_EFFECTS[effect]
+        true[name] = rule(s, ref)
+        if effect == "iso_flow_law":
+            true["flow_law"] = 1
+        true = load_parameters(cylinder, params=true)  # validate
+
+    fine = np.repeat(i_c[:-1], ratio)
+    if effect == "coil_lag":
+        fine = _two_lags(fine, s * ref, plant_dt)
+    sim = BatchSimulator(parameter_array([true]), plant_dt,
+                         int(cfg.number("virtual_rig", "plant_substeps", positive=True)))
+    first = sim.outputs[:, 0].copy()
+    split_effect = effect in ("leakage", "rod_seal_leak", "supply_ripple")
+    if not split_effect or s == 0.0:
+        rows = sim.rollout(fine[:, None])[:, :, 0]
+    else:
+        rows = np.empty((fine.size, L.N_OUTPUT))
+        a1 = 0.25 * math.pi * true["bore_diameter_m"] ** 2
+        a2 = a1 - 0.25 * math.pi * true["rod_diameter_m"] ** 2
+        rt = true["gas_constant_j_per_kg_k"] * true["temperature_k"]
+        conductance = _laminar_conductance(true, s * ref) if effect != "supply_ripple" else 0.0
+        state = sim.state
+        for k in range(fine.size):
+            if effect == "supply_ripple":
+                sim.params[L.P_SUPPLY_PRESSURE_PA, 0] = true["supply_pressure_pa"] * (
+                    1.0 + s * ref * math.sin(2.0 * math.pi * 3.0 * k * plant_dt))
+            if conductance > 0.0:  # operator splitting: the laminar leak over this step first
+                v1, v2 = chamber_volumes(state[L.S_X, 0], 0.5 * true["stroke_m"], a1, a2,
+                                         true["dead_volume_cap_m3"], true["dead_volume_rod_m3"])
+                p1, p2 = state[L.S_P1, 0], state[L.S_P2, 0]
+                if effect == "leakage":
+                    mdot = conductance * (p1 - p2)  # chamber 1 -> chamber 2
+                    a_1 = true["alpha_out"] if mdot > 0 else true["alpha_in"]
+                    a_2 = true["alpha_in"] if mdot > 0 else true["alpha_out"]
+                    state[L.S_P1, 0] = p1 - a_1 * rt / v1 * mdot * plant_dt
+                    state[L.S_P2, 0] = p2 + a_2 * rt / v2 * mdot * plant_dt
+                else:
+                    mdot = conductance * (p2 - true["ambient_pressure_pa"])  # chamber 2 -> air
+                    a_2 = true["alpha_out"] if mdot > 0 else true["alpha_in"]
+                    state[L.S_P2, 0] = p2 - a_2 * rt / v2 * mdot * plant_dt
+            rows[k] = sim.step(fine[k:k + 1])[:, 0]
+    rows = np.vstack([first[None, :], rows])  # rows[j] = state at j * plant_dt
+
+    names = {"p1": L.O_P1, "p2": L.O_P2, "f": L.O_F, "x": L.O_X}
+    measured = ("p1", "p2", "f") if piston == "fixed" else ("p1", "p2", "x")
+    t = dt * np.arange(n)
+    channels = {"i_c": i_c}
+    skew_steps = int(round(s * ref / plant_dt)) if effect == "channel_time_skew" else 0
+    for ch in measured:
+        y = rows[:, names[ch]].copy()
+        if effect == "pressure_sensor_lag" and ch in ("p1", "p2"):
+            y = _two_lags(y, s * ref, plant_dt)
+        idx = np.arange(n) * ratio - skew_steps
+        y = y[np.clip(idx, 0, None)]
+        if effect == "pressure_sensor_offset" and ch in ("p1", "p2"):
+            y = y + s * ref * (1.0 if ch == "p1" else -2.0 / 3.0) * (1.0 + 0.1 * t / t[-1])
+        sigma = cfg.number("virtual_rig", "noise", ch, minimum=0.0)
+        q = cfg.number("virtual_rig", "quantisation", ch, minimum=0.0)
+        y = y + sigma * rng.standard_normal(n)
+        if q > 0:
+            y = q * np.round(y / q)
+        channels[ch] = y
+
+    rig = {"cylinder": cylinder, "tube_length_m": float(tube_length_m),
+           "supply_pressure_pa": float(nominal["supply_pressure_pa"]),
+           "ambient_pressure_pa": float(nominal["ambient_pressure_pa"]),
+           "temperature_k": float(nominal["temperature_k"]), "piston": piston_rig,
+           "notes": "synthetic (virtual rig) recording made by "
+                    "pneumatic_env.identification.virtual_rig"}
+    truth = {"effect": effect, "strength": s, "seed": int(seed), "excitation": excitation_kind,
+             "duration_s": duration, "perturbed": bool(perturb),
+             "effect_reference": ref, "parameters": {k: float(v) for k, v in true.items()}}
+    return RigResult(t=t, channels=channels, rig=rig, truth=truth)
+
+
+def make_recording(out_dir, name: str | None = None, overwrite: bool = False, **kwargs) -> Path:
+    """Run the rig and write ``out_dir/NAME.csv``, ``.json`` and ``NAME.truth.json``."""
+    result = run_rig(**kwargs)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if name is None:
+        tr = result.truth
+        name = f"rig_{tr['effect']}_s{tr['strength']:g}_seed{tr['seed']}"
+    path = write_recording(out_dir / name, result.t, result.channels, result.rig,
+                           overwrite=overwrite)
+    truth_path = out_dir / f"{name}.truth.json"
+    if truth_path.exists() and not overwrite:
+        raise FileExistsError(f"{truth_path} exists; pass overwrite=True to replace it")
+    truth_path.write_text(json.dumps(result.truth, indent=2) + "\n", encoding="utf-8")
+    return path
+
+
+# --------------------------------------------------------------------------- CLI
+
+def add_arguments(p) -> None:
+    p.add_argument("--effect", default="none", choices=RIG_EFFECTS,
+                   help="extra effect in the plant (default: none)")
+    p.add_argument("--strength", type=float, default=1.0,
+                   help="effect strength; 1 = the realistic value of configs/identification.yaml")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p.add_argument("--seed", type=int, default=0, help="seed of perturbation, excitation and noise")
+    p.add_argument("--name", default=None, help="recording name (default: rig_EFFECT_sS_seedN)")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="recording length in s (default: virtual_rig.duration_s)")
+    p.add_argument("--cylinder", default="numatics")
+    p.add_argument("--tube-length", type=float, default=0.5, metavar="M")
+    p.add_argument("--piston", default="fixed", choices=tuple(PISTON_MODES))
+    p.add_argument("--excitation", default="identification", choices=EXCITATIONS)
+    p.add_argument("--no-perturb", action="store_true",
+                   help="use the configs' default base parameters exactly")
+    p.add_argument("--overwrite", action="store_true")
+
+
+def run(args) -> int:
+    import sys
+
+    try:
+        path = make_recording(args.out, name=args.name, overwrite=args.overwrite,
+                              effect=args.effect, strength=args.strength, seed=args.seed,
+                              duration_s=args.duration, cylinder=args.cylinder,
+                              tube_length_m=args.tube_length, piston=args.piston,
+                              excitation_kind=args.excitation, perturb=not args.no_perturb)
+    except (FileExistsError, ValueError) as exc:
+        print(f"pneumatic-env rig: {exc}", file=sys.stderr)
+        return 2
+    print(f"{path}: synthetic (virtual rig) recording, effect {args.effect} "
+          f"strength {args.strength:g}, seed {args.seed}")
+    return 0

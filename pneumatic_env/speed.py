@@ -1,0 +1,854 @@
+"""``pneumatic-env speed``: how fast the simulation runs on this machine, against yardsticks.
+
+One run measures, on the same machine and in the same process:
+
+1. Gymnasium's ``Pendulum-v1`` through ``gym.make`` (the yardstick), steps/s;
+2. our single env through ``gym.make`` (all wrappers on), steps/s;
+3. our native vector env from ``gym.make_vec`` at several N, on 1 thread and on all cores
+   (``numba.set_num_threads``), and the bare ``BatchSimulator`` kernel; env-steps/s,
+   env-substeps/s, wall ns per right-hand-side evaluation (4 RK4 stages per substep) and
+   the bytes of state, parameter, history and task arrays per environment;
+4. Gymnasium's ``SyncVectorEnv`` over N single envs;
+5. the independent SciPy solution (``reference_solution.simulate_reference``) on the
+   clamped 0.5 A step, at the loosest tolerance that reaches the accuracy target;
+6. a ceiling for the kernel: the operations of one substep (counted in ``KERNEL_WORK``)
+   times the cost of each operation measured in a Numba loop on this machine;
+
+and prints a table of ratios against the targets. Medians over ``--repeats``;
+measurements of different configurations are interleaved so that load from other
+processes spreads over all of them. No number here is a test assertion.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import platform
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from .convergence import TOLERANCE_PERCENT
+
+ENV_ID = "pneumatic_env/ForceTrack-Numatics-2m-v0"
+YARDSTICK_ID = "Pendulum-v1"
+VECTOR_SIZES = (1, 64, 1024, 16384)
+SYNC_MAX_N = 1024  # SyncVectorEnv holds N full Python envs; beyond this it only costs time
+SCALING_MIN_N = 1024  # thread scaling is reported for N >= this
+STEP_TUBE_M = 2.0  # the paper's clamped 0.5 A step (Figs. 15-16) with the env's tube
+# The SciPy solver must reach the accuracy the convergence study demands of the default
+# substeps (errors as there: p1, p2 of supply - ambient, f of the force range, x of L/2).
+ACCURACY_FULL_SCALE = TOLERANCE_PERCENT / 100.0
+SCIPY_REFERENCE_RTOL = 1e-10  # the "exact" solution the errors are measured against
+SCIPY_RTOLS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7)
+
+# Targets (per core, medians), from the issue "Speed".
+TARGET_VECTOR_STEPS_PER_S = 100_000
+TARGET_VECTOR_OVER_PENDULUM = 1.0
+TARGET_SINGLE_OVER_PENDULUM = 0.3
+TARGET_VECTOR_OVER_SYNC = 20.0
+TARGET_OURS_OVER_SCIPY = 200.0
+TARGET_THREAD_SCALING = 1.6
+TARGET_MEASURED_OVER_CEILING = 1.5
+
+RK4_STAGES = 4
+# Batches are timed after this many control steps with random currents, so the delayed
+# spool has left its initial position (2 m tube: 5.8 ms) and the pressures have moved off
+# ambient: the regime of an episode, not of its first milliseconds.
+WARMUP_STEPS = 50
+OPS = ("exp", "log", "sqrt", "acos", "div", "flop", "imod")
+
+# Work of the kernel, counted by reading pneumatic_env/physics/*.py with every effect of
+# docs/effects.md off and the command tube coupling. Only operations that depend on the
+# state are counted: expressions of the per-environment constants alone (pi D mu,
+# mu / D^2, the laminar R_t R T tau, 2 R_h, ...) are loop-invariant and hoisted out of
+# the substep loop by the compiler. "flop" is an add, subtract, multiply, negation, abs,
+# min or max; "div" a floating-point division; "imod" an integer modulo; pow (``**``)
+# counts as one exp and one log. Keys are "<piece>:<branch>"; the branch taken by each
+# piece is sampled from the benchmark run (``_sample_regimes``).
+KERNEL_WORK = {
+    # valve.orifice_area (Eqs. 41-45, 44): one per valve direction (x_s and -x_s), per RHS
+    "area:closed": {"flop": 1},
+    "area:partial": {"acos": 1, "sqrt": 1, "div": 1, "flop": 8},
+    "area:full": {"flop": 1},
+    # flow.orifice_mass_flow -> reduced_flow -> subsonic_reduced_flow (Eqs. 39, 52), through
+    # kernel._flow: four valve paths per RHS (the leakage orifices are closed: no work)
+    "flow:none": {},
+    "flow:choked": {"div": 1, "flop": 5},
+    "flow:subsonic": {"exp": 1, "log": 1, "sqrt": 1, "div": 3, "flop": 9},
+    "flow:linear": {"div": 1, "flop": 7},
+    # tube.tube_attenuation -> reynolds_number, tube_resistance (Eqs. 30, 33, 35), through
+    # kernel._tube: evaluated for all four valve paths, also when the path carries no flow
+    "tube:laminar": {"exp": 1, "div": 2, "flop": 4},
+    "tube:turbulent": {"exp": 1, "sqrt": 2, "div": 2, "flop": 9},
+    # kernel.delayed_value: ring-buffer read and linear interpolation, per delayed channel
+    # (the spool; also both pressures with the literal coupling), per RHS
+    "delay_read:ring": {"imod": 2, "flop": 3},
+    # kernel.derivatives besides the valve paths, rod clamped: the sums of the flows in and
+    # out of each chamber, chamber.chamber_volumes, chamber.pressure_rate (x2),
+    # valve.spool_acceleration, the exhaust rate, the null-leak area additions
+    "rhs_rest:fixed": {"div": 3, "flop": 66},
+    # kernel.advance_env per substep: three kernel._axpy (9 rows), the RK4 combination of
+    # the five integrated rows (x, v held), two pressure floors, the history slot
+    "rk4_update:fixed": {"imod": 1, "flop": 91},
+    # kernel.advance_env per control period: kernel.env_constants (flow.flow_constants,
+    # the linearised flow slope, tube.sound_speed, areas, dead volumes) and the outputs
+    "control_step:constants": {"exp": 3, "log": 3, "sqrt": 5, "div": 13, "flop": 43},
+}
+
+
+# --------------------------------------------------------------------------- options
+
+@dataclass
+class Plan:
+    """What one run measures and for how long."""
+
+    quick: bool
+    repeats: int
+    vector_sizes: tuple
+    sync_sizes: tuple
+    single_s: float  # seconds per single-env measurement
+    vector_s: float  # seconds per vector-env / kernel measurement
+    min_steps: int  # at least this many vector steps per measurement
+    step_scenario_steps: int  # control steps of the SciPy step scenario
+    scipy_rtols: tuple
+    reference_rtol: float
+    micro_elements: int
+    micro_sweeps: int
+    warmup_steps: int  # control steps run before timing a batch (past the tube delay)
+    threads: tuple = field(default_factory=tuple)
+
+
+def _positive_int(name):
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < 1:
+            raise argparse.ArgumentTypeError(f"{name} = {text!r} is not allowed: "
+                                             "must be an integer >= 1")
+        return value
+    return parse
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quick", action="store_true",
+                        help="a smoke run: tiny N (up to --max-n, default 8), one repeat, "
+                             "short measurements")
+    parser.add_argument("--max-n", type=_positive_int("--max-n"), default=None,
+                        help=f"largest number of vector environments (default "
+                             f"{VECTOR_SIZES[-1]}; SyncVectorEnv stops at {SYNC_MAX_N})")
+    parser.add_argument("--repeats", type=_positive_int("--repeats"), default=None,
+                        help="repeats of every measurement; medians are reported "
+                             "(default 3, --quick 1)")
+    parser.add_argument("--out", metavar="FILE.md", default=None,
+                        help="also write the report (tables, command, machine) as Markdown")
+
+
+def make_plan(quick: bool, max_n: int | None, repeats: int | None) -> Plan:
+    max_n = max_n or (8 if quick else VECTOR_SIZES[-1])
+    sizes = sorted({n for n in VECTOR_SIZES if n <= max_n} | {max_n})
+    sync = tuple(n for n in sizes if n <= SYNC_MAX_N)
+    import numba
+    all_threads = int(numba.config.NUMBA_NUM_THREADS)
+    threads = (1,) if all_threads == 1 else (1, all_threads)
+    if quick:
+        return Plan(True, repeats or 1, tuple(sizes), sync, 0.02, 0.02, 1, 5, (1e-4,), 1e-8,
+                    1024, 2, 1, threads)
+    return Plan(False, repeats or 3, tuple(sizes), sync, 1.0, 0.5, 2, 100, SCIPY_RTOLS,
+                SCIPY_REFERENCE_RTOL, 4096, 100, WARMUP_STEPS, threads)
+
+
+# --------------------------------------------------------------------------- measurements
+
+def _median(values) -> float:
+    values = [v for v in values if v is not None]
+    return float(np.median(values)) if values else float("nan")
+
+
+def _vector_rate(env, seconds: float, min_steps: int) -> float:
+    """Env-steps per second of a vector env: ``benchmark_vector_step``'s loop (sample,
+    step, count ``num_envs``) without its two resets, which cost seconds at N = 16384."""
+    steps = 0
+    start = time.perf_counter()
+    while True:
+        env.step(env.action_space.sample())
+        steps += 1
+        elapsed = time.perf_counter() - start
+        if elapsed >= seconds and steps >= min_steps:
+            return steps * env.num_envs / elapsed
+
+
+def _with_cpu_share(measure, threads: int):
+    """Run ``measure()``; return its value and the process CPU time over wall time x threads
+    (below 1 when other processes took the cores during the measurement)."""
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    value = measure()
+    wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+    return value, cpu / (wall * threads) if wall > 0 else float("nan")
+
+
+def _array_bytes(*objects) -> int:
+    """Bytes of the NumPy arrays held as attributes of ``objects``."""
+    return sum(v.nbytes for obj in objects for v in vars(obj).values()
+               if isinstance(v, np.ndarray))
+
+
+def _set_threads(n: int) -> None:
+    import numba
+    numba.set_num_threads(n)
+
+
+def measure_single(plan: Plan, log) -> dict:
+    """steps/s of Pendulum-v1 and of our single env, both through gym.make."""
+    import gymnasium as gym
+    from gymnasium.utils.performance import benchmark_step
+
+    import pneumatic_env  # noqa: F401  (registers the ids)
+    envs = {YARDSTICK_ID: gym.make(YARDSTICK_ID), ENV_ID: gym.make(ENV_ID)}
+    rates = {k: [] for k in envs}
+    cpu = {k: [] for k in envs}
+    for name, env in envs.items():  # warm-up (loads the jitted kernels)
+        benchmark_step(env, target_duration=0.01, seed=0)
+    for rep in range(plan.repeats):
+        for name, env in envs.items():
+            env.action_space.seed(rep)
+            rate, share = _with_cpu_share(
+                lambda: benchmark_step(env, target_duration=plan.single_s, seed=rep), 1)
+            rates[name].append(rate)
+            cpu[name].append(share)
+    for env in envs.values():
+        env.close()
+    log(f"single envs: Pendulum {_median(rates[YARDSTICK_ID]):.0f} steps/s, "
+        f"ours {_median(rates[ENV_ID]):.0f} steps/s")
+    return {"rates": rates, "cpu": cpu}
+
+
+def measure_vector(plan: Plan, log) -> dict:
+    """Native vector env (gym.make_vec) and the bare kernel at every N and thread count."""
+    import gymnasium as gym
+
+    from .simulator import PARALLEL_MIN_ENVS, BatchSimulator
+
+    env_rows, kernel_rows, regimes = [], [], None
+    regime_n = max(n for n in plan.vector_sizes if n <= SCALING_MIN_N)
+    for n in plan.vector_sizes:
+        env = gym.make_vec(ENV_ID, num_envs=n)
+        core = getattr(env, "unwrapped", env).core
+        env.action_space.seed(0)
+        env.reset(seed=0)
+        for threads in plan.threads:  # warm-up: jitted kernels and thread pool
+            _set_threads(threads)
+            env.step(env.action_space.sample())
+        for _ in range(plan.warmup_steps):
+            env.step(env.action_space.sample())
+        rates = {t: [] for t in plan.threads}
+        cpu = {t: [] for t in plan.threads}
+        for _ in range(plan.repeats):
+            for threads in plan.threads:
+                _set_threads(threads)
+                rate, share = _with_cpu_share(
+                    lambda: _vector_rate(env, plan.vector_s, plan.min_steps),
+                    threads if core.sim.parallel else 1)
+                rates[threads].append(rate)
+                cpu[threads].append(share)
+        n_substeps = core.sim.n_substeps
+        for threads in plan.threads:
+            env_rows.append({"n": n, "threads": threads,
+                             "kernel": "parallel" if core.sim.parallel else "serial",
+                             "rates": rates[threads], "cpu": cpu[threads],
+                             "substeps": n_substeps,
+                             "bytes_per_env": _array_bytes(core, core.sim) / n})
+        column = core.sim.params[:, :1]
+        dt, i_max = core.sim.control_dt_s, core.i_max
+        warmed = core.sim
+        env.close()
+
+        configs = [("serial", 1)]
+        if n >= PARALLEL_MIN_ENVS:
+            configs += [("parallel", t) for t in plan.threads]
+        sims = {kind: BatchSimulator(np.repeat(column, n, axis=1), dt, n_substeps,
+                                     parallel=kind == "parallel") for kind, _ in configs}
+        rng = np.random.default_rng(0)
+        currents = rng.uniform(-i_max, i_max, (16, n))
+        krates = {cfg: [] for cfg in configs}
+        kcpu = {cfg: [] for cfg in configs}
+        for kind, threads in configs:  # warm-up
+            _set_threads(threads)
+            sim = sims[kind]
+            sim.step(currents[0])
+            sim.state[:], sim.history[:], sim.head = warmed.state, warmed.history, warmed.head
+        for _ in range(plan.repeats):
+            for kind, threads in configs:
+                _set_threads(threads)
+                rate, share = _with_cpu_share(
+                    lambda: _kernel_rate(sims[kind], currents, plan.vector_s, plan.min_steps),
+                    threads)
+                krates[(kind, threads)].append(rate)
+                kcpu[(kind, threads)].append(share)
+        for cfg in configs:
+            kernel_rows.append({"n": n, "kernel": cfg[0], "threads": cfg[1],
+                                "rates": krates[cfg], "cpu": kcpu[cfg],
+                                "substeps": n_substeps})
+        if n == regime_n:
+            _set_threads(1)
+            regimes = _sample_regimes(sims["serial"], currents)
+        log(f"vector N={n}: " + ", ".join(
+            f"{t} thread(s) {_median(rates[t]):.0f}" for t in plan.threads) + " env-steps/s")
+        del sims
+    _set_threads(plan.threads[-1])
+    return {"env": env_rows, "kernel": kernel_rows, "regimes": regimes, "regime_n": regime_n}
+
+
+def _kernel_rate(sim, currents: np.ndarray, seconds: float, min_steps: int) -> float:
+    steps = 0
+    start = time.perf_counter()
+    while True:
+        sim.step(currents[steps % len(currents)])
+        steps += 1
+        elapsed = time.perf_counter() - start
+        if elapsed >= seconds and steps >= min_steps:
+            return steps * sim.n_envs / elapsed
+
+
+def measure_sync(plan: Plan, log) -> dict:
+    """Gymnasium's SyncVectorEnv over N single envs (make_vec(..., vectorization_mode="sync"))."""
+    import gymnasium as gym
+    from gymnasium.utils.performance import benchmark_vector_step
+
+    _set_threads(1)
+    rows = []
+    for n in plan.sync_sizes:
+        env = gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="sync")
+        measured = [_with_cpu_share(
+            lambda: benchmark_vector_step(env, target_duration=plan.vector_s, seed=rep), 1)
+            for rep in range(plan.repeats)]
+        env.close()
+        rates = [m[0] for m in measured]
+        rows.append({"n": n, "rates": rates, "cpu": [m[1] for m in measured]})
+        log(f"SyncVectorEnv N={n}: {_median(rates):.0f} env-steps/s")
+    _set_threads(plan.threads[-1])
+    return {"rows": rows}
+
+
+def measure_scipy(plan: Plan, log) -> dict:
+    """Simulated seconds per wall second on the paper's clamped step (2 m tube, command
+    coupling): our kernel (one env, one thread) and the SciPy reference solution at the
+    loosest tolerance whose error meets the accuracy target of the convergence study."""
+    from .convergence import _scales, errors
+    from .params import load_numerics, parameter_array
+    from .paper import clamped_step_scenario
+    from .replay import simulate_currents
+    from .simulator import BatchSimulator
+
+    numerics = load_numerics()
+    dt, n_substeps = numerics["control_dt_s"], numerics["substeps"]
+    scenario = clamped_step_scenario(STEP_TUBE_M, "command", plan.step_scenario_steps * dt, dt)
+    params, currents = scenario.parameters(), scenario.coil_current_a
+    simulated_s = scenario.duration_s
+
+    _set_threads(1)
+    sim = BatchSimulator(parameter_array([params]), dt, n_substeps, parallel=False)
+    sim.rollout(currents[:1, None])  # warm-up
+    ours_rates = [_rollout_rate(sim, currents, simulated_s, plan.vector_s)
+                  for _ in range(plan.repeats)]
+    _set_threads(plan.threads[-1])
+    ours = simulate_currents(params, currents, dt, substeps=n_substeps)
+    result = {"scenario": scenario.name, "ours_rates": ours_rates, "substeps": n_substeps,
+              "control_dt_s": dt, "simulated_s": simulated_s, "rows": [], "message": None}
+    try:
+        from .reference_solution import simulate_reference
+    except ImportError as exc:
+        result["message"] = f"skipped: pneumatic_env.reference_solution is not available ({exc})"
+        log(result["message"])
+        return result
+
+    def run(rtol):
+        t0 = time.perf_counter()
+        solution = simulate_reference(params, currents, dt, rtol=rtol)
+        return solution, simulated_s / (time.perf_counter() - t0)
+
+    def error(solution, reference, scales):
+        return max(errors(solution, 1, reference, scales).values()) / 100.0
+
+    try:
+        reference, reference_rate = run(plan.reference_rtol)
+        reference = {k: np.asarray(v) for k, v in reference.items()}
+        scales = _scales(params, reference)
+        result["ours_error"] = error(ours, reference, scales)
+        rows = [{"rtol": r, "error": None, "rates": []} for r in plan.scipy_rtols]
+        for _ in range(plan.repeats):
+            for row in rows:
+                solution, rate = run(row["rtol"])
+                row["error"] = error(solution, reference, scales)
+                row["rates"].append(rate)
+    except Exception as exc:  # the reference is developed separately; report, don't crash
+        result["message"] = f"failed: simulate_reference raised {type(exc).__name__}: {exc}"
+        log(result["message"])
+        return result
+    result["reference"] = {"rtol": plan.reference_rtol, "error": 0.0, "rates": [reference_rate]}
+    result["rows"] = rows
+    ok = [r for r in rows if r["error"] <= ACCURACY_FULL_SCALE]
+    result["chosen"] = max(ok, key=lambda r: _median(r["rates"])) if ok else None
+    if result["chosen"] is None:
+        result["message"] = (f"failed: no tolerance in {plan.scipy_rtols} reached "
+                             f"{ACCURACY_FULL_SCALE:.1%} of full scale")
+        log(result["message"])
+        return result
+    log(f"SciPy: {_median(result['chosen']['rates']):.3g} simulated s per wall s at rtol "
+        f"{result['chosen']['rtol']:g}; ours {_median(ours_rates):.3g}")
+    return result
+
+
+def _rollout_rate(sim, currents, simulated_s, seconds) -> float:
+    """Simulated s per wall s over repeated rollouts from reset (resets not timed)."""
+    spent, done = 0.0, 0
+    while spent < seconds or done < 1:
+        sim.reset()
+        t0 = time.perf_counter()
+        sim.rollout(currents[:, None])
+        spent += time.perf_counter() - t0
+        done += 1
+    return done * simulated_s / spent
+
+
+# --------------------------------------------------------------------------- ceiling
+
+@njit(cache=True)
+def _micro_base(a, out, idx, sweeps):
+    for _ in range(sweeps):
+        for i in range(idx.shape[0]):
+            j = idx[i]
+            out[j] = a[j]
+
+
+@njit(cache=True)
+def _micro_exp(a, out, idx, sweeps):
+    for _ in range(sweeps):
+        for i in range(idx.shape[0]):
+            j = idx[i]
+            out[j] = math.exp(a[j])
+
+
+@njit(cache=True)
+def _micro_log(a, out, idx, sweeps):
+    for _ in range(sweeps):
+        for i in range(idx.shape[0]):
+            j = idx[i]
+            out[j] = math.log(a[j])
+
+
+@njit(cache=True)
+def _micro_sqrt(a, out, idx, sweeps):
+    for _ in range(sweeps):
+        for i in range(idx.shape[0]):
+            j = idx[i]
+            out[j] = math.sqrt(a[j])
+
+
+@njit(cache=True)
+def _micro_acos(a, out, idx, sweeps):
+    for _ in range(sweeps):
+        for i in range(idx.shape[0]):
+            j = idx[i]
+            out[j] = math.acos(a[j])
+
+
+@njit(cache=True)
+def _micro_div(a, out, idx, sweeps):
+    for _ in range(sweeps):
+        for i in range(idx.shape[0]):
+            j = idx[i]
+            out[j] = 1.0 / a[j]
+
+
+@njit(cache=True)
+def _micro_flop(a, out, idx, sweeps):  # 9 flops in two independent chains
+    for _ in range(sweeps):
+        for i in range(idx.shape[0]):
+            j = idx[i]
+            v = a[j]
+            out[j] = ((1.1 * v + 0.3) * v + 0.7) + ((0.9 * v - 0.2) * v - 0.4)
+
+
+@njit(cache=True)
+def _micro_imod(a, out, idx, sweeps):
+    n = idx.shape[0]
+    for s in range(sweeps):
+        for i in range(n):
+            j = idx[i]
+            out[j] = a[(j + s) % n]
+
+
+@njit(cache=True)
+def _micro_imod_base(a, out, idx, sweeps):
+    n = idx.shape[0]
+    for s in range(sweeps):
+        for i in range(n):
+            j = idx[i]
+            out[j] = a[min(j + s, n - 1)]
+
+
+# op -> (loop, its baseline, operations per element)
+_MICRO = {"exp": (_micro_exp, _micro_base, 1), "log": (_micro_log, _micro_base, 1),
+          "sqrt": (_micro_sqrt, _micro_base, 1), "acos": (_micro_acos, _micro_base, 1),
+          "div": (_micro_div, _micro_base, 1), "flop": (_micro_flop, _micro_base, 9),
+          "imod": (_micro_imod, _micro_imod_base, 1)}
+
+
+def measure_op_costs(plan: Plan) -> dict:
+    """ns per operation: the extra time of a scalar Numba loop applying it to each element
+    over the same loop copying the element (elements visited in a random order, so the
+    loop is not vectorised; independent elements, so this is throughput, not latency)."""
+    _set_threads(1)
+    rng = np.random.default_rng(0)
+    a = rng.uniform(0.1, 0.9, plan.micro_elements)
+    out = np.empty_like(a)
+    idx = rng.permutation(plan.micro_elements)
+    funcs = {f for pair in _MICRO.values() for f in pair[:2]}
+    for f in funcs:
+        f(a, out, idx, 1)
+    samples = {op: [] for op in _MICRO}
+    per_sweep = plan.micro_elements * plan.micro_sweeps
+    for _ in range(max(plan.repeats, 3)):
+        timed = {}
+        for f in funcs:
+            t0 = time.perf_counter()
+            f(a, out, idx, plan.micro_sweeps)
+            timed[f] = (time.perf_counter() - t0) / per_sweep * 1e9
+        for op, (f, base, count) in _MICRO.items():
+            samples[op].append(max(timed[f] - timed[base], 0.0) / count)
+    _set_threads(plan.threads[-1])
+    return {op: _median(v) for op, v in samples.items()}
+
+
+def _sample_regimes(sim, currents: np.ndarray, steps: int = 8, envs: int = 128) -> dict:
+    """Fractions of each branch of ``KERNEL_WORK`` taken by the batch, sampled at the
+    control-step boundaries of a few more steps of the benchmark run (the valve sees the
+    delayed spool, read from the history as the kernel does)."""
+    from .physics import flow, kernel, tube, valve
+    from .physics import layout as L
+
+    counts: dict = {}
+
+    def add(key, weight=1.0):
+        counts[key] = counts.get(key, 0.0) + weight
+
+    picks = np.linspace(0, sim.n_envs - 1, min(envs, sim.n_envs)).astype(int)
+    h = sim.control_dt_s / sim.n_substeps
+    constants = {int(e): kernel.env_constants(sim.params, int(e), h) for e in picks}
+    samples = 0
+    for step in range(steps):
+        sim.step(currents[step % len(currents)])
+        for env in picks:
+            c = constants[int(env)]
+            s = sim.state[:, env]
+            x_s = s[L.S_X_S]
+            delayed = kernel.delayed_value(sim.history, int(env), L.H_X_S, sim.head, 0.0,
+                                           c.delay_substeps, x_s, x_s)
+            full = c.holes * math.pi * c.hole_radius ** 2
+            areas = []
+            for spool in (delayed, -delayed):
+                area = valve.orifice_area(spool, c.hole_radius, c.half_width, c.holes)
+                add("area:" + ("closed" if area <= 0 else "full" if area >= full else "partial"))
+                areas.append(area)
+            p1, p2 = s[L.S_P1], s[L.S_P2]
+            paths = ((areas[0], c.supply_pa, p1), (areas[1], p1, c.ambient_pa),
+                     (areas[1], c.supply_pa, p2), (areas[0], p2, c.ambient_pa))
+            for area, p_from, p_to in paths:
+                mdot = flow.orifice_mass_flow(area, c.discharge, p_from, p_to, c.inv_sqrt_t,
+                                              c.k, c.c1, c.c2, c.critical_ratio,
+                                              c.linear_ratio, c.linear_slope)
+                ratio = min(p_from, p_to) / max(p_from, p_to)
+                add("flow:" + ("none" if mdot == 0 else "choked" if ratio <= c.critical_ratio
+                               else "subsonic" if ratio < c.linear_ratio else "linear"))
+                re = tube.reynolds_number(mdot, c.tube_diameter, c.viscosity)
+                add("tube:" + ("turbulent" if re >= c.reynolds_turbulent else "laminar"))
+            add("delay_read:ring", 3.0 if c.literal else 1.0)
+            add("rhs_rest:fixed")
+            samples += 1
+    per_rhs = {k: v / samples for k, v in counts.items()}
+    return {"per_rhs": per_rhs, "samples": samples}
+
+
+def kernel_ceiling(regimes: dict, op_ns: dict, n_substeps: int) -> dict:
+    """Operations per substep (from KERNEL_WORK and the sampled branch mix) and the time
+    they take at the measured cost per operation: a floor on the kernel's ns per substep."""
+    per_substep = dict.fromkeys(OPS, 0.0)
+    for key, weight in regimes["per_rhs"].items():
+        for op, count in KERNEL_WORK[key].items():
+            per_substep[op] += RK4_STAGES * weight * count
+    for op, count in KERNEL_WORK["rk4_update:fixed"].items():
+        per_substep[op] += count
+    for op, count in KERNEL_WORK["control_step:constants"].items():
+        per_substep[op] += count / n_substeps
+    ns = {op: per_substep[op] * op_ns[op] for op in OPS}
+    return {"ops": per_substep, "ns": ns, "total_ns": sum(ns.values())}
+
+
+# --------------------------------------------------------------------------- report
+
+def _fmt(x, digits=3) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "n/a"
+    if abs(x) >= 1e3:
+        return f"{x:,.0f}"
+    return f"{x:.{digits}g}"
+
+
+def _pct(shares) -> str:
+    return f"{100 * _median(shares):.0f}%"
+
+
+def _table(headers, rows) -> list[str]:
+    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return lines
+
+
+def machine_description() -> dict:
+    import gymnasium
+    import numba
+    import scipy
+    model = platform.processor() or platform.machine()
+    try:
+        text = subprocess.run(["lscpu"], capture_output=True, text=True, timeout=10).stdout
+        for line in text.splitlines():
+            if line.startswith("Model name:"):
+                model = line.split(":", 1)[1].strip()
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return {"cpu": model, "cores": os.cpu_count(), "numba_threads": numba.config.NUMBA_NUM_THREADS,
+            "python": platform.python_version(), "numpy": np.__version__,
+            "numba": numba.__version__, "gymnasium": gymnasium.__version__,
+            "scipy": scipy.__version__, "os": platform.platform()}
+
+
+def _ratio_rows(res: dict, plan: Plan) -> list[tuple]:
+    """(quantity, value, target text, met) for the ratio table."""
+    rows = []
+    pend = _median(res["single"]["rates"][YARDSTICK_ID])
+    single = _median(res["single"]["rates"][ENV_ID])
+
+    def row(name, value, target, bigger_is_better=True, unit="x"):
+        if value is None or not math.isfinite(value):
+            rows.append((name, "n/a", target and f"{'>=' if bigger_is_better else '<='} "
+                         f"{_fmt(target)}{unit}", "n/a"))
+            return
+        met = "n/a" if target is None else (
+            "yes" if (value >= target if bigger_is_better else value <= target) else "no")
+        tgt = "-" if target is None else f"{'>=' if bigger_is_better else '<='} {_fmt(target)}{unit}"
+        rows.append((name, f"{_fmt(value)}{unit}", tgt, met))
+
+    row("single env / Pendulum", single / pend, TARGET_SINGLE_OVER_PENDULUM)
+    env = {(r["n"], r["threads"]): _median(r["rates"]) for r in res["vector"]["env"]}
+    kern = {(r["n"], r["kernel"], r["threads"]): _median(r["rates"])
+            for r in res["vector"]["kernel"]}
+    sync = {r["n"]: _median(r["rates"]) for r in res["sync"]["rows"]}
+    big = [n for n in plan.vector_sizes if n >= SCALING_MIN_N] or [max(plan.vector_sizes)]
+    many = plan.threads[-1]
+    for n in big:
+        row(f"vector env N={n}, 1 thread / Pendulum", env[(n, 1)] / pend,
+            TARGET_VECTOR_OVER_PENDULUM)
+        row(f"vector env N={n}, 1 thread, env-steps/s", env[(n, 1)], TARGET_VECTOR_STEPS_PER_S,
+            unit="")
+    n_sync = max(sync) if sync else None
+    if n_sync is not None:
+        row(f"vector env / SyncVectorEnv, N={n_sync}, 1 thread", env[(n_sync, 1)] / sync[n_sync],
+            TARGET_VECTOR_OVER_SYNC)
+    scipy_res = res["scipy"]
+    ours = _median(scipy_res["ours_rates"])
+    if scipy_res.get("chosen") and not scipy_res.get("message"):
+        theirs = _median(scipy_res["chosen"]["rates"])
+        row("ours / SciPy, 0.5 A step (kernel, 1 env, 1 thread)", ours / theirs,
+            TARGET_OURS_OVER_SCIPY)
+        row("ours / SciPy, 0.5 A step (single env via gym.make)",
+            single * scipy_res["control_dt_s"] / theirs, None)
+    else:
+        row("ours / SciPy, 0.5 A step", None, TARGET_OURS_OVER_SCIPY)
+    ceiling = res.get("ceiling")
+    if ceiling:
+        row(f"kernel measured / ceiling, N={res['vector']['regime_n']}, 1 thread",
+            ceiling["measured_ns"] / ceiling["total_ns"], TARGET_MEASURED_OVER_CEILING, False)
+    for n in big:
+        if many > 1 and (n, many) in env:
+            row(f"vector env N={n}, {many} threads / 1 thread", env[(n, many)] / env[(n, 1)],
+                TARGET_THREAD_SCALING)
+        if (n, "parallel", many) in kern and many > 1:
+            row(f"kernel N={n}, {many} threads / serial 1 thread",
+                kern[(n, "parallel", many)] / kern[(n, "serial", 1)], TARGET_THREAD_SCALING)
+    return rows
+
+
+RATIO_HEADERS = ("ratio", "value", "target", "met")
+
+
+def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -> str:
+    from .params import load_numerics
+    numerics = load_numerics()
+    pend = _median(res["single"]["rates"][YARDSTICK_ID])
+    lines = ["# Speed", "",
+             f"Generated by `{command}` ({'quick smoke run' if plan.quick else 'full run'}; "
+             f"{plan.repeats} repeat(s), medians; {time.time() - started:.0f} s).", "",
+             "## Machine", ""]
+    lines += [f"- CPU: {machine['cpu']}, {machine['cores']} cores "
+              f"(Numba threads available: {machine['numba_threads']})",
+              f"- Python {machine['python']}, NumPy {machine['numpy']}, Numba {machine['numba']}, "
+              f"Gymnasium {machine['gymnasium']}, SciPy {machine['scipy']}",
+              f"- {machine['os']}",
+              f"- load average (1 min) at start / end: {res['load'][0]:.2f} / {res['load'][1]:.2f} "
+              "(other processes share the cores; rates scale down with it)", "",
+              "## Numerics", "",
+              f"Default numerics (`load_numerics()`): control period "
+              f"{numerics['control_dt_s'] * 1e3:g} ms, {numerics['substeps']} RK4 substeps per "
+              f"control period ({RK4_STAGES} right-hand-side evaluations each); environment "
+              f"`{ENV_ID}`.", "",
+              "## Ratios", ""]
+    lines += _table(RATIO_HEADERS, _ratio_rows(res, plan))
+    lines += ["", "## Single environments (gym.make, `gymnasium.utils.performance.benchmark_step`)",
+              ""]
+    rows = []
+    for name in (YARDSTICK_ID, ENV_ID):
+        r = res["single"]["rates"][name]
+        rows.append((name, _fmt(_median(r)), _fmt(min(r)), _fmt(max(r)),
+                     _fmt(_median(r) / pend), _pct(res["single"]["cpu"][name])))
+    lines += _table(("env", "steps/s (median)", "min", "max", "/ Pendulum", "CPU busy"), rows)
+
+    lines += ["", "## Native vector env (gym.make_vec) and the bare kernel (BatchSimulator.step)",
+              ""]
+    rows = []
+    for r in res["vector"]["env"]:
+        rate = _median(r["rates"])
+        rhs = rate * r["substeps"] * RK4_STAGES
+        rows.append((r["n"], r["threads"], f"env ({r['kernel']})", _fmt(rate),
+                     _fmt(rate * r["substeps"]), _fmt(1e9 / rhs), _fmt(r["bytes_per_env"]),
+                     _pct(r["cpu"])))
+    for r in res["vector"]["kernel"]:
+        rate = _median(r["rates"])
+        rhs = rate * r["substeps"] * RK4_STAGES
+        rows.append((r["n"], r["threads"], f"kernel ({r['kernel']})", _fmt(rate),
+                     _fmt(rate * r["substeps"]), _fmt(1e9 / rhs), "", _pct(r["cpu"])))
+    rows.sort(key=lambda row: (row[0], row[2].startswith("kernel"), row[1]))
+    lines += _table(("N", "threads", "what", "env-steps/s", "env-substeps/s",
+                     "wall ns per RHS", "bytes per env", "CPU busy"), rows)
+
+    lines += ["", "## SyncVectorEnv (gym.make_vec(..., vectorization_mode=\"sync\"), "
+              "`benchmark_vector_step`)", ""]
+    env = {(r["n"], r["threads"]): _median(r["rates"]) for r in res["vector"]["env"]}
+    rows = [(r["n"], _fmt(_median(r["rates"])), _fmt(env.get((r["n"], 1))),
+             _fmt(env.get((r["n"], 1), float("nan")) / _median(r["rates"])), _pct(r["cpu"]))
+            for r in res["sync"]["rows"]]
+    lines += _table(("N", "Sync env-steps/s", "native, 1 thread", "native / Sync",
+                     "CPU busy (Sync)"), rows)
+
+    s = res["scipy"]
+    lines += ["", f"## SciPy reference: {s['scenario']}, {s['simulated_s'] * 1e3:g} ms simulated",
+              ""]
+    if s.get("rows"):
+        lines += [f"Errors as in docs/convergence.md (largest over the control-period samples: "
+                  f"p1, p2 of supply - ambient, f of the force range, x of half the stroke) "
+                  f"against the SciPy solution at rtol {plan.reference_rtol:g}; accuracy target "
+                  f"{ACCURACY_FULL_SCALE:.1%} of full scale.", ""]
+        rows = [(f"ours ({s['substeps']} RK4 substeps, kernel, 1 env, 1 thread)", "-",
+                 f"{s['ours_error']:.2g}", _fmt(_median(s["ours_rates"])))]
+        ref = s["reference"]
+        rows.append(("SciPy reference_solution (reference, timed once)", f"{ref['rtol']:g}",
+                     "0", _fmt(_median(ref["rates"]))))
+        for r in s["rows"]:
+            mark = " (compared)" if r is s.get("chosen") else ""
+            rows.append((f"SciPy reference_solution{mark}", f"{r['rtol']:g}",
+                         f"{r['error']:.2g}", _fmt(_median(r["rates"]))))
+        lines += _table(("solver", "rtol", "max error (fraction of full scale)",
+                         "simulated s per wall s"), rows)
+    if s.get("message"):
+        lines += ["", f"SciPy comparison {s['message']}.", "",
+                  f"Ours ({s['substeps']} RK4 substeps, kernel, 1 env): "
+                  f"{_fmt(_median(s['ours_rates']))} simulated s per wall s."]
+
+    c = res.get("ceiling")
+    if c:
+        lines += ["", f"## Kernel ceiling (N={res['vector']['regime_n']}, 1 thread, serial kernel)",
+                  "", "Operations per substep from `KERNEL_WORK` in `pneumatic_env/speed.py` "
+                  f"(counted in pneumatic_env/physics/*.py) weighted by the branch mix sampled "
+                  f"from {c['samples']} environment states of the run; ns per operation measured "
+                  "in a scalar Numba loop on this machine.", ""]
+        rows = [(op, _fmt(c["op_ns"][op]), _fmt(c["ops"][op]), _fmt(c["ns"][op])) for op in OPS]
+        rows.append(("**ceiling**", "", "", _fmt(c["total_ns"])))
+        rows.append(("**measured**", "", "", _fmt(c["measured_ns"])))
+        lines += _table(("operation", "ns each", "per substep", "ns per substep"), rows)
+        mix = ", ".join(f"{k} {v:.2f}" for k, v in sorted(c["mix"].items()))
+        lines += ["", f"Branches per right-hand-side evaluation: {mix}."]
+    lines += ["", "## How it is measured", "",
+              "- Single envs: `gymnasium.utils.performance.benchmark_step` (a random action per "
+              "step, resets included), through `gym.make` with its default wrappers.",
+              "- Native vector env: the loop of `benchmark_vector_step` (random actions, "
+              "N env-steps per step, in-env autoreset) after one reset, without that helper's "
+              "two resets per call (seconds at N = 16384). The env chooses its kernel: the "
+              "parallel one for N >= 256 (`simulator.PARALLEL_MIN_ENVS`).",
+              "- Bare kernel: `BatchSimulator.step` with random currents, serial and parallel "
+              "kernels chosen explicitly. Wall ns per RHS = 1e9 / (env-steps/s x substeps x 4).",
+              "- Bytes per env: all NumPy arrays of the env's `TaskCore` and `BatchSimulator` "
+              "(parameters, state, outputs, delay history, references, ...) divided by N.",
+              "- SciPy: `reference_solution.simulate_reference` at each rtol; the fastest one "
+              "whose error meets the accuracy target is compared with our kernel's rollout "
+              "of the same scenario (resets not timed).",
+              "- CPU busy: process CPU time / (wall time x threads) during the measurement, "
+              "median; well below 100% means other processes held the cores and the rates "
+              "are low by about that factor.",
+              f"- Batches are timed after {plan.warmup_steps} control steps with random currents "
+              "from reset (the kernel copies the env's warmed state), past the tube delay and "
+              "the first pressure rise; single envs run whole episodes."]
+    return "\n".join(lines) + "\n"
+
+
+def _command(args) -> str:
+    parts = ["pneumatic-env speed"]
+    if args.quick:
+        parts.append("--quick")
+    if args.max_n is not None:
+        parts.append(f"--max-n {args.max_n}")
+    if args.repeats is not None:
+        parts.append(f"--repeats {args.repeats}")
+    if args.out:
+        parts.append(f"--out {args.out}")
+    return " ".join(parts)
+
+
+def run(args) -> int:
+    import numba
+    started = time.time()
+    plan = make_plan(args.quick, args.max_n, args.repeats)
+    threads_before = numba.get_num_threads()
+
+    def log(msg):
+        print(f"[speed] {msg}", file=sys.stderr, flush=True)
+
+    res = {"load": [os.getloadavg()[0]]}
+    try:
+        res["single"] = measure_single(plan, log)
+        res["vector"] = measure_vector(plan, log)
+        res["sync"] = measure_sync(plan, log)
+        res["scipy"] = measure_scipy(plan, log)
+        op_ns = measure_op_costs(plan)
+        regimes = res["vector"]["regimes"]
+        n_ref = res["vector"]["regime_n"]
+        serial = [r for r in res["vector"]["kernel"]
+                  if r["n"] == n_ref and r["kernel"] == "serial"][0]
+        ceiling = kernel_ceiling(regimes, op_ns, serial["substeps"])
+        ceiling.update(op_ns=op_ns, mix=regimes["per_rhs"], samples=regimes["samples"],
+                       measured_ns=1e9 / (_median(serial["rates"]) * serial["substeps"]))
+        res["ceiling"] = ceiling
+    finally:
+        numba.set_num_threads(threads_before)
+    res["load"].append(os.getloadavg()[0])
+    text = report(res, plan, _command(args), machine_description(), started)
+    print(text)
+    if args.out:
+        with open(args.out, "w", encoding="utf-8") as fh:
+            fh.write(text)
+    return 0

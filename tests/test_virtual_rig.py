@@ -1,0 +1,120 @@
+"""The virtual rig (pneumatic_env.identification.virtual_rig): synthetic recordings."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from pneumatic_env.identification.config import load_config
+from pneumatic_env.identification.virtual_rig import _two_lags, excitation, run_rig
+from pneumatic_env.params import load_parameters
+from pneumatic_env.recording import read_recording
+
+DURATION_S = 1.0
+
+
+def test_rig_cli_writes_a_readable_synthetic_recording(tmp_path, capsys):
+    from pneumatic_env.cli import main
+
+    args = ["rig", "--effect", "leakage", "--strength", "1", "--out", str(tmp_path),
+            "--seed", "3", "--duration", str(DURATION_S), "--name", "r"]
+    assert main(args) == 0
+    rec = read_recording(tmp_path / "r.csv")
+    assert rec.warnings == []  # clean SI data: no unit or clipping warnings
+    assert rec.rig["notes"].startswith("synthetic (virtual rig)")
+    assert "measured" not in rec.rig["notes"].lower()
+    assert "leak" not in json.dumps(rec.rig)  # the sidecar does not say what was added
+    assert set(rec.channels) == {"i_c", "p1", "p2", "f"}
+    assert rec.dt == pytest.approx(load_config().number("virtual_rig", "sample_dt_s"))
+    truth = json.loads((tmp_path / "r.truth.json").read_text())
+    assert truth["effect"] == "leakage" and truth["strength"] == 1.0
+    # a second run refuses to overwrite
+    assert main(args) == 2
+    assert "exists" in capsys.readouterr().err
+
+
+def test_identification_excitation_has_every_segment_in_both_blocks():
+    cfg = load_config()
+    n, dt = 2001, 1e-3
+    i_c = excitation("identification", n, dt, np.random.default_rng(0), cfg)
+    step = float(cfg.value("virtual_rig", "excitation", "step_a"))
+    split = int(round(cfg.number("fit", "train_fraction") * n))
+    for block in (i_c[:split], i_c[split:]):
+        assert np.isclose(block.max(), step) and np.isclose(block.min(), -step)  # both signs
+        rest = np.flatnonzero(block == 0.0)
+        assert rest.size > 0.2 * block.size  # rest periods
+        assert np.unique(np.round(block, 6)).size > 50  # multisine/chirp/triangle levels
+    # the two blocks differ in their random parts (PRBS levels, multisine phases)
+    assert not np.allclose(i_c[:n - split], i_c[split:])
+
+
+def test_strength_zero_is_the_plant_without_the_effect():
+    base = run_rig("none", seed=7, duration_s=0.3)
+    for effect in ("leakage", "valve_null_leak", "pressure_sensor_lag", "coil_lag"):
+        zero = run_rig(effect, strength=0.0, seed=7, duration_s=0.3)
+        for ch in base.channels:
+            assert np.array_equal(zero.channels[ch], base.channels[ch]), (effect, ch)
+
+
+def test_laminar_leak_equalises_the_sealed_chambers():
+    cfg = load_config()
+    base = run_rig("none", seed=5, duration_s=DURATION_S)
+    leak = run_rig("leakage", strength=3.0, seed=5, duration_s=DURATION_S)
+    # first block: rest, +step, rest with the valve closed (p1 high, p2 low, sealed)
+    layout = cfg.value("virtual_rig", "excitation", "block_layout")
+    n_block = round(cfg.number("fit", "train_fraction") * leak.t.size)
+    edges = np.round(np.cumsum([0] + [s for _, s in layout]) * n_block).astype(int)
+    assert layout[2][0] == "rest" and layout[1][0] == "step_pos"
+    rest = slice(edges[2] + 10, edges[3])
+    assert np.all(leak.channels["i_c"][rest] == 0.0)
+    # the same seed draws the same parameters and noise: the difference is the leak
+    d1 = leak.channels["p1"][rest] - base.channels["p1"][rest]
+    d2 = leak.channels["p2"][rest] - base.channels["p2"][rest]
+    step = cfg.number("virtual_rig", "quantisation", "p1")
+    assert d1.mean() < -5 * step and d2.mean() > 5 * step
+    assert d1[-10:].mean() < d1[:10].mean() and d2[-10:].mean() > d2[:10].mean()
+
+
+def test_two_cascaded_lags_keep_the_total_time_constant():
+    dt, tau = 1e-5, 2e-3
+    u = np.ones(20000)
+    u[0] = 0.0
+    y = _two_lags(u, tau, dt)
+    # the area between a unit step and the response of a lag cascade is its total time
+    # constant (first moment of the impulse response), whatever the split
+    area = float(np.sum(1.0 - y[1:]) * dt)
+    assert area == pytest.approx(tau, rel=1e-2)
+    # ... but the shape differs from one lag: the response starts with zero slope
+    assert y[2] - y[1] < 0.5 * (1.0 - math.exp(-dt / tau))
+
+
+def test_perturbation_and_the_nominal_sidecar():
+    cfg = load_config()
+    nominal = load_parameters(tube_length_m=0.5)
+    r = run_rig("none", seed=11, duration_s=0.2)
+    perturbed = set(cfg.raw["virtual_rig"]["perturbation"])
+    for name, value in r.truth["parameters"].items():
+        if name in perturbed:
+            assert value != nominal[name], name
+        else:
+            assert value == nominal[name], name
+    # the sidecar states the nominal supply, not the rig's true one
+    assert r.rig["supply_pressure_pa"] == nominal["supply_pressure_pa"]
+    exact = run_rig("none", seed=11, duration_s=0.2, perturb=False)
+    assert exact.truth["parameters"] == {k: float(v) for k, v in nominal.items()}
+
+
+def test_spring_rig_records_the_position():
+    r = run_rig("none", seed=2, duration_s=0.5, piston="spring")
+    assert set(r.channels) == {"i_c", "p1", "p2", "x"}
+    half = 0.5 * load_parameters()["stroke_m"]
+    assert np.ptp(r.channels["x"]) > 1e-3 and np.abs(r.channels["x"]).max() < half
+
+
+def test_unknown_effect_is_a_clear_error():
+    with pytest.raises(ValueError, match="effect 'leak' is not known to the virtual rig; allowed: none, leakage"):
+        run_rig("leak")
+    with pytest.raises(ValueError, match="strength = -1.0 is not allowed"):
+        run_rig("leakage", strength=-1.0)
