@@ -344,20 +344,14 @@ def test_literal_coupling_oscillates_near_supply():
 # --------------------------------------------------------------------------- the reference solution
 
 SINE_CURRENT = 0.5 * np.sin(2 * np.pi * 5.0 * np.arange(400) * 1e-3)  # 5 Hz, 0.5 A, 0.4 s at 1 ms
-END_STOP_MISS = (
-    "kernel: the RK4 substep in which the free piston reaches an end stop integrates x past "
-    "+-L/2 (the small chamber's volume below its dead volume) before clamping; the pressure "
-    "error at the impact is 1-3 % of full scale at the default 20 substeps (first order in h)")
 
 CLAMPED = (("fixed_position_m", 0.0),)
 FREE = (("piston_mode", "free"),)
 REFERENCE_CASES = [
     pytest.param("numatics", CLAMPED + (("tube_length_m", 0.5),), "step", id="step-0.5m"),
     pytest.param("numatics", CLAMPED + (("tube_length_m", 2.0),), "step", id="step-2m"),
-    pytest.param("numatics", FREE, "sine", id="sine-free-numatics",
-                 marks=pytest.mark.xfail(strict=True, reason=END_STOP_MISS)),
-    pytest.param("airpel", FREE, "sine", id="sine-free-airpel",
-                 marks=pytest.mark.xfail(strict=True, reason=END_STOP_MISS)),
+    pytest.param("numatics", FREE, "sine", id="sine-free-numatics"),
+    pytest.param("airpel", FREE, "sine", id="sine-free-airpel"),
 ]
 
 

@@ -107,7 +107,7 @@ def test_missing_coil_current_is_the_readers_error(tmp_path):
 def _write_fixed(tmp_path, name="rec", n=120):
     rig, overrides, _ = RIGS["fixed"]
     t, channels = _known_simulation("numatics", dict(overrides, tube_length_m=2.0), None, n,
-                                    1e-3, 20)
+                                    1e-3, substeps_for(1e-3))
     write_recording(tmp_path / name, t, channels, rig)
     return tmp_path / f"{name}.csv", channels
 
@@ -161,7 +161,7 @@ def test_params_file_is_applied_but_the_rig_wins(tmp_path):
     predicted = simulate_recording(rec, params=fitted)
     _, expected = _known_simulation("numatics", dict(RIGS["fixed"][1], tube_length_m=2.0,
                                                      discharge_coefficient=0.3), None, 120,
-                                    1e-3, 20)
+                                    1e-3, substeps_for(1e-3))
     np.testing.assert_allclose(predicted["p1"], expected["p1"], rtol=1e-12)
     assert np.abs(predicted["p1"] - channels["p1"]).max() > 1e3
     assert math.isclose(predicted["x"][0], 0.01)

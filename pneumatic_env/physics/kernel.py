@@ -23,7 +23,8 @@ from .effects import (chamber_energy_rates, coil_decay, dead_volume_with_tube,
                       drooped_supply_pressure, lagged_coil_current, stribeck_friction)
 from .flow import (FLOW_LAW_ISO, flow_constants, iso_subsonic_reduced_flow, orifice_mass_flow,
                    subsonic_reduced_flow)
-from .piston import (MODE_FIXED, end_of_substep, external_force, motion_direction,
+from .piston import (MODE_FIXED, apply_event, end_of_substep, event_fraction,
+                     external_force, motion_direction,
                      output_force, piston_acceleration, pneumatic_force)
 from .tube import sound_speed, tube_attenuation
 from .valve import orifice_area, spool_acceleration
@@ -43,7 +44,14 @@ Constants = namedtuple("Constants", (
     "discharge_ex", "null_leak", "seal_leak", "flow_law", "supply_resistance", "coil_lag",
     "coil_decay_half", "coil_decay_full", "energy", "gas", "temperature", "heat_conductance",
     "static_friction", "stribeck", "stribeck_v",
+    # numerical guards (docs/convergence.md): pressures and gas temperatures stay positive
+    "pressure_floor", "temperature_floor",
+    "stiffness_volume",  # lambda_max * V (m^3/s): see refinement()
 ))
+
+
+PRESSURE_FLOOR_FRACTION = 1e-3  # of ambient: a guard that keeps log/pow arguments positive
+TEMPERATURE_FLOOR_FRACTION = 1e-3  # of the wall temperature, the same guard for T1, T2
 
 
 @njit(cache=True)
@@ -98,6 +106,12 @@ def env_constants(params, env, substep_s):
         coil_decay(coil_tau, 0.5 * substep_s), coil_decay(coil_tau, substep_s),
         heat_conductance > 0.0, gas, temperature, heat_conductance,
         p[L.P_STATIC_FRICTION_N], stribeck_v > 0.0, stribeck_v,
+        PRESSURE_FLOOR_FRACTION * p[L.P_AMBIENT_PRESSURE_PA], TEMPERATURE_FLOOR_FRACTION * temperature,
+        gas * temperature * max(p[L.P_ALPHA_IN], k)
+        * p[L.P_DISCHARGE_COEFFICIENT] * max(1.0, p[L.P_EXHAUST_DISCHARGE_RATIO])
+        * (p[L.P_HOLES_PER_PATH] * math.pi * p[L.P_HOLE_RADIUS_M] ** 2
+           + p[L.P_VALVE_NULL_LEAK_AREA_M2] + p[L.P_LEAKAGE_AREA_M2] + p[L.P_ROD_SEAL_LEAK_AREA_M2])
+        * (linear_slope + c1) / math.sqrt(temperature),
     )
 
 
@@ -227,7 +241,8 @@ def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, sp
     in_2 = max(supply_2, 0.0) + max(-exhaust_2, 0.0) + max(leak_12, 0.0) + max(-seal_2, 0.0)
     out_2 = max(-supply_2, 0.0) + max(exhaust_2, 0.0) + max(-leak_12, 0.0) + max(seal_2, 0.0)
     velocity = v if direction != 0.0 else 0.0
-    v1, v2 = chamber_volumes(x, c.half_stroke, c.area_cap, c.area_rod, c.dead_cap, c.dead_rod)
+    x_in_stroke = min(max(x, -c.half_stroke), c.half_stroke)  # a trial step may overshoot a stop
+    v1, v2 = chamber_volumes(x_in_stroke, c.half_stroke, c.area_cap, c.area_rod, c.dead_cap, c.dead_rod)
     if c.energy:
         # air from the supply or the atmosphere enters at temperature_k, leakage air at
         # the temperature of the chamber it left
@@ -305,66 +320,151 @@ def _axpy(y, h, k):
             y[8] + h * k[8])
 
 
+@njit(cache=True, inline="always")
+def _coil_at(c, command_a, coil_start_a, frac):
+    """Coil current ``frac`` of a substep after ``coil_start_a`` (exact first-order lag)."""
+    if not c.coil_lag:
+        return command_a
+    if frac == 0.0:
+        return coil_start_a
+    if frac == 0.5:
+        return lagged_coil_current(command_a, coil_start_a, c.coil_decay_half)
+    if frac == 1.0:
+        return lagged_coil_current(command_a, coil_start_a, c.coil_decay_full)
+    return lagged_coil_current(command_a, coil_start_a, c.coil_decay_full ** frac)
+
+
 @njit(cache=True)
-def advance_env(params, state, history, env, head, coil_current_a, control_dt_s, n_substeps,
-                outputs):
-    """Advance environment ``env`` by one control period; write its outputs row."""
-    h = control_dt_s / n_substeps
-    c = env_constants(params, env, h)
-    n_slots = history.shape[1]
-    y = (state[L.S_X_S, env], state[L.S_V_S, env], state[L.S_P1, env], state[L.S_P2, env],
-         state[L.S_X, env], state[L.S_V, env], state[L.S_EXHAUST, env], state[L.S_T1, env],
-         state[L.S_T2, env])
-    pressure_floor = 1e-3 * c.ambient_pa
-    temperature_floor = 1e-3 * c.temperature
-    coil = state[L.S_COIL, env]
-    coil_start = coil
-    coil_half = coil_current_a
-    coil_end = coil_current_a
-    for sub in range(n_substeps):
-        head_sub = head + sub
-        if c.coil_lag:  # exact first-order lag over the substep, command held
-            coil_start = coil
-            coil_half = lagged_coil_current(coil_current_a, coil, c.coil_decay_half)
-            coil_end = lagged_coil_current(coil_current_a, coil, c.coil_decay_full)
-            coil = coil_end
-        else:
-            coil_start = coil_current_a
+def _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start_a, y, y0, direction):
+    """One classical RK4 step over substep fractions [frac0, frac0 + dfrac] (h: substep, s).
+
+    ``y0`` is the state at the substep boundary ``head`` (the delay interpolation's anchor).
+    """
+    hh = dfrac * h
+    fm = frac0 + 0.5 * dfrac
+    fe = frac0 + dfrac
+    k1 = _stage(c, history, env, head, frac0, _coil_at(c, command_a, coil_start_a, frac0), y, y0,
+                direction)
+    k2 = _stage(c, history, env, head, fm, _coil_at(c, command_a, coil_start_a, fm),
+                _axpy(y, 0.5 * hh, k1), y0, direction)
+    k3 = _stage(c, history, env, head, fm, _coil_at(c, command_a, coil_start_a, fm),
+                _axpy(y, 0.5 * hh, k2), y0, direction)
+    k4 = _stage(c, history, env, head, fe, _coil_at(c, command_a, coil_start_a, fe),
+                _axpy(y, hh, k3), y0, direction)
+    w = hh / 6.0
+    p1 = max(y[2] + w * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2]), c.pressure_floor)
+    p2 = max(y[3] + w * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3]), c.pressure_floor)
+    x = y[4]
+    v = y[5]
+    if direction != 0.0:
+        x = y[4] + w * (k1[4] + 2.0 * k2[4] + 2.0 * k3[4] + k4[4])
+        v = y[5] + w * (k1[5] + 2.0 * k2[5] + 2.0 * k3[5] + k4[5])
+    t1 = y[7]
+    t2 = y[8]
+    if c.energy:
+        t1 = max(t1 + w * (k1[7] + 2.0 * k2[7] + 2.0 * k3[7] + k4[7]), c.temperature_floor)
+        t2 = max(t2 + w * (k1[8] + 2.0 * k2[8] + 2.0 * k3[8] + k4[8]), c.temperature_floor)
+    return (y[0] + w * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
+            y[1] + w * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]),
+            p1, p2, x, v, y[6] + w * (k1[6] + 2.0 * k2[6] + 2.0 * k3[6] + k4[6]), t1, t2)
+
+
+MAX_EVENTS_PER_SUBSTEP = 4
+MIN_EVENT_FRACTION = 1e-6  # events closer than this to the interval start are applied at once
+STIFFNESS_LIMIT = 1.0  # largest h * lambda_max allowed before a substep is split (see below)
+MAX_REFINEMENT = 64  # a substep is split into at most this many equal parts
+
+
+@njit(cache=True)
+def refinement(c, y, h):
+    """Equal parts (a power of two) to split a substep into so that h * lambda <= the limit.
+
+    lambda bounds the flow-pressure stiffness dPdot/dP of a chamber (Eqs. 14, 39, 52):
+    R T alpha C_f A_max (max |m_r'| + C1) / (sqrt(T) V_min), with V_min the smaller
+    chamber volume this substep can reach. It is large only when a chamber is nearly empty
+    (piston near a stop), where a fixed substep would chatter.
+    """
+    x, v = y[4], y[5]
+    x_min = min(max(x - abs(v) * h, -c.half_stroke), c.half_stroke)
+    x_max = min(max(x + abs(v) * h, -c.half_stroke), c.half_stroke)
+    v1, _ = chamber_volumes(x_min, c.half_stroke, c.area_cap, c.area_rod, c.dead_cap, c.dead_rod)
+    _, v2 = chamber_volumes(x_max, c.half_stroke, c.area_cap, c.area_rod, c.dead_cap, c.dead_rod)
+    ratio = h * c.stiffness_volume / min(v1, v2)
+    parts = 1
+    while ratio > STIFFNESS_LIMIT and parts < MAX_REFINEMENT:
+        parts *= 2
+        ratio *= 0.5
+    return parts
+
+
+@njit(cache=True)
+def _advance_interval(c, history, env, head, frac_start, frac_end, h, command_a, coil_start_a,
+                      y, y0):
+    """Integrate substep fractions [frac_start, frac_end], splitting at piston events.
+
+    When the sliding piston's attempted step crosses an end stop or its velocity reverses,
+    the step is redone up to the event (located by linear interpolation), the event is
+    applied (inelastic stop, or v = 0 and the stick test), and the rest is integrated.
+    """
+    frac0 = frac_start
+    for _ in range(MAX_EVENTS_PER_SUBSTEP):
         direction = 0.0
         if c.mode != MODE_FIXED:
             applied = (pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area,
                                        c.ambient_pa)
                        - external_force(c.mode, y[4], c.load_force, c.spring_k, c.spring_rest))
             direction = motion_direction(y[4], y[5], applied, c.stick_threshold, c.half_stroke)
-        k1 = _stage(c, history, env, head_sub, 0.0, coil_start, y, y, direction)
-        k2 = _stage(c, history, env, head_sub, 0.5, coil_half, _axpy(y, 0.5 * h, k1), y,
-                    direction)
-        k3 = _stage(c, history, env, head_sub, 0.5, coil_half, _axpy(y, 0.5 * h, k2), y,
-                    direction)
-        k4 = _stage(c, history, env, head_sub, 1.0, coil_end, _axpy(y, h, k3), y,
-                    direction)
-        w = h / 6.0
-        x_s = y[0] + w * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
-        v_s = y[1] + w * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
-        p1 = max(y[2] + w * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2]), pressure_floor)
-        p2 = max(y[3] + w * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3]), pressure_floor)
-        x = y[4]
-        v = y[5]
+        dfrac = frac_end - frac0
+        trial = _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start_a, y, y0,
+                     direction)
+        theta = -1.0
         if direction != 0.0:
-            x, v = end_of_substep(y[4] + w * (k1[4] + 2.0 * k2[4] + 2.0 * k3[4] + k4[4]),
-                                  y[5] + w * (k1[5] + 2.0 * k2[5] + 2.0 * k3[5] + k4[5]),
-                                  direction, c.half_stroke)
-        exhaust = y[6] + w * (k1[6] + 2.0 * k2[6] + 2.0 * k3[6] + k4[6])
-        t1 = y[7]
-        t2 = y[8]
-        if c.energy:
-            t1 = max(t1 + w * (k1[7] + 2.0 * k2[7] + 2.0 * k3[7] + k4[7]), temperature_floor)
-            t2 = max(t2 + w * (k1[8] + 2.0 * k2[8] + 2.0 * k3[8] + k4[8]), temperature_floor)
-        y = (x_s, v_s, p1, p2, x, v, exhaust, t1, t2)
+            theta = event_fraction(y[4], y[5], trial[4], trial[5], direction, c.half_stroke)
+        if theta < 0.0:
+            return trial
+        if theta * dfrac > MIN_EVENT_FRACTION:
+            y = _rk4(c, history, env, head, frac0, theta * dfrac, h, command_a, coil_start_a,
+                     y, y0, direction)
+            frac0 += theta * dfrac
+        x, v = apply_event(y[4], y[5], direction, c.half_stroke)
+        y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
+    # out of events: the rest of the interval with the piston held
+    return _rk4(c, history, env, head, frac0, frac_end - frac0, h, command_a, coil_start_a, y,
+                y0, 0.0)
+
+
+@njit(cache=True)
+def advance_env(params, state, history, env, head, coil_current_a, control_dt_s, n_substeps,
+                outputs):
+    """Advance environment ``env`` by one control period; write its outputs row.
+
+    ``n_substeps`` RK4 substeps, each split into equal parts where ``refinement`` finds the
+    flow stiff, and at piston events (``_advance_interval``). The delay history is written
+    at the substep boundaries only, so its length does not depend on the splitting.
+    """
+    h = control_dt_s / n_substeps
+    c = env_constants(params, env, h)
+    n_slots = history.shape[1]
+    y = (state[L.S_X_S, env], state[L.S_V_S, env], state[L.S_P1, env], state[L.S_P2, env],
+         state[L.S_X, env], state[L.S_V, env], state[L.S_EXHAUST, env], state[L.S_T1, env],
+         state[L.S_T2, env])
+    coil = state[L.S_COIL, env]
+    for sub in range(n_substeps):
+        head_sub = head + sub
+        coil_start = coil if c.coil_lag else coil_current_a
+        y0 = y
+        parts = refinement(c, y, h)
+        for part in range(parts):
+            y = _advance_interval(c, history, env, head_sub, part / parts, (part + 1) / parts, h,
+                                  coil_current_a, coil_start, y, y0)
+        x, v = end_of_substep(y[4], y[5], c.half_stroke)
+        y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
+        if c.coil_lag:
+            coil = _coil_at(c, coil_current_a, coil_start, 1.0)
         slot = (head_sub + 1) % n_slots
-        history[env, slot, L.H_X_S] = x_s
-        history[env, slot, L.H_P1] = p1
-        history[env, slot, L.H_P2] = p2
+        history[env, slot, L.H_X_S] = y[0]
+        history[env, slot, L.H_P1] = y[2]
+        history[env, slot, L.H_P2] = y[3]
     for row in range(len(y)):  # the RK4 rows are the state rows up to t2_k
         state[row, env] = y[row]
     state[L.S_COIL, env] = coil if c.coil_lag else coil_current_a

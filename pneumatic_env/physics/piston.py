@@ -64,12 +64,41 @@ def piston_acceleration(applied_force_n, piston_velocity_m_per_s, direction,
 
 
 @njit(cache=True)
-def end_of_substep(piston_position_m, piston_velocity_m_per_s, direction, half_stroke_m):
-    """Stick when the velocity reverses within a substep; stop inelastically at +-L/2."""
+def event_fraction(x0_m, v0_m_per_s, x1_m, v1_m_per_s, direction, half_stroke_m):
+    """Where in a sliding step [0, 1] the piston reaches a stop or its velocity reverses.
+
+    Linear interpolation of the attempted step's position (stop) and velocity (reversal);
+    -1 when neither happens within the step.
+    """
+    theta = -1.0
+    stop = direction * half_stroke_m
+    if (x1_m - stop) * direction >= 0.0 and x1_m != x0_m:
+        theta = min(max((stop - x0_m) / (x1_m - x0_m), 0.0), 1.0)
+    if v1_m_per_s * direction <= 0.0 and v1_m_per_s != v0_m_per_s:
+        reversal = min(max(v0_m_per_s / (v0_m_per_s - v1_m_per_s), 0.0), 1.0)
+        if theta < 0.0 or reversal < theta:
+            theta = reversal
+    return theta
+
+
+@njit(cache=True)
+def apply_event(piston_position_m, piston_velocity_m_per_s, direction, half_stroke_m):
+    """The state right after an event found by ``event_fraction``.
+
+    At a stop the piston stops there (inelastic); otherwise the velocity has reached zero
+    and ``motion_direction`` decides next whether static friction holds it.
+    """
+    x = piston_position_m
+    if (x - direction * half_stroke_m) * direction >= -1e-12 * half_stroke_m:
+        x = direction * half_stroke_m
+    return min(max(x, -half_stroke_m), half_stroke_m), 0.0
+
+
+@njit(cache=True)
+def end_of_substep(piston_position_m, piston_velocity_m_per_s, half_stroke_m):
+    """Keep the piston within +-L/2 (inelastic stops) after a substep."""
     x = piston_position_m
     v = piston_velocity_m_per_s
-    if direction != 0.0 and v * direction <= 0.0:
-        v = 0.0
     if x >= half_stroke_m:
         x = half_stroke_m
         if v > 0.0:
