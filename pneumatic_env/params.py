@@ -40,7 +40,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import yaml
 
-from pneumatic_env.physics.layout import DISCRETE_PARAMETERS, N_PARAMS, PARAMETER_NAMES
+from pneumatic_env.physics.layout import (CYLINDER_PARAMETERS, DISCRETE_PARAMETERS, N_PARAMS,
+                                          PARAMETER_NAMES)
 
 __all__ = [
     "CONFIG_DIR_ENV",
@@ -69,18 +70,6 @@ DEFAULT_CYLINDER = "numatics-0750D02-03A"
 
 BASE_FILES = ("air.yaml", "valve.yaml", "tube.yaml", "load.yaml", "numerics.yaml",
               "effects.yaml")
-CYLINDER_PARAMETERS = (
-    "bore_diameter_m",
-    "rod_diameter_m",
-    "stroke_m",
-    "dead_volume_cap_m3",
-    "dead_volume_rod_m3",
-    "piston_mass_kg",
-    "static_friction_n",
-    "dynamic_friction_n",
-    "viscous_friction_n_s_per_m",
-    "leakage_area_m2",
-)
 _PARAMETER_INDEX = {name: i for i, name in enumerate(PARAMETER_NAMES)}
 # Numerics settings in numerics.yaml that are not kernel parameter rows.
 NUMERICS_NAMES = ("control_dt_s", "substeps")

@@ -67,6 +67,8 @@ import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
 from scipy.optimize import brentq
 
+from pneumatic_env.physics.layout import EFFECT_NEUTRAL_VALUES
+
 __all__ = [
     "ModelConstants",
     "simulate_reference",
@@ -123,17 +125,7 @@ _REQUIRED = (
 # Effects beyond the paper's model (docs/effects.md) and their neutral values. The
 # reference implements docs/model.md only, so it refuses a parameter set that switches
 # one of them on rather than silently computing a different model.
-NEUTRAL_EFFECTS = {
-    "tube_volume_fraction": 0.0,
-    "rod_seal_leak_area_m2": 0.0,
-    "valve_null_leak_area_m2": 0.0,
-    "exhaust_discharge_ratio": 1.0,
-    "flow_law": 0.0,
-    "supply_resistance_pa_s_per_kg": 0.0,
-    "coil_time_constant_s": 0.0,
-    "wall_heat_transfer_w_per_k": 0.0,
-    "stribeck_velocity_m_per_s": 0.0,
-}
+NEUTRAL_EFFECTS = EFFECT_NEUTRAL_VALUES
 
 
 # --------------------------------------------------------------------------------------

@@ -18,17 +18,7 @@ from pneumatic_env.simulator import BatchSimulator
 
 from conftest import areas, run_batch
 
-NEUTRAL = {
-    "tube_volume_fraction": 0.0,
-    "rod_seal_leak_area_m2": 0.0,
-    "valve_null_leak_area_m2": 0.0,
-    "exhaust_discharge_ratio": 1.0,
-    "flow_law": 0.0,
-    "supply_resistance_pa_s_per_kg": 0.0,
-    "coil_time_constant_s": 0.0,
-    "wall_heat_transfer_w_per_k": 0.0,
-    "stribeck_velocity_m_per_s": 0.0,
-}
+NEUTRAL = L.EFFECT_NEUTRAL_VALUES
 # one setting per effect that switches it on
 ON = {
     "tube_volume_fraction": {"tube_volume_fraction": 1.0},
@@ -319,3 +309,10 @@ def test_stribeck_friction_falls_from_static_to_dynamic_with_speed():
         assert accel == pytest.approx(expected, rel=1e-12), v
     assert E.stribeck_friction(0.0, f_df, f_sf, v_s) == f_sf
     assert E.stribeck_friction(1.0, f_df, f_sf, v_s) == pytest.approx(f_df, rel=1e-12)
+
+
+@pytest.mark.parametrize("cylinder", ["numatics", "airpel"])
+def test_every_effect_is_off_in_the_shipped_configs(cylinder):
+    params = load_parameters(cylinder)
+    for name, neutral in L.EFFECT_NEUTRAL_VALUES.items():
+        assert params[name] == neutral, name

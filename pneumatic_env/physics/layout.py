@@ -73,6 +73,23 @@ PARAMETER_NAMES = (
     "stribeck_velocity_m_per_s",  # Stribeck velocity of the sliding friction
 )
 
+# The parameters a cylinder file (configs/cylinders/) defines: bore through leakage.
+CYLINDER_PARAMETERS = PARAMETER_NAMES[PARAMETER_NAMES.index("bore_diameter_m"):
+                                      PARAMETER_NAMES.index("leakage_area_m2") + 1]
+
+# The value that switches each effect beyond the paper off (docs/effects.md).
+EFFECT_NEUTRAL_VALUES = {
+    "tube_volume_fraction": 0.0,
+    "rod_seal_leak_area_m2": 0.0,
+    "valve_null_leak_area_m2": 0.0,
+    "exhaust_discharge_ratio": 1.0,
+    "flow_law": 0.0,
+    "supply_resistance_pa_s_per_kg": 0.0,
+    "coil_time_constant_s": 0.0,
+    "wall_heat_transfer_w_per_k": 0.0,
+    "stribeck_velocity_m_per_s": 0.0,
+}
+
 _g = globals()
 for _i, _name in enumerate(PARAMETER_NAMES):
     _g["P_" + _name.upper()] = _i
