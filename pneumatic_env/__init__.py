@@ -5,6 +5,10 @@ registers the environments listed by ``registered_ids()``.
 """
 from gymnasium.envs.registration import register, registry
 
+from ._numba_cache import invalidate_stale_numba_cache
+
+invalidate_stale_numba_cache()  # before any jitted function is loaded from the cache
+
 __version__ = "0.1.0"
 
 CYLINDER_IDS = {"Numatics": "numatics-0750D02-03A", "Airpel": "airpel-E16D3.0N"}

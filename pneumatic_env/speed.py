@@ -62,16 +62,17 @@ RK4_STAGES = 4
 WARMUP_STEPS = 50
 OPS = ("exp", "log", "sqrt", "acos", "div", "flop", "imod")
 
-# Work of the kernel, counted by reading pneumatic_env/physics/*.py with every effect of
-# docs/effects.md off and the command tube coupling. Only operations that depend on the
-# state are counted: expressions of the per-environment constants alone (pi D mu,
-# mu / D^2, the laminar R_t R T tau, 2 R_h, ...) are loop-invariant and hoisted out of
-# the substep loop by the compiler. "flop" is an add, subtract, multiply, negation, abs,
-# min or max; "div" a floating-point division; "imod" an integer modulo; pow (``**``)
-# counts as one exp and one log. Keys are "<piece>:<branch>"; the branch taken by each
-# piece is sampled from the benchmark run (``_sample_regimes``).
+# Work of the kernel, counted by reading pneumatic_env/physics/*.py (the kernel with
+# substep refinement and piston events) with every effect of docs/effects.md off, the rod
+# clamped and the command tube coupling. Only operations that depend on the state are
+# counted: expressions of the per-environment constants alone (pi D mu, mu / D^2, the
+# laminar R_t R T tau, 2 R_h, ...) are loop-invariant and hoisted out of the substep loop
+# by the compiler. "flop" is an add, subtract, multiply, negation, abs, min, max or floor;
+# "div" a floating-point division; "imod" an integer modulo; pow (``**``) counts as one
+# exp and one log. Keys are "<piece>:<branch>"; the branch each piece takes is sampled
+# from the benchmark run (``_sample_regimes``). Update this table when the kernel changes.
 KERNEL_WORK = {
-    # valve.orifice_area (Eqs. 41-45, 44): one per valve direction (x_s and -x_s), per RHS
+    # valve.orifice_area (Eqs. 41-45): one per valve direction (x_s and -x_s), per RHS
     "area:closed": {"flop": 1},
     "area:partial": {"acos": 1, "sqrt": 1, "div": 1, "flop": 8},
     "area:full": {"flop": 1},
@@ -87,17 +88,19 @@ KERNEL_WORK = {
     "tube:turbulent": {"exp": 1, "sqrt": 2, "div": 2, "flop": 9},
     # kernel.delayed_value: ring-buffer read and linear interpolation, per delayed channel
     # (the spool; also both pressures with the literal coupling), per RHS
-    "delay_read:ring": {"imod": 2, "flop": 3},
-    # kernel.derivatives besides the valve paths, rod clamped: the sums of the flows in and
-    # out of each chamber, chamber.chamber_volumes, chamber.pressure_rate (x2),
-    # valve.spool_acceleration, the exhaust rate, the null-leak area additions
-    "rhs_rest:fixed": {"div": 3, "flop": 66},
-    # kernel.advance_env per substep: three kernel._axpy (9 rows), the RK4 combination of
-    # the five integrated rows (x, v held), two pressure floors, the history slot
-    "rk4_update:fixed": {"imod": 1, "flop": 91},
-    # kernel.advance_env per control period: kernel.env_constants (flow.flow_constants,
-    # the linearised flow slope, tube.sound_speed, areas, dead volumes) and the outputs
-    "control_step:constants": {"exp": 3, "log": 3, "sqrt": 5, "div": 13, "flop": 43},
+    "delay_read:ring": {"imod": 2, "flop": 6},
+    # kernel.derivatives besides the valve paths, rod clamped: the stroke clamp, the sums of
+    # the flows in and out of each chamber, chamber.chamber_volumes, chamber.pressure_rate
+    # (x2), valve.spool_acceleration, the exhaust rate, the null-leak area additions
+    "rhs_rest:fixed": {"div": 3, "flop": 68},
+    # per substep, kernel.advance_env: kernel.refinement (one part), the part's fractions,
+    # kernel._advance_interval -> kernel._rk4 (three kernel._axpy over 9 rows, the RK4
+    # combination of the five integrated rows, two pressure floors), the history slot
+    "substep:fixed": {"imod": 1, "div": 4, "flop": 112},
+    # per control period, kernel.advance_env: kernel.env_constants (flow.flow_constants,
+    # the linearised flow slope, tube.sound_speed, areas, dead volumes, the stiffness
+    # bound) and the outputs
+    "control_step:constants": {"exp": 3, "log": 3, "sqrt": 6, "div": 14, "flop": 55},
 }
 
 
@@ -235,7 +238,7 @@ def measure_vector(plan: Plan, log) -> dict:
 
     from .simulator import PARALLEL_MIN_ENVS, BatchSimulator
 
-    env_rows, kernel_rows, regimes = [], [], None
+    env_rows, kernel_rows, regimes, mismatch = [], [], None, []
     regime_n = max(n for n in plan.vector_sizes if n <= SCALING_MIN_N)
     for n in plan.vector_sizes:
         env = gym.make_vec(ENV_ID, num_envs=n)
@@ -247,6 +250,30 @@ def measure_vector(plan: Plan, log) -> dict:
             env.step(env.action_space.sample())
         for _ in range(plan.warmup_steps):
             env.step(env.action_space.sample())
+
+        n_substeps, dt = core.sim.n_substeps, core.sim.control_dt_s
+        configs = [("serial", 1)]
+        if n >= PARALLEL_MIN_ENVS:
+            configs += [("parallel", t) for t in plan.threads]
+        sims = {kind: BatchSimulator(np.repeat(core.sim.params[:, :1], n, axis=1), dt,
+                                     n_substeps, parallel=kind == "parallel")
+                for kind, _ in configs}
+        for kind, threads in configs:  # warm-up, then the env's warmed state
+            _set_threads(threads)
+            sims[kind].step(np.zeros(n))
+            _copy_batch(core.sim, sims[kind])
+        # the env's own kernel must be the BatchSimulator's: a stale Numba cache of a module
+        # that inlines the physics (cache=True does not track other files) breaks this
+        action = env.action_space.sample()
+        env.step(action)
+        sims["serial"].step(np.asarray(action, dtype=np.float64).reshape(n))
+        if not np.array_equal(core.sim.state, sims["serial"].state):
+            mismatch.append(n)
+            log(f"WARNING N={n}: the env's step does not reproduce BatchSimulator.step "
+                "(stale Numba cache? clear the __pycache__ folders of pneumatic_env)")
+        for sim in sims.values():
+            _copy_batch(core.sim, sim)
+
         rates = {t: [] for t in plan.threads}
         cpu = {t: [] for t in plan.threads}
         for _ in range(plan.repeats):
@@ -257,32 +284,18 @@ def measure_vector(plan: Plan, log) -> dict:
                     threads if core.sim.parallel else 1)
                 rates[threads].append(rate)
                 cpu[threads].append(share)
-        n_substeps = core.sim.n_substeps
         for threads in plan.threads:
             env_rows.append({"n": n, "threads": threads,
                              "kernel": "parallel" if core.sim.parallel else "serial",
                              "rates": rates[threads], "cpu": cpu[threads],
                              "substeps": n_substeps,
                              "bytes_per_env": _array_bytes(core, core.sim) / n})
-        column = core.sim.params[:, :1]
-        dt, i_max = core.sim.control_dt_s, core.i_max
-        warmed = core.sim
+        i_max = core.i_max
         env.close()
 
-        configs = [("serial", 1)]
-        if n >= PARALLEL_MIN_ENVS:
-            configs += [("parallel", t) for t in plan.threads]
-        sims = {kind: BatchSimulator(np.repeat(column, n, axis=1), dt, n_substeps,
-                                     parallel=kind == "parallel") for kind, _ in configs}
-        rng = np.random.default_rng(0)
-        currents = rng.uniform(-i_max, i_max, (16, n))
+        currents = np.random.default_rng(0).uniform(-i_max, i_max, (16, n))
         krates = {cfg: [] for cfg in configs}
         kcpu = {cfg: [] for cfg in configs}
-        for kind, threads in configs:  # warm-up
-            _set_threads(threads)
-            sim = sims[kind]
-            sim.step(currents[0])
-            sim.state[:], sim.history[:], sim.head = warmed.state, warmed.history, warmed.head
         for _ in range(plan.repeats):
             for kind, threads in configs:
                 _set_threads(threads)
@@ -302,7 +315,16 @@ def measure_vector(plan: Plan, log) -> dict:
             f"{t} thread(s) {_median(rates[t]):.0f}" for t in plan.threads) + " env-steps/s")
         del sims
     _set_threads(plan.threads[-1])
-    return {"env": env_rows, "kernel": kernel_rows, "regimes": regimes, "regime_n": regime_n}
+    return {"env": env_rows, "kernel": kernel_rows, "regimes": regimes, "regime_n": regime_n,
+            "mismatch": mismatch}
+
+
+def _copy_batch(source, target) -> None:
+    """Put ``target`` (a BatchSimulator of the same size) in ``source``'s state."""
+    target.state[:] = source.state
+    target.history[:] = source.history
+    target.outputs[:] = source.outputs
+    target.head = source.head
 
 
 def _kernel_rate(sim, currents: np.ndarray, seconds: float, min_steps: int) -> float:
@@ -583,7 +605,7 @@ def kernel_ceiling(regimes: dict, op_ns: dict, n_substeps: int) -> dict:
     for key, weight in regimes["per_rhs"].items():
         for op, count in KERNEL_WORK[key].items():
             per_substep[op] += RK4_STAGES * weight * count
-    for op, count in KERNEL_WORK["rk4_update:fixed"].items():
+    for op, count in KERNEL_WORK["substep:fixed"].items():
         per_substep[op] += count
     for op, count in KERNEL_WORK["control_step:constants"].items():
         per_substep[op] += count / n_substeps
@@ -707,7 +729,13 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
               f"Default numerics (`load_numerics()`): control period "
               f"{numerics['control_dt_s'] * 1e3:g} ms, {numerics['substeps']} RK4 substeps per "
               f"control period ({RK4_STAGES} right-hand-side evaluations each); environment "
-              f"`{ENV_ID}`.", "",
+              f"`{ENV_ID}`.", ""]
+    mismatch = res["vector"]["mismatch"]
+    lines += [("**Warning: at N = " + ", ".join(map(str, mismatch)) + " the env's step did not "
+               "reproduce `BatchSimulator.step` bit for bit: its jitted task kernel is not "
+               "the current physics (stale Numba cache?). Its rates are not valid.**")
+              if mismatch else "The env's step reproduced `BatchSimulator.step` bit for bit "
+              "at every N (its jitted task kernel runs the current physics).", "",
               "## Ratios", ""]
     lines += _table(RATIO_HEADERS, _ratio_rows(res, plan))
     lines += ["", "## Single environments (gym.make, `gymnasium.utils.performance.benchmark_step`)",

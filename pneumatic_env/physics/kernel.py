@@ -371,7 +371,7 @@ def _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start_a, y, y0,
 
 MAX_EVENTS_PER_SUBSTEP = 4
 MIN_EVENT_FRACTION = 1e-6  # events closer than this to the interval start are applied at once
-STIFFNESS_LIMIT = 1.0  # largest h * lambda_max allowed before a substep is split (see below)
+STIFFNESS_LIMIT = 2.0  # largest h * lambda_max before a substep is split (RK4's real-axis limit: 2.79)
 MAX_REFINEMENT = 64  # a substep is split into at most this many equal parts
 
 
