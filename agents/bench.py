@@ -24,8 +24,8 @@ import gymnasium as gym
 import numpy as np
 
 import pneumatic_env
-from pneumatic_env.envs.tasks import _scale_spec  # scale-unit reference spec -> SI
-from pneumatic_env.params import ConfigError, _read_yaml, config_dir, load_numerics
+from pneumatic_env.envs.tasks import scale_spec  # scale-unit reference spec -> SI
+from pneumatic_env.params import ConfigError, read_yaml, config_dir, load_numerics
 from pneumatic_env.references import make_reference
 
 from .base import Controller, ControllerContext, ZeroController
@@ -81,7 +81,7 @@ def default_suite_path() -> Path:
 def load_suite(path: str | Path | None = None) -> Suite:
     """Read and validate the suite file (default ``configs/benchmark.yaml``)."""
     path = Path(path) if path is not None else default_suite_path()
-    data = _read_yaml(path)
+    data = read_yaml(path)
     where = str(path)
 
     def need(mapping, key, kind, owner):
@@ -177,7 +177,7 @@ def closed_loop(env, controller: Controller, references: Sequence[dict], seeds: 
     n_ref = core.references.shape[1]
     for i, spec in enumerate(references):
         rng = gym.utils.seeding.np_random(int(seeds[i]))[0]
-        si = make_reference(_scale_spec(spec, core.scale))
+        si = make_reference(scale_spec(spec, core.scale))
         core.references[i] = si.generate(n_ref, core.dt, rng)
     obs = core.observation()
     controller.reset()

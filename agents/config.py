@@ -20,7 +20,7 @@ from typing import Any, Mapping
 
 import yaml
 
-from pneumatic_env.params import ConfigError, _read_yaml, config_dir  # YAML 1.2 floats, cached
+from pneumatic_env.params import ConfigError, read_yaml, config_dir  # YAML 1.2 floats, cached
 
 __all__ = ["ConfigError", "agent_config_dir", "agent_config_path", "load_agent_config",
            "write_agent_config", "is_entry"]
@@ -76,7 +76,7 @@ def load_agent_config(path: str | os.PathLike, raw: tuple = ()) -> dict:
     p = agent_config_path(path)
     if not p.is_file():
         raise ConfigError(f"agent config {str(p)!r} does not exist")
-    data = _read_yaml(p)
+    data = read_yaml(p)
     if not isinstance(data, Mapping):
         raise ConfigError(f"{p}: must be a mapping, got {type(data).__name__}")
     return {str(k): (v if k in raw else _strip(v, f"{p}: {k}")) for k, v in data.items()}

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pneumatic_env.params import _read_yaml, load_numerics
+from pneumatic_env.params import read_yaml, load_numerics
 
 from .base import ControllerContext
 from .bench import closed_loop, load_suite, make_env, parse_variant
@@ -72,7 +72,7 @@ def grid_search(controller: str, variant: str, tuning: dict) -> dict:
 def tuned_config(controller: str, variant: str, result: dict, tuning_path: Path,
                  command: str) -> dict:
     """The config tree for ``configs/agents/<controller>-<variant>.yaml`` (entries kept)."""
-    raw = _read_yaml(tuning_path)
+    raw = read_yaml(tuning_path)
     section = raw[controller]
     best = result["combos"][result["best"]]
     gains = {}

@@ -56,6 +56,7 @@ __all__ = [
     "parameter_array",
     "parameter_info",
     "resolve_cylinder",
+    "read_yaml",
     "save_parameters",
 ]
 
@@ -119,8 +120,8 @@ def _stamp(path: Path) -> tuple[str, int, int]:
     return str(path), st.st_mtime_ns, st.st_size
 
 
-def _read_yaml(path: Path) -> Any:
-    """Parsed content of a YAML file; cached until the file changes. Do not mutate."""
+def read_yaml(path: Path) -> Any:
+    """Parsed content of a YAML file (YAML 1.2 floats); cached until the file changes. Do not mutate."""
     return _parse_yaml_cached(*_stamp(path))
 
 
@@ -274,7 +275,7 @@ def _parse_entry(path: str, name: str, entry: Any, level: int) -> _Spec:
 
 
 def _parse_file(path: Path, level: int) -> dict[str, _Spec]:
-    data = _read_yaml(path)
+    data = read_yaml(path)
     if not isinstance(data, Mapping) or not data:
         raise ConfigError(f"{path}: must be a non-empty mapping of parameter entries")
     return {str(name): _parse_entry(str(path), str(name), entry, level)
@@ -479,7 +480,7 @@ def _params_items(params: Any, specs: Mapping[str, _Spec]) -> tuple[list, str]:
     """(name, raw value) pairs and a source label from a params file or mapping."""
     if isinstance(params, (str, os.PathLike)):
         source = str(params)
-        data = _read_yaml(Path(params).expanduser())
+        data = read_yaml(Path(params).expanduser())
         if not isinstance(data, Mapping):
             raise ConfigError(f"{source}: must be a mapping of parameter names to values")
     elif isinstance(params, Mapping):

@@ -93,7 +93,7 @@ KERNEL_WORK = {
     # the flows in and out of each chamber, chamber.chamber_volumes, chamber.pressure_rate
     # (x2), valve.spool_acceleration, the exhaust rate, the null-leak area additions
     "rhs_rest:fixed": {"div": 3, "flop": 68},
-    # per substep, kernel.advance_env: kernel.refinement (one part), the part's fractions,
+    # per part of a substep (kernel.refinement), kernel.advance_env: the refinement, the part's fractions,
     # kernel._advance_interval -> kernel._rk4 (three kernel._axpy over 9 rows, the RK4
     # combination of the five integrated rows, two pressure floors), the history slot
     "substep:fixed": {"imod": 1, "div": 4, "flop": 112},
@@ -557,6 +557,7 @@ def _sample_regimes(sim, currents: np.ndarray, steps: int = 8, envs: int = 128) 
     from .physics import layout as L
 
     counts: dict = {}
+    parts = 0
 
     def add(key, weight=1.0):
         counts[key] = counts.get(key, 0.0) + weight
@@ -593,20 +594,24 @@ def _sample_regimes(sim, currents: np.ndarray, steps: int = 8, envs: int = 128) 
                 add("tube:" + ("turbulent" if re >= c.reynolds_turbulent else "laminar"))
             add("delay_read:ring", 3.0 if c.literal else 1.0)
             add("rhs_rest:fixed")
+            state = tuple(float(v) for v in s[:L.S_T2 + 1])
+            parts += kernel.refinement(c, state, h)
             samples += 1
     per_rhs = {k: v / samples for k, v in counts.items()}
-    return {"per_rhs": per_rhs, "samples": samples}
+    return {"per_rhs": per_rhs, "samples": samples, "parts": parts / samples}
 
 
 def kernel_ceiling(regimes: dict, op_ns: dict, n_substeps: int) -> dict:
-    """Operations per substep (from KERNEL_WORK and the sampled branch mix) and the time
-    they take at the measured cost per operation: a floor on the kernel's ns per substep."""
+    """Operations per substep (from KERNEL_WORK, the sampled branch mix and the sampled
+    number of parts ``kernel.refinement`` splits a substep into) and the time they take at
+    the measured cost per operation: a floor on the kernel's ns per substep."""
     per_substep = dict.fromkeys(OPS, 0.0)
+    parts = regimes["parts"]
     for key, weight in regimes["per_rhs"].items():
         for op, count in KERNEL_WORK[key].items():
-            per_substep[op] += RK4_STAGES * weight * count
+            per_substep[op] += parts * RK4_STAGES * weight * count
     for op, count in KERNEL_WORK["substep:fixed"].items():
-        per_substep[op] += count
+        per_substep[op] += parts * count
     for op, count in KERNEL_WORK["control_step:constants"].items():
         per_substep[op] += count / n_substeps
     ns = {op: per_substep[op] * op_ns[op] for op in OPS}
@@ -810,7 +815,8 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
         rows.append(("**measured**", "", "", _fmt(c["measured_ns"])))
         lines += _table(("operation", "ns each", "per substep", "ns per substep"), rows)
         mix = ", ".join(f"{k} {v:.2f}" for k, v in sorted(c["mix"].items()))
-        lines += ["", f"Branches per right-hand-side evaluation: {mix}."]
+        lines += ["", f"Branches per right-hand-side evaluation: {mix}; parts per substep "
+                  f"(`kernel.refinement`): {c['parts']:.2f}."]
     lines += ["", "## How it is measured", "",
               "- Single envs: `gymnasium.utils.performance.benchmark_step` (a random action per "
               "step, resets included), through `gym.make` with its default wrappers.",
@@ -869,6 +875,7 @@ def run(args) -> int:
                   if r["n"] == n_ref and r["kernel"] == "serial"][0]
         ceiling = kernel_ceiling(regimes, op_ns, serial["substeps"])
         ceiling.update(op_ns=op_ns, mix=regimes["per_rhs"], samples=regimes["samples"],
+                       parts=regimes["parts"],
                        measured_ns=1e9 / (_median(serial["rates"]) * serial["substeps"]))
         res["ceiling"] = ceiling
     finally:

@@ -79,7 +79,7 @@ def force_scale(param: dict) -> float:
     return float(min(push, pull))
 
 
-def _scale_spec(spec: dict, scale: float) -> dict:
+def scale_spec(spec: dict, scale: float) -> dict:
     """Multiply a reference spec's amplitude/offset/values by ``scale`` (recursively)."""
     out = dict(spec)
     for key in ("amplitude", "offset"):
@@ -88,7 +88,7 @@ def _scale_spec(spec: dict, scale: float) -> dict:
     if "values" in out:
         out["values"] = np.asarray(out["values"], dtype=float) * scale
     if "choices" in out:
-        out["choices"] = [_scale_spec(c, scale) for c in out["choices"]]
+        out["choices"] = [scale_spec(c, scale) for c in out["choices"]]
     return out
 
 
@@ -150,7 +150,7 @@ class TaskCore:
         self.force_scale = force_scale(base)
         self.reference_spec = make_reference(
             self.options.reference if self.options.reference is not None
-            else _scale_spec(task.reference, self.scale))
+            else scale_spec(task.reference, self.scale))
         self.i_max = base["coil_current_max_a"]
         self.pa, self.ps = base["ambient_pressure_pa"], base["supply_pressure_pa"]
         self.half_stroke = 0.5 * base["stroke_m"]

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-from pneumatic_env.params import ConfigError, _read_yaml, config_dir
+from pneumatic_env.params import ConfigError, read_yaml, config_dir
 
 __all__ = ["CONFIG_FILE", "FitParameter", "IdentificationConfig", "load_config"]
 
@@ -224,5 +224,5 @@ def _cached(path: str, mtime_ns: int, size: int) -> IdentificationConfig:
     key = (path, mtime_ns, size)
     if key not in _CACHE:
         _CACHE.clear()
-        _CACHE[key] = IdentificationConfig(_read_yaml(Path(path)), path)
+        _CACHE[key] = IdentificationConfig(read_yaml(Path(path)), path)
     return _CACHE[key]
