@@ -93,9 +93,10 @@ KERNEL_WORK = {
     # the flows in and out of each chamber, chamber.chamber_volumes, chamber.pressure_rate
     # (x2), valve.spool_acceleration, the exhaust rate, the null-leak area additions
     "rhs_rest:fixed": {"div": 3, "flop": 68},
-    # per part of a substep (kernel.refinement), kernel.advance_env: the refinement, the part's fractions,
-    # kernel._advance_interval -> kernel._rk4 (three kernel._axpy over 9 rows, the RK4
-    # combination of the five integrated rows, two pressure floors), the history slot
+    # per part of a substep (kernel.refinement; one part unless the flow is stiff), in
+    # kernel.advance_env: the refinement, the part's fractions, kernel._advance_interval ->
+    # kernel._rk4 (three kernel._axpy over 9 rows, the RK4 combination of the five
+    # integrated rows, two pressure floors), the history slot
     "substep:fixed": {"imod": 1, "div": 4, "flop": 112},
     # per control period, kernel.advance_env: kernel.env_constants (flow.flow_constants,
     # the linearised flow slope, tube.sound_speed, areas, dead volumes, the stiffness
