@@ -52,7 +52,8 @@ def test_identification_excitation_has_every_segment_in_both_blocks():
 
 def test_strength_zero_is_the_plant_without_the_effect():
     base = run_rig("none", seed=7, duration_s=0.3)
-    for effect in ("leakage", "valve_null_leak", "pressure_sensor_lag", "coil_lag"):
+    for effect in ("leakage", "valve_null_leak", "pressure_sensor_lag", "coil_lag",
+                   "load_cell_compliance"):
         zero = run_rig(effect, strength=0.0, seed=7, duration_s=0.3)
         for ch in base.channels:
             assert np.array_equal(zero.channels[ch], base.channels[ch]), (effect, ch)
@@ -111,6 +112,24 @@ def test_spring_rig_records_the_position():
     assert set(r.channels) == {"i_c", "p1", "p2", "x"}
     half = 0.5 * load_parameters()["stroke_m"]
     assert np.ptp(r.channels["x"]) > 1e-3 and np.abs(r.channels["x"]).max() < half
+
+
+def test_load_cell_compliance_holds_the_rod_by_a_spring_at_the_clamp():
+    cfg = load_config()
+    rigid = run_rig("none", seed=4, duration_s=0.5)
+    soft = run_rig("load_cell_compliance", seed=4, duration_s=0.5)
+    true = soft.truth["parameters"]
+    assert true["piston_mode"] == 2 and true["spring_rest_position_m"] == 0.0
+    assert true["spring_stiffness_n_per_m"] == cfg.number("virtual_rig", "effects",
+                                                          "load_cell_compliance")
+    # the sidecar still says "clamped": the diagnosis must find the compliance itself
+    assert soft.rig["piston"] == rigid.rig["piston"] == {"mode": "fixed", "position_m": 0.0}
+    assert set(soft.channels) == {"i_c", "p1", "p2", "f"}
+    # the force differs from the rigid clamp by more than the load-cell noise
+    noise = cfg.number("virtual_rig", "noise", "f")
+    assert np.sqrt(np.mean((soft.channels["f"] - rigid.channels["f"]) ** 2)) > 3 * noise
+    with pytest.raises(ValueError, match="needs piston = 'fixed'"):
+        run_rig("load_cell_compliance", piston="spring", duration_s=0.1)
 
 
 def test_unknown_effect_is_a_clear_error():

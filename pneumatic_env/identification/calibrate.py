@@ -7,6 +7,12 @@ the free parameters to minimise the residual of every measured channel, each div
 its scale (``supply - ambient`` for pressures, that times the cap area for the force,
 half the stroke for ``x``, see ``channel_scales`` in ``configs/identification.yaml``).
 
+Values applied on top of a recording's parameter set ("overrides": fitted or fixed) may
+be *scoped* to recordings whose rod is in given modes, and a fixed value may be the name
+of a kernel parameter, resolved per recording (:func:`dataset_overrides`; a candidate's
+``rod_modes`` and ``set``, see :mod:`.candidates`). A parameter set whose rod moves is
+simulated with the moving-piston substep even when the recording's rod was clamped.
+
 One :class:`~pneumatic_env.simulator.BatchSimulator` rollout per recording evaluates many
 parameter sets at once: a forward-difference Jacobian is one rollout with one column per
 perturbed plant parameter; sensor-side parameters (:mod:`.candidates`) only re-filter
@@ -50,6 +56,7 @@ __all__ = [
     "base_fit_parameters",
     "calibrate",
     "channel_nrmse",
+    "dataset_overrides",
     "prepare_datasets",
     "run_fit",
 ]
@@ -71,9 +78,11 @@ class Dataset:
     scales: dict[str, float]          # residual scale of each channel
     usable: dict[str, np.ndarray]     # per channel: samples not clipped
     dt_s: float
-    substeps: int
+    substeps: int                     # RK4 substeps per sample for the recording's rod mode
     initial: dict | None
     moving: bool
+    rod_mode: str = "fixed"           # the sidecar's piston.mode
+    substeps_moving: int = 0          # substeps when the simulated rod moves (0: = substeps)
 
     @property
     def n_samples(self) -> int:
@@ -118,14 +127,19 @@ def prepare_datasets(recordings: Sequence[Recording], params=None,
         mode = rec.rig["piston"]["mode"]
         max_substep = config.number("fit", "max_substep_s" if mode == "fixed"
                                     else "max_substep_moving_s", positive=True)
+        moving_substep = config.number("fit", "max_substep_moving_s", positive=True)
+        initial = rec.rig.get("initial")
+        if mode == "fixed":  # the rod starts at the clamp, also when a candidate frees it
+            initial = {"x": vals["fixed_position_m"], **(initial or {})}
         channels = tuple(c for c in FITTED_CHANNELS if c in rec.channels and c not in dropped
                          and c in PREDICTED_CHANNELS and not (c == "x" and mode == "fixed"))
         datasets.append(Dataset(
             name=name, recording=rec, values=vals, channels=channels,
             scales={c: channel_scale(c, vals, config) for c in channels},
             usable=usable_masks(rec, channels), dt_s=rec.dt,
-            substeps=substeps_for(rec.dt, max_substep), initial=rec.rig.get("initial"),
-            moving=mode in ("free", "spring") and "x" in channels))
+            substeps=substeps_for(rec.dt, max_substep), initial=initial,
+            moving=mode in ("free", "spring") and "x" in channels, rod_mode=mode,
+            substeps_moving=substeps_for(rec.dt, moving_substep)))
     return datasets, issues
 
 
@@ -148,16 +162,36 @@ def base_fit_parameters(datasets: Sequence[Dataset], names: Sequence[str] | None
 
 # --------------------------------------------------------------------------- the problem
 
-def _simulate(ds: Dataset, columns: Sequence[Mapping[str, float]], n_samples: int
-              ) -> dict[str, np.ndarray]:
+def dataset_overrides(ds: Dataset, overrides: Mapping[str, float | str],
+                      scopes: Mapping[str, Sequence[str]] | None = None) -> dict[str, float]:
+    """The kernel-parameter ``overrides`` that apply to ``ds``, as numbers.
+
+    A name whose ``scopes`` entry (rod modes) does not include the recording's rod mode is
+    dropped; a text value names a kernel parameter whose value in ``ds``'s set is used.
+    """
+    scopes = scopes or {}
+    out = {}
+    for name, v in overrides.items():
+        if name not in _ROW:
+            continue
+        if name in scopes and ds.rod_mode not in scopes[name]:
+            continue
+        out[name] = float(ds.values[v]) if isinstance(v, str) else float(v)
+    return out
+
+
+def _simulate(ds: Dataset, columns: Sequence[Mapping[str, float]], n_samples: int,
+              scopes: Mapping[str, Sequence[str]] | None = None) -> dict[str, np.ndarray]:
     """True (plant) channels of ``ds`` for each column of overrides: ``(n_samples, m)``."""
     m = len(columns)
     base = parameter_array([ds.values])
     arr = np.repeat(base, m, axis=1)
     for j, overrides in enumerate(columns):
-        for name, v in overrides.items():
+        for name, v in dataset_overrides(ds, overrides, scopes).items():
             arr[_ROW[name], j] = v
-    sim = BatchSimulator(arr, ds.dt_s, ds.substeps)
+    moving = bool(np.any(arr[_ROW["piston_mode"]] != 0))
+    substeps = ds.substeps_moving if moving and ds.substeps_moving else ds.substeps
+    sim = BatchSimulator(arr, ds.dt_s, substeps)
     if ds.initial:
         sim.reset(initial=ds.initial)
     first = sim.outputs.copy()
@@ -169,15 +203,18 @@ def _simulate(ds: Dataset, columns: Sequence[Mapping[str, float]], n_samples: in
 class FitProblem:
     """Residuals and Jacobian of a set of datasets for some free parameters.
 
-    ``fixed`` holds values (plant or sensor) applied to every dataset; ``n_samples[k]``
-    is how much of dataset k is simulated and ``masks[k][ch]`` which samples count.
+    ``fixed`` holds values (plant or sensor) applied to every dataset (a plant value may
+    be a kernel parameter's name, resolved per dataset); ``scopes`` limits plant names to
+    datasets of some rod modes (:func:`dataset_overrides`); ``n_samples[k]`` is how much
+    of dataset k is simulated and ``masks[k][ch]`` which samples count.
     """
 
     def __init__(self, datasets: Sequence[Dataset], free: Sequence[FitParameter],
-                 fixed: Mapping[str, float] | None = None,
+                 fixed: Mapping[str, float | str] | None = None,
                  n_samples: Sequence[int] | None = None,
                  masks: Sequence[Mapping[str, np.ndarray]] | None = None,
-                 config: IdentificationConfig | None = None, label: str = "fit"):
+                 config: IdentificationConfig | None = None, label: str = "fit",
+                 scopes: Mapping[str, Sequence[str]] | None = None):
         self.config = config or load_config()
         self.datasets = list(datasets)
         self.free = list(free)
@@ -188,9 +225,16 @@ class FitProblem:
             if p.kind == "plant" and p.name not in _ROW:
                 raise ConfigError(f"{p.name!r} is not a kernel parameter")
         self.fixed = dict(fixed or {})
-        for name in self.fixed:
+        for name, v in self.fixed.items():
             if name not in _ROW and name not in SENSOR_NEUTRAL:
                 raise ConfigError(f"fixed value {name!r} is neither a kernel nor a sensor parameter")
+            if isinstance(v, str) and (name not in _ROW or v not in _ROW):
+                raise ConfigError(f"fixed value {name!r} = {v!r} is not allowed: a text value "
+                                  "must name a kernel parameter, for a kernel parameter")
+        self.scopes = {k: tuple(v) for k, v in (scopes or {}).items()}
+        for name in self.scopes:
+            if name not in _ROW:
+                raise ConfigError(f"scoped value {name!r} is not a kernel parameter")
         self.n_samples = list(n_samples) if n_samples is not None else [ds.n_samples for ds in self.datasets]
         if masks is None:
             masks = [{c: np.ones(ds.n_samples, bool) for c in ds.channels} for ds in self.datasets]
@@ -245,7 +289,8 @@ class FitProblem:
         if key in self._cache:
             return self._cache[key]
         plant, _ = self._split(self.values(u))
-        out = [_simulate(ds, [plant], n) for ds, n in zip(self.datasets, self.n_samples)]
+        out = [_simulate(ds, [plant], n, self.scopes)
+               for ds, n in zip(self.datasets, self.n_samples)]
         self._cache[key] = out
         while len(self._cache) > 4:
             self._cache.popitem(last=False)
@@ -262,7 +307,8 @@ class FitProblem:
         if n_samples is None:
             sims = self._plant(u)
         else:
-            sims = [_simulate(ds, [plant], n) for ds, n in zip(self.datasets, n_samples)]
+            sims = [_simulate(ds, [plant], n, self.scopes)
+                    for ds, n in zip(self.datasets, n_samples)]
         return [{c: y[:, 0] for c, y in apply_sensor_model(sim, [sensor], ds.dt_s).items()}
                 for ds, sim in zip(self.datasets, sims)]
 
@@ -320,7 +366,7 @@ class FitProblem:
             columns = []
             for j in plant_idx:
                 columns.append({**plant, self.free[j].name: perturbed[j]})
-            sims = _simulate(ds, columns, n) if columns else {}
+            sims = _simulate(ds, columns, n, self.scopes) if columns else {}
             sensor_cols = [sensor] * len(plant_idx)
             for j in sensor_idx:
                 sensor_cols.append({**sensor, self.free[j].name: perturbed[j]})
@@ -374,9 +420,11 @@ class FitResult:
     nfev: int
     message: str
     u: np.ndarray = field(repr=False, default=None)
+    scopes: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
-    def plant_values(self) -> dict[str, float]:
-        """Fixed and fitted kernel parameters (overrides on the datasets' sets)."""
+    def plant_values(self) -> dict[str, float | str]:
+        """Fixed and fitted kernel parameters (overrides on the datasets' sets; a text value
+        names the dataset's parameter to use, see :func:`dataset_overrides`)."""
         out = {k: v for k, v in self.fixed.items() if k in _ROW}
         out.update((p.name, self.values[p.name]) for p in self.parameters if p.kind == "plant")
         return out
@@ -386,8 +434,20 @@ class FitResult:
         out.update((p.name, self.values[p.name]) for p in self.parameters if p.kind == "sensor")
         return out
 
-    def all_values(self) -> dict[str, float]:
+    def all_values(self) -> dict[str, float | str]:
         return {**self.plant_values(), **self.sensor_values()}
+
+    def dataset_values(self, ds: Dataset) -> dict[str, float]:
+        """The complete kernel parameter set of dataset ``ds`` with this fit applied."""
+        return {**ds.values, **dataset_overrides(ds, self.plant_values(), self.scopes)}
+
+    def file_values(self, datasets: Sequence[Dataset]) -> dict[str, float]:
+        """Kernel overrides for a parameter file: scoped values and text references are
+        resolved on the first dataset they apply to (left out if none)."""
+        out: dict[str, float] = {}
+        for ds in reversed(list(datasets)):
+            out.update(dataset_overrides(ds, self.plant_values(), self.scopes))
+        return out
 
     def to_dict(self) -> dict:
         """JSON-ready summary."""
@@ -400,6 +460,7 @@ class FitResult:
                          "plausible": self.plausible[p.name], "flags": self.flags[p.name]}
                 for p in self.parameters},
             "fixed": dict(self.fixed),
+            "scopes": {k: list(v) for k, v in self.scopes.items()},
             "correlations": [[a, b, r] for a, b, r in self.correlations],
             "condition_number": _finite(self.condition_number),
             "cost": self.cost, "rss": self.rss, "n_residuals": self.n_residuals,
@@ -533,7 +594,8 @@ def run_fit(problem: FitProblem, start: Mapping[str, float] | None = None,
                      flags=stats["flags"], correlations=stats["correlations"],
                      condition_number=stats["condition_number"], cost=0.5 * float(r @ r),
                      rss=float(r @ r), n_residuals=int(r.size), rho1=float(stats["rho1"]),
-                     n_eff=float(stats["n_eff"]), nfev=nfev, message=message, u=u)
+                     n_eff=float(stats["n_eff"]), nfev=nfev, message=message, u=u,
+                     scopes=dict(problem.scopes))
 
 
 def channel_nrmse(datasets: Sequence[Dataset], preds: Sequence[Mapping[str, np.ndarray]],
@@ -563,7 +625,7 @@ class Calibration:
 
     def parameter_set(self, k: int = 0) -> dict[str, float]:
         """Complete parameter set of dataset ``k`` with the fitted values."""
-        return {**self.datasets[k].values, **self.result.plant_values()}
+        return self.result.dataset_values(self.datasets[k])
 
     def predict(self, n_samples: Sequence[int] | None = None) -> list[dict[str, np.ndarray]]:
         """Predicted recorded channels of every dataset (whole recordings by default)."""
@@ -574,7 +636,7 @@ class Calibration:
         """Fitted kernel parameters as a file ``load_parameters(params=path)`` and
         ``gym.make(id, params=path)`` accept; sensor-side values are not kernel
         parameters and are not written (see diagnosis.json)."""
-        values = self.result.plant_values()
+        values = self.result.file_values(self.datasets)
         std = {k: v for k, v in self.result.std.items() if k in values and math.isfinite(v)}
         names = ", ".join(ds.name for ds in self.datasets)
         save_parameters(path, values, notes=notes or f"pneumatic_env identify on {names}",

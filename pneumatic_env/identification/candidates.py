@@ -12,11 +12,21 @@ range, neutral value), parameters to fix while it is on (``set``) and what data 
   constant offset of each pressure transducer, a first-order lag of the pressure
   transducers, and a time skew of all measured outputs against the coil current.
 
+A ``set`` value is a number, or the name of a kernel parameter: then each recording
+gets that parameter's value from its own set (e.g. a load cell's rest position = the
+recording's clamp position ``fixed_position_m``). ``rod_modes`` limits a plant effect to
+recordings whose rod is in one of those modes (``fixed``, ``free``, ``spring``): its set
+and fitted values reach only those recordings (:func:`.calibrate.dataset_overrides`).
+``refit_base`` names base parameters that the effect makes observable (e.g. piston
+friction in the force of a compliant load cell); they are refitted with it and count as
+its extra parameters.
+
 Adding an effect = adding an entry to the YAML (and, for a plant effect, its row to the
 kernel); nothing here changes.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Iterable, Mapping, Sequence
 
@@ -25,6 +35,7 @@ from scipy.signal import lfilter
 
 from pneumatic_env.params import ConfigError
 from pneumatic_env.physics.layout import PARAMETER_NAMES
+from pneumatic_env.recording import PISTON_MODES
 
 from .config import FitParameter, IdentificationConfig, _parse_parameter, load_config
 
@@ -49,7 +60,7 @@ SENSOR_NEUTRAL = {
 SENSOR_PARAMETERS = tuple(SENSOR_NEUTRAL)
 _KINDS = ("plant", "sensor")
 _CANDIDATE_KEYS = {"kind", "description", "parameters", "set", "requires_motion",
-                   "requires_any_channel"}
+                   "requires_any_channel", "rod_modes", "refit_base"}
 
 
 @dataclass(frozen=True)
@@ -60,9 +71,11 @@ class Candidate:
     kind: str
     description: str
     parameters: tuple[FitParameter, ...]
-    set: Mapping[str, float] = field(default_factory=dict)
+    set: Mapping[str, float | str] = field(default_factory=dict)
     requires_motion: bool = False
     requires_any_channel: tuple[str, ...] = ()
+    rod_modes: tuple[str, ...] = ()
+    refit_base: tuple[FitParameter, ...] = ()
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -71,10 +84,17 @@ class Candidate:
     @property
     def available(self) -> bool:
         """Whether the kernel (plant) or the sensor model knows every parameter."""
-        names = list(self.parameter_names) + list(self.set)
+        names = (list(self.parameter_names) + list(self.set)
+                 + [v for v in self.set.values() if isinstance(v, str)])
         if self.kind == "sensor":
             return all(n in SENSOR_NEUTRAL for n in self.parameter_names)
         return all(n in PARAMETER_NAMES for n in names)
+
+    def scopes(self) -> dict[str, tuple[str, ...]]:
+        """Kernel parameter -> the rod modes of the recordings it applies to (empty: all)."""
+        if not self.rod_modes:
+            return {}
+        return {n: self.rod_modes for n in (*self.parameter_names, *self.set)}
 
     def neutral(self) -> dict[str, float]:
         """Parameter values that switch the effect off."""
@@ -107,12 +127,43 @@ def candidate_table(config: IdentificationConfig | None = None) -> dict[str, Can
                 if p.name not in SENSOR_NEUTRAL:
                     raise ConfigError(f"{where}.{name}: sensor parameter {p.name!r} is not "
                                       f"known; known: {', '.join(SENSOR_PARAMETERS)}")
-        fixed = dict(entry.get("set") or {})
+        fixed = entry.get("set") or {}
+        if not isinstance(fixed, Mapping):
+            raise ConfigError(f"{where}.{name}.set must be a mapping of kernel parameter -> "
+                              "number or kernel parameter name")
+        set_values: dict[str, float | str] = {}
+        for key, v in fixed.items():
+            if isinstance(v, str):
+                if v not in PARAMETER_NAMES:
+                    raise ConfigError(f"{where}.{name}.set.{key} = {v!r} is not allowed: a "
+                                      "text value must name a kernel parameter (its value in "
+                                      "each recording's set is used)")
+                set_values[key] = v
+            elif isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
+                set_values[key] = float(v)
+            else:
+                raise ConfigError(f"{where}.{name}.set.{key} = {v!r} is not allowed: must be a "
+                                  "finite number or the name of a kernel parameter")
         channels = tuple(entry.get("requires_any_channel") or ())
+        rod_modes = entry.get("rod_modes") or []
+        if not isinstance(rod_modes, list) or any(m not in PISTON_MODES for m in rod_modes):
+            raise ConfigError(f"{where}.{name}.rod_modes = {rod_modes!r} is not allowed: must "
+                              f"be a list of {list(PISTON_MODES)}")
+        if rod_modes and kind != "plant":
+            raise ConfigError(f"{where}.{name}.rod_modes is only allowed for kind 'plant'")
+        refit_base = entry.get("refit_base") or []
+        if not isinstance(refit_base, list):
+            raise ConfigError(f"{where}.{name}.refit_base must be a list of base parameter names")
+        for b in refit_base:
+            if b not in config.base_parameters:
+                raise ConfigError(f"{where}.{name}.refit_base names {b!r}, which has no entry "
+                                  f"under base_parameters; allowed: "
+                                  f"{', '.join(config.base_parameters)}")
         out[name] = Candidate(name=name, kind=kind, description=str(entry.get("description", "")),
-                              parameters=fitted, set={k: float(v) for k, v in fixed.items()},
+                              parameters=fitted, set=set_values,
                               requires_motion=bool(entry.get("requires_motion", False)),
-                              requires_any_channel=channels)
+                              requires_any_channel=channels, rod_modes=tuple(rod_modes),
+                              refit_base=tuple(config.base_parameters[b] for b in refit_base))
     return out
 
 
@@ -139,11 +190,17 @@ def available_candidates(names: Iterable[str] | None = None,
     return out
 
 
-def applicable(candidate: Candidate, channels: Iterable[str], moving: bool) -> str | None:
-    """None if the data can show ``candidate``; else the reason it is skipped."""
+def applicable(candidate: Candidate, channels: Iterable[str], moving: bool,
+               rod_modes: Iterable[str] = ()) -> str | None:
+    """None if the data can show ``candidate``; else the reason it is skipped.
+
+    ``rod_modes``: the rod modes of the recordings (``fixed``, ``free``, ``spring``).
+    """
     channels = set(channels)
     if candidate.requires_motion and not moving:
         return "needs a recording with a moving piston and a measured position x"
+    if candidate.rod_modes and not set(rod_modes) & set(candidate.rod_modes):
+        return f"needs a recording with the rod in mode {' or '.join(candidate.rod_modes)}"
     if candidate.requires_any_channel and not channels & set(candidate.requires_any_channel):
         return f"needs one of the channels {list(candidate.requires_any_channel)}"
     return None

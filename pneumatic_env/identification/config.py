@@ -70,6 +70,10 @@ def _is_number(x: Any) -> bool:
     return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(float(x))
 
 
+def _is_infinity(x: Any) -> bool:
+    return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isinf(float(x))
+
+
 def _parse_parameter(where: str, name: str, entry: Any, kind: str, need_initial: bool
                      ) -> FitParameter:
     if not isinstance(entry, Mapping):
@@ -90,9 +94,15 @@ def _parse_parameter(where: str, name: str, entry: Any, kind: str, need_initial:
     for key in ("lower", "upper", "plausible_min", "plausible_max", "scale", "initial",
                 "neutral", "fd_step"):
         if key in entry:
+            if key == "neutral" and _is_infinity(entry[key]):
+                # an effect that vanishes only in a limit (a rigid load cell: k -> inf)
+                nums[key] = float(entry[key])
+                continue
             if not _is_number(entry[key]):
+                allowed = ("a finite number, or .inf / -.inf for an effect that vanishes only "
+                           "in that limit") if key == "neutral" else "a finite number"
                 raise ConfigError(f"{where}: entry {name!r}: {key!r} = {entry[key]!r} is not "
-                                  "allowed: must be a finite number")
+                                  f"allowed: must be {allowed}")
             nums[key] = float(entry[key])
     log = entry.get("log", False)
     if not isinstance(log, bool):

@@ -178,7 +178,8 @@ class CandidateScore:
                 continue
             lo, hi = self.fit.ci[p.name]
             params[p.name] = {"value": self.fit.values[p.name], "unit": p.unit,
-                              "ci": [_num(lo), _num(hi)], "neutral": p.neutral,
+                              "ci": [_num(lo), _num(hi)],
+                              "neutral": None if p.neutral is None else _num(p.neutral),
                               "identified": self.fit.identified[p.name],
                               "plausible": self.fit.plausible[p.name],
                               "flags": self.fit.flags[p.name]}
@@ -301,7 +302,7 @@ class _Split:
         """Whole-recording predictions of ``datasets`` (default: the held-out ones)."""
         datasets = self.held if datasets is None else datasets
         problem = FitProblem(datasets, [], fixed=fit.all_values(), config=self.config,
-                             label="predict")
+                             label="predict", scopes=fit.scopes)
         return problem.predict(np.zeros(0), [ds.n_samples for ds in datasets])
 
     def heldout_nrmse(self, fit: FitResult) -> tuple[dict, list]:
@@ -309,8 +310,14 @@ class _Split:
         return channel_nrmse(self.held, preds, self.held_masks), preds
 
 
+def _unique(params: Sequence[FitParameter]) -> list[FitParameter]:
+    """``params`` without repeated names (first occurrence kept)."""
+    seen: set[str] = set()
+    return [p for p in params if not (p.name in seen or seen.add(p.name))]
+
+
 def _values_per_dataset(datasets: Sequence[Dataset], fit: FitResult) -> list[dict]:
-    return [{**ds.values, **fit.plant_values()} for ds in datasets]
+    return [fit.dataset_values(ds) for ds in datasets]
 
 
 def diagnose(recordings: Sequence[Recording], params=None, candidates: Sequence[str] | None = None,
@@ -350,9 +357,10 @@ def diagnose(recordings: Sequence[Recording], params=None, candidates: Sequence[
 
     channels = {c for ds in datasets for c in ds.channels}
     moving = any(ds.moving for ds in datasets)
+    rod_modes = {ds.rod_mode for ds in datasets}
     pool, skipped = [], {}
     for cand in available_candidates(candidates, cfg):
-        why = applicable(cand, channels, moving)
+        why = applicable(cand, channels, moving, rod_modes)
         if why:
             skipped[cand.name] = why
         else:
@@ -382,11 +390,13 @@ def diagnose(recordings: Sequence[Recording], params=None, candidates: Sequence[
         selected.append(best.candidate)
         # Re-converge base + selected effects with the full budget, so the next round
         # compares against a converged model (not against a refit stopped by its budget).
-        free = list(base_params) + [p for c in selected for p in c.parameters]
+        free = _unique(list(base_params) + [p for c in selected
+                                            for p in (*c.refit_base, *c.parameters)])
         fixed = {k: v for k, v in best.fit.all_values().items()
                  if k not in {p.name for p in free}}
         polish = FitProblem(split.train, free, fixed=fixed, n_samples=split.train_n, config=cfg,
-                            label=f"model with {', '.join(c.name for c in selected)}")
+                            label=f"model with {', '.join(c.name for c in selected)}",
+                            scopes=best.fit.scopes)
         current = run_fit(polish, start=best.fit.all_values())
         current_mean = _mean(split.heldout_nrmse(current)[0])
         log.info("diagnosis: accepted %s (held-out NRMSE %.4g, %.1f %% better)", best.name,
@@ -425,12 +435,18 @@ def _score(cand: Candidate, rnd: int, current: FitResult, current_mean: float,
            refit: Sequence[FitParameter], selected: Sequence[Candidate], split: _Split,
            n_res: int, n_eff: float, min_rel: float, min_ic: float, nfev: int,
            cfg: IdentificationConfig) -> CandidateScore:
-    free = list(refit) + [p for c in selected for p in c.parameters] + list(cand.parameters)
+    free = _unique(list(refit) + [p for c in selected for p in (*c.refit_base, *c.parameters)]
+                   + list(cand.refit_base) + list(cand.parameters))
     fixed = {k: v for k, v in current.all_values().items() if k not in {p.name for p in free}}
     fixed.update(cand.set)
     start = {p.name: current.all_values()[p.name] for p in free if p.name in current.all_values()}
     problem = FitProblem(split.train, free, fixed=fixed, n_samples=split.train_n, config=cfg,
-                         label=f"{cand.name} (round {rnd})")
+                         label=f"{cand.name} (round {rnd})",
+                         scopes={**current.scopes, **cand.scopes()})
+    # parameters the candidate adds to the current model (its own and the base parameters
+    # it makes observable that the current model did not fit)
+    current_free = {p.name for p in current.parameters}
+    n_extra = len(cand.parameters) + sum(p.name not in current_free for p in cand.refit_base)
     try:
         fit = run_fit(problem, start=start, max_nfev=nfev)
     except (ValueError, FloatingPointError) as exc:  # e.g. a parameter set the kernel rejects
@@ -440,7 +456,7 @@ def _score(cand: Candidate, rnd: int, current: FitResult, current_mean: float,
     mean = _mean(nrmse)
     rel = (current_mean - mean) / current_mean if current_mean > 0 else 0.0
     # BIC(candidate) - BIC(current): N_eff ln(RSS_c / RSS_m) + (extra parameters) ln(N_eff)
-    delta_ic = (_ic(fit.rss, n_res, n_eff, len(cand.parameters))
+    delta_ic = (_ic(fit.rss, n_res, n_eff, n_extra)
                 - _ic(current.rss, n_res, n_eff, 0))
     plausible = all(fit.plausible[p.name] for p in cand.parameters)
     identified = True

@@ -180,7 +180,7 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
 def _save_fit(diag: Diagnosis, fit, path: Path, notes: str) -> None:
     from pneumatic_env.params import save_parameters
 
-    values = fit.plant_values()
+    values = fit.file_values(diag.datasets)
     std = {k: v for k, v in fit.std.items() if k in values and math.isfinite(v)}
     save_parameters(path, values, notes=notes, uncertainties=std)
 

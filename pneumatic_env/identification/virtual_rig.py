@@ -29,6 +29,10 @@ How the plant differs from the fitting model:
                                     the sample rate)
   pressure_sensor_offset            offsets that drift by 10 % over the recording (constant)
   channel_time_skew                 exact shift at the plant rate (interpolated shift)
+  load_cell_compliance              rod held by a spring of stiffness k_ref / S at the clamp,
+                                    sliding friction off (pre-sliding), the cell's moving mass
+                                    on the rod (the same spring mode; the candidate refits the
+                                    mass, so this is close to an inverse crime)
   supply_ripple                     not in the catalog: 3 Hz supply-pressure oscillation
   valve_null_leak, tube_volume,     **same form** as the candidate (the kernel's parameter):
   exhaust_discharge, iso_flow_law,  an inverse crime, softened only by the finer step, the
@@ -72,7 +76,8 @@ KERNEL_EFFECTS = {
 }
 #: Every effect the rig can add.
 RIG_EFFECTS = ("none", "leakage", "rod_seal_leak", "coil_lag", "pressure_sensor_offset",
-               "pressure_sensor_lag", "channel_time_skew", "supply_ripple", *KERNEL_EFFECTS)
+               "pressure_sensor_lag", "channel_time_skew", "load_cell_compliance",
+               "supply_ripple", *KERNEL_EFFECTS)
 EXCITATIONS = ("identification", "steps", "prbs", "multisine", "chirp", "triangle")
 _SEGMENTS = ("rest", "step_pos", "step_neg", "prbs", "multisine", "chirp", "triangle")
 
@@ -202,6 +207,9 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         raise ValueError(f"strength = {strength!r} is not allowed: must be a finite number >= 0")
     if piston not in PISTON_MODES:
         raise ValueError(f"piston = {piston!r} is not allowed: must be one of {list(PISTON_MODES)}")
+    if effect == "load_cell_compliance" and piston != "fixed":
+        raise ValueError(f"effect 'load_cell_compliance' needs piston = 'fixed' (a clamped rod "
+                         f"held through a load cell); got piston = {piston!r}")
     if effect in KERNEL_EFFECTS and KERNEL_EFFECTS[effect][0] not in L.PARAMETER_NAMES:
         raise ValueError(f"effect {effect!r} needs the kernel parameter "
                          f"{KERNEL_EFFECTS[effect][0]!r}, which this kernel does not have")
@@ -241,6 +249,16 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         if effect == "iso_flow_law":
             true["flow_law"] = 1
         true = load_parameters(cylinder, params=true)  # validate
+    if effect == "load_cell_compliance" and s > 0.0:
+        # the clamp is a spring (the cell) at the clamp position; strength scales the
+        # compliance 1/k; the cell's moving part adds its mass to the rod; the rod's
+        # micrometre motion stays in the seal's pre-sliding range: no sliding friction
+        true.update(piston_mode=PISTON_MODES["spring"][0], spring_stiffness_n_per_m=ref / s,
+                    static_friction_n=0.0, dynamic_friction_n=0.0,
+                    spring_rest_position_m=true["fixed_position_m"],
+                    load_mass_kg=cfg.number("virtual_rig", "load_cell_moving_mass_kg",
+                                            minimum=0.0))
+        true = load_parameters(cylinder, params=true)
 
     fine = np.repeat(i_c[:-1], ratio)
     if effect == "coil_lag":
