@@ -60,48 +60,30 @@ RK4_STAGES = 4
 # spool has left its initial position (2 m tube: 5.8 ms) and the pressures have moved off
 # ambient: the regime of an episode, not of its first milliseconds.
 WARMUP_STEPS = 50
-OPS = ("exp", "log", "sqrt", "acos", "div", "flop", "imod")
+OPS = ("exp", "log", "sqrt", "div", "flop", "imod")  # scalar operations (KERNEL_WORK)
+VECTOR_OPS = ("vdiv", "vsqrt", "vother")  # SIMD instructions of the vectorised loop
 
-# Work of the kernel, counted by reading pneumatic_env/physics/*.py (the kernel with
-# substep refinement and piston events) with every effect of docs/effects.md off, the rod
-# clamped and the command tube coupling. Only operations that depend on the state are
-# counted: expressions of the per-environment constants alone (pi D mu, mu / D^2, the
-# laminar R_t R T tau, 2 R_h, ...) are loop-invariant and hoisted out of the substep loop
-# by the compiler. "flop" is an add, subtract, multiply, negation, abs, min, max or floor;
-# "div" a floating-point division; "imod" an integer modulo; pow (``**``) counts as one
-# exp and one log. Keys are "<piece>:<branch>"; the branch each piece takes is sampled
-# from the benchmark run (``_sample_regimes``). Update this table when the kernel changes.
+# The batch path (kernel.advance_chunk) advances an environment in two parts.
+# 1. The vectorised loop (kernel._base_substeps_vectorised: one RK4 substep of
+#    kernel.base_derivatives for every lane, every branch computed and selected). Its work
+#    is not counted by hand: vector_loop_instructions() reads the SIMD instructions of
+#    the compiled loop (divisions, square roots, the rest).
+# 2. Scalar work per lane, counted here by reading pneumatic_env/physics/kernel.py with
+#    the rod clamped (no piston events) and no stiff substep. "flop" is an add, subtract,
+#    multiply, compare, min, max, abs or floor; "div" a floating-point division; "imod" an
+#    integer modulo; pow (``**``) counts as one exp and one log. Expressions of the
+#    per-environment constants alone are not counted. Update this table when
+#    advance_chunk changes.
 KERNEL_WORK = {
-    # valve.orifice_area (Eqs. 41-45): one per valve direction (x_s and -x_s), per RHS
-    "area:closed": {"flop": 1},
-    "area:partial": {"acos": 1, "sqrt": 1, "div": 1, "flop": 8},
-    "area:full": {"flop": 1},
-    # flow.orifice_mass_flow -> reduced_flow -> subsonic_reduced_flow (Eqs. 39, 52), through
-    # kernel._flow: four valve paths per RHS (the leakage orifices are closed: no work)
-    "flow:none": {},
-    "flow:choked": {"div": 1, "flop": 5},
-    "flow:subsonic": {"exp": 1, "log": 1, "sqrt": 1, "div": 3, "flop": 9},
-    "flow:linear": {"div": 1, "flop": 7},
-    # tube.tube_attenuation -> reynolds_number, tube_resistance (Eqs. 30, 33, 35), through
-    # kernel._tube: evaluated for all four valve paths, also when the path carries no flow
-    "tube:laminar": {"exp": 1, "div": 2, "flop": 4},
-    "tube:turbulent": {"exp": 1, "sqrt": 2, "div": 2, "flop": 9},
-    # kernel.delayed_value: ring-buffer read and linear interpolation, per delayed channel
-    # (the spool; also both pressures with the literal coupling), per RHS
-    "delay_read:ring": {"imod": 2, "flop": 6},
-    # kernel.derivatives besides the valve paths, rod clamped: the stroke clamp, the sums of
-    # the flows in and out of each chamber, chamber.chamber_volumes, chamber.pressure_rate
-    # (x2), valve.spool_acceleration, the exhaust rate, the null-leak area additions
-    "rhs_rest:fixed": {"div": 3, "flop": 68},
-    # per part of a substep (kernel.refinement; one part unless the flow is stiff), in
-    # kernel.advance_env: the refinement, the part's fractions, kernel._advance_interval ->
-    # kernel._rk4 (three kernel._axpy over 9 rows, the RK4 combination of the five
-    # integrated rows, two pressure floors), the history slot
-    "substep:fixed": {"imod": 1, "div": 4, "flop": 112},
-    # per control period, kernel.advance_env: kernel.env_constants (flow.flow_constants,
-    # the linearised flow slope, tube.sound_speed, areas, dead volumes, the stiffness
-    # bound) and the outputs
-    "control_step:constants": {"exp": 3, "log": 3, "sqrt": 6, "div": 14, "flop": 55},
+    # per lane and substep, kernel.advance_chunk: three kernel.delayed_value ring-buffer
+    # reads (floor, interpolation, two modulos each), kernel.refinement (two
+    # chamber_volumes, the reachable stroke, one division), the event test, the
+    # end-of-substep stop check (piston.end_of_substep), the ring-buffer slot
+    "lane_substep:fixed": {"imod": 7, "div": 1, "flop": 52},
+    # per lane and control period: kernel.env_constants (flow.flow_constants, the
+    # linearised flow slope, tube.sound_speed, areas, dead volumes, the stiffness bound),
+    # kernel.base_model_only, kernel._store_state and the outputs
+    "control_step:constants": {"exp": 3, "log": 3, "sqrt": 6, "div": 14, "flop": 70},
 }
 
 
@@ -475,14 +457,6 @@ def _micro_sqrt(a, out, idx, sweeps):
 
 
 @njit(cache=True)
-def _micro_acos(a, out, idx, sweeps):
-    for _ in range(sweeps):
-        for i in range(idx.shape[0]):
-            j = idx[i]
-            out[j] = math.acos(a[j])
-
-
-@njit(cache=True)
 def _micro_div(a, out, idx, sweeps):
     for _ in range(sweeps):
         for i in range(idx.shape[0]):
@@ -517,23 +491,71 @@ def _micro_imod_base(a, out, idx, sweeps):
             out[j] = a[min(j + s, n - 1)]
 
 
-# op -> (loop, its baseline, operations per element)
-_MICRO = {"exp": (_micro_exp, _micro_base, 1), "log": (_micro_log, _micro_base, 1),
-          "sqrt": (_micro_sqrt, _micro_base, 1), "acos": (_micro_acos, _micro_base, 1),
-          "div": (_micro_div, _micro_base, 1), "flop": (_micro_flop, _micro_base, 9),
-          "imod": (_micro_imod, _micro_imod_base, 1)}
+# The same operations in contiguous loops the compiler vectorises (``idx`` unused), each
+# with enough independent work per element that the arithmetic, not the memory traffic,
+# sets the time: ns per element is the cost of one SIMD instruction divided by its lanes.
+@njit(cache=True, error_model="numpy")
+def _vmicro_base(a, out, idx, sweeps):
+    for _ in range(sweeps):
+        for j in range(a.shape[0]):
+            out[j] = a[j]
+
+
+@njit(cache=True, error_model="numpy")
+def _vmicro_div(a, out, idx, sweeps):  # 8 divisions and 15 adds, independent
+    for _ in range(sweeps):
+        for j in range(a.shape[0]):
+            v = a[j]
+            out[j] = (((1.0 / (v + 1.0) + 1.0 / (v + 2.0)) + (1.0 / (v + 3.0) + 1.0 / (v + 4.0)))
+                      + ((1.0 / (v + 5.0) + 1.0 / (v + 6.0))
+                         + (1.0 / (v + 7.0) + 1.0 / (v + 8.0))))
+
+
+@njit(cache=True, error_model="numpy")
+def _vmicro_sqrt(a, out, idx, sweeps):  # 8 square roots and 15 adds, independent
+    for _ in range(sweeps):
+        for j in range(a.shape[0]):
+            v = a[j]
+            out[j] = (((math.sqrt(v + 1.0) + math.sqrt(v + 2.0))
+                       + (math.sqrt(v + 3.0) + math.sqrt(v + 4.0)))
+                      + ((math.sqrt(v + 5.0) + math.sqrt(v + 6.0))
+                         + (math.sqrt(v + 7.0) + math.sqrt(v + 8.0))))
+
+
+@njit(cache=True, error_model="numpy")
+def _vmicro_flop(a, out, idx, sweeps):  # four independent degree-4 Horner chains: 35 flops
+    for _ in range(sweeps):
+        for j in range(a.shape[0]):
+            v = a[j]
+            c1 = (((0.11 * v + 0.3) * v + 0.7) * v + 0.2) * v + 0.1
+            c2 = (((0.12 * v - 0.2) * v + 0.4) * v - 0.3) * v + 0.2
+            c3 = (((0.13 * v + 0.5) * v - 0.6) * v + 0.1) * v - 0.4
+            c4 = (((0.14 * v - 0.1) * v + 0.8) * v - 0.5) * v + 0.3
+            out[j] = (c1 + c2) + (c3 + c4)
+
+
+# op -> (loop, its baseline, operations per element, other flops per element (subtracted
+# at the cost of "flop" or "vother"))
+_MICRO = {"exp": (_micro_exp, _micro_base, 1, 0), "log": (_micro_log, _micro_base, 1, 0),
+          "sqrt": (_micro_sqrt, _micro_base, 1, 0), "div": (_micro_div, _micro_base, 1, 0),
+          "flop": (_micro_flop, _micro_base, 9, 0),
+          "imod": (_micro_imod, _micro_imod_base, 1, 0),
+          "vother": (_vmicro_flop, _vmicro_base, 35, 0),
+          "vdiv": (_vmicro_div, _vmicro_base, 8, 15), "vsqrt": (_vmicro_sqrt, _vmicro_base, 8, 15)}
 
 
 def measure_op_costs(plan: Plan) -> dict:
-    """ns per operation: the extra time of a scalar Numba loop applying it to each element
-    over the same loop copying the element (elements visited in a random order, so the
-    loop is not vectorised; independent elements, so this is throughput, not latency)."""
+    """ns per operation: the extra time of a Numba loop applying it to each element over the
+    same loop copying the element. Scalar operations visit the elements in a random order
+    (not vectorised); the ``v*`` ones run contiguous loops that compile to SIMD code, so
+    their cost is per element (per SIMD instruction / lanes). Independent elements: this
+    is throughput, not latency."""
     _set_threads(1)
     rng = np.random.default_rng(0)
     a = rng.uniform(0.1, 0.9, plan.micro_elements)
     out = np.empty_like(a)
     idx = rng.permutation(plan.micro_elements)
-    funcs = {f for pair in _MICRO.values() for f in pair[:2]}
+    funcs = {f for entry in _MICRO.values() for f in entry[:2]}
     for f in funcs:
         f(a, out, idx, 1)
     samples = {op: [] for op in _MICRO}
@@ -544,79 +566,87 @@ def measure_op_costs(plan: Plan) -> dict:
             t0 = time.perf_counter()
             f(a, out, idx, plan.micro_sweeps)
             timed[f] = (time.perf_counter() - t0) / per_sweep * 1e9
-        for op, (f, base, count) in _MICRO.items():
-            samples[op].append(max(timed[f] - timed[base], 0.0) / count)
+        extra = {op: max(timed[f] - timed[base], 0.0) for op, (f, base, *_) in _MICRO.items()}
+        for op, (_, _, count, other) in _MICRO.items():  # minus the other flops' share
+            flop_op = "vother" if op.startswith("v") else "flop"
+            flop_ns = extra[flop_op] / _MICRO[flop_op][2]
+            samples[op].append(max(extra[op] - other * flop_ns, 0.0) / count)
     _set_threads(plan.threads[-1])
     return {op: _median(v) for op, v in samples.items()}
 
 
 def _sample_regimes(sim, currents: np.ndarray, steps: int = 8, envs: int = 128) -> dict:
-    """Fractions of each branch of ``KERNEL_WORK`` taken by the batch, sampled at the
-    control-step boundaries of a few more steps of the benchmark run (the valve sees the
-    delayed spool, read from the history as the kernel does)."""
-    from .physics import flow, kernel, tube, valve
+    """How often the batch path leaves its vectorised loop: the mean number of parts
+    ``kernel.refinement`` splits a substep into, and the share of substeps it splits (those
+    the general path redoes), sampled at the control-step boundaries of a few more steps
+    of the benchmark run."""
+    from .physics import kernel
     from .physics import layout as L
-
-    counts: dict = {}
-    parts = 0
-
-    def add(key, weight=1.0):
-        counts[key] = counts.get(key, 0.0) + weight
 
     picks = np.linspace(0, sim.n_envs - 1, min(envs, sim.n_envs)).astype(int)
     h = sim.control_dt_s / sim.n_substeps
     constants = {int(e): kernel.env_constants(sim.params, int(e), h) for e in picks}
-    samples = 0
+    parts, split, samples = 0, 0, 0
     for step in range(steps):
         sim.step(currents[step % len(currents)])
         for env in picks:
-            c = constants[int(env)]
-            s = sim.state[:, env]
-            x_s = s[L.S_X_S]
-            delayed = kernel.delayed_value(sim.history, int(env), L.H_X_S, sim.head, 0.0,
-                                           c.delay_substeps, x_s, x_s)
-            full = c.holes * math.pi * c.hole_radius ** 2
-            areas = []
-            for spool in (delayed, -delayed):
-                area = valve.orifice_area(spool, c.hole_radius, c.half_width, c.holes)
-                add("area:" + ("closed" if area <= 0 else "full" if area >= full else "partial"))
-                areas.append(area)
-            p1, p2 = s[L.S_P1], s[L.S_P2]
-            paths = ((areas[0], c.supply_pa, p1), (areas[1], p1, c.ambient_pa),
-                     (areas[1], c.supply_pa, p2), (areas[0], p2, c.ambient_pa))
-            for area, p_from, p_to in paths:
-                mdot = flow.orifice_mass_flow(area, c.discharge, p_from, p_to, c.inv_sqrt_t,
-                                              c.k, c.c1, c.c2, c.critical_ratio,
-                                              c.linear_ratio, c.linear_slope)
-                ratio = min(p_from, p_to) / max(p_from, p_to)
-                add("flow:" + ("none" if mdot == 0 else "choked" if ratio <= c.critical_ratio
-                               else "subsonic" if ratio < c.linear_ratio else "linear"))
-                re = tube.reynolds_number(mdot, c.tube_diameter, c.viscosity)
-                add("tube:" + ("turbulent" if re >= c.reynolds_turbulent else "laminar"))
-            add("delay_read:ring", 3.0 if c.literal else 1.0)
-            add("rhs_rest:fixed")
-            state = tuple(float(v) for v in s[:L.S_T2 + 1])
-            parts += kernel.refinement(c, state, h)
+            state = tuple(float(v) for v in sim.state[:L.S_T2 + 1, env])
+            n_parts = kernel.refinement(constants[int(env)], state, h)
+            parts += n_parts
+            split += n_parts > 1
             samples += 1
-    per_rhs = {k: v / samples for k, v in counts.items()}
-    return {"per_rhs": per_rhs, "samples": samples, "parts": parts / samples}
+    return {"samples": samples, "parts": parts / samples, "redone": split / samples}
 
 
-def kernel_ceiling(regimes: dict, op_ns: dict, n_substeps: int) -> dict:
-    """Operations per substep (from KERNEL_WORK, the sampled branch mix and the sampled
-    number of parts ``kernel.refinement`` splits a substep into) and the time they take at
-    the measured cost per operation: a floor on the kernel's ns per substep."""
-    per_substep = dict.fromkeys(OPS, 0.0)
-    parts = regimes["parts"]
-    for key, weight in regimes["per_rhs"].items():
-        for op, count in KERNEL_WORK[key].items():
-            per_substep[op] += parts * RK4_STAGES * weight * count
-    for op, count in KERNEL_WORK["substep:fixed"].items():
-        per_substep[op] += parts * count
+SIMD_REGISTERS = (("%zmm", 8), ("%ymm", 4), ("%xmm", 2))  # register name, float64 lanes
+
+
+def vector_loop_instructions() -> dict:
+    """SIMD instructions of the batch path's vectorised loop, by class (from its assembly).
+
+    ``kernel._base_substeps_vectorised`` is compiled afresh (Numba does not show the
+    assembly of cached code) with the argument types the kernel passes. Every instruction
+    on the widest vector registers present counts; on x86 with AVX2 that is one iteration
+    of the vector body (4 lanes) plus its few loop-invariant broadcasts. Returns the counts
+    per class, the lanes per iteration and whether the loop was vectorised at all.
+    """
+    from numba import types
+
+    from .physics import kernel
+    fn = njit(error_model="numpy")(kernel._base_substeps_vectorised.py_func)
+    signature = (types.float64[::1], types.float64[::1], types.int64, types.float64)
+    fn.compile(signature)
+    lines = [line.split() for line in fn.inspect_asm(signature).splitlines()
+             if line.startswith("\t") and not line.startswith("\t.")]
+    for register, lanes in SIMD_REGISTERS:
+        body = [parts for parts in lines if any(register in p for p in parts[1:])]
+        if register == "%xmm":  # 128-bit: only the packed double instructions are SIMD
+            body = [parts for parts in body if parts[0].endswith("pd")]
+        if body:
+            break
+    counts = dict.fromkeys(VECTOR_OPS, 0)
+    for parts in body:
+        op = parts[0]
+        counts["vdiv" if op.startswith("vdivp") or op == "divpd" else
+               "vsqrt" if op.startswith("vsqrtp") or op == "sqrtpd" else "vother"] += 1
+    return {"counts": counts, "lanes": lanes if body else 1, "vectorised": bool(body)}
+
+
+def kernel_ceiling(instructions: dict, op_ns: dict, n_substeps: int) -> dict:
+    """Work per environment and substep and the time it takes at the measured cost per
+    operation: a floor on the kernel's ns per substep (rod clamped, no stiff substep).
+
+    The vectorised loop's SIMD instructions (``vector_loop_instructions``) at their cost
+    per element, plus the scalar work per lane of ``KERNEL_WORK`` at the scalar costs.
+    """
+    ops = {op: float(instructions["counts"][op]) for op in VECTOR_OPS}
+    ops.update(dict.fromkeys(OPS, 0.0))
+    for op, count in KERNEL_WORK["lane_substep:fixed"].items():
+        ops[op] += count
     for op, count in KERNEL_WORK["control_step:constants"].items():
-        per_substep[op] += count / n_substeps
-    ns = {op: per_substep[op] * op_ns[op] for op in OPS}
-    return {"ops": per_substep, "ns": ns, "total_ns": sum(ns.values())}
+        ops[op] += count / n_substeps
+    ns = {op: ops[op] * op_ns[op] for op in ops}
+    return {"ops": ops, "ns": ns, "total_ns": sum(ns.values())}
 
 
 # --------------------------------------------------------------------------- report
@@ -806,18 +836,25 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
 
     c = res.get("ceiling")
     if c:
+        how = (f"one iteration serves {c['lanes']} environments" if c["vectorised"] else
+               "**the loop was not vectorised on this machine**")
         lines += ["", f"## Kernel ceiling (N={res['vector']['regime_n']}, 1 thread, serial kernel)",
-                  "", "Operations per substep from `KERNEL_WORK` in `pneumatic_env/speed.py` "
-                  f"(counted in pneumatic_env/physics/*.py) weighted by the branch mix sampled "
-                  f"from {c['samples']} environment states of the run; ns per operation measured "
-                  "in a scalar Numba loop on this machine.", ""]
-        rows = [(op, _fmt(c["op_ns"][op]), _fmt(c["ops"][op]), _fmt(c["ns"][op])) for op in OPS]
+                  "", "Work per environment and substep: the SIMD instructions of the compiled "
+                  f"vectorised loop (`kernel._base_substeps_vectorised`; {how}), divided by "
+                  "its lanes, and the scalar work per lane counted in `KERNEL_WORK` "
+                  "(`pneumatic_env/speed.py`); each at its throughput measured in a Numba loop "
+                  "on this machine (a SIMD instruction: the cost per element of a vectorised "
+                  "loop times its lanes, `vother` at the cost of an add or multiply; a scalar "
+                  "operation: in a loop that is not vectorised).", ""]
+        lanes = {op: c["lanes"] if op in VECTOR_OPS else 1 for op in VECTOR_OPS + OPS}
+        rows = [(op, _fmt(c["op_ns"][op] * lanes[op]), _fmt(c["ops"][op] / lanes[op]),
+                 _fmt(c["ns"][op])) for op in VECTOR_OPS + OPS]
         rows.append(("**ceiling**", "", "", _fmt(c["total_ns"])))
         rows.append(("**measured**", "", "", _fmt(c["measured_ns"])))
-        lines += _table(("operation", "ns each", "per substep", "ns per substep"), rows)
-        mix = ", ".join(f"{k} {v:.2f}" for k, v in sorted(c["mix"].items()))
-        lines += ["", f"Branches per right-hand-side evaluation: {mix}; parts per substep "
-                  f"(`kernel.refinement`): {c['parts']:.2f}."]
+        lines += _table(("operation", "ns each", "per substep and env", "ns per substep"),
+                        rows)
+        lines += ["", f"Parts per substep (`kernel.refinement`, sampled): {c['parts']:.2f}; "
+                  f"substeps the general path redid: {c['redone']:.1%}."]
     lines += ["", "## How it is measured", "",
               "- Single envs: `gymnasium.utils.performance.benchmark_step` (a random action per "
               "step, resets included), through `gym.make` with its default wrappers.",
@@ -874,9 +911,11 @@ def run(args) -> int:
         n_ref = res["vector"]["regime_n"]
         serial = [r for r in res["vector"]["kernel"]
                   if r["n"] == n_ref and r["kernel"] == "serial"][0]
-        ceiling = kernel_ceiling(regimes, op_ns, serial["substeps"])
-        ceiling.update(op_ns=op_ns, mix=regimes["per_rhs"], samples=regimes["samples"],
-                       parts=regimes["parts"],
+        instructions = vector_loop_instructions()
+        ceiling = kernel_ceiling(instructions, op_ns, serial["substeps"])
+        ceiling.update(op_ns=op_ns, lanes=instructions["lanes"],
+                       vectorised=instructions["vectorised"], parts=regimes["parts"],
+                       redone=regimes["redone"],
                        measured_ns=1e9 / (_median(serial["rates"]) * serial["substeps"]))
         res["ceiling"] = ceiling
     finally:

@@ -16,6 +16,7 @@ from scipy.integrate import quad
 
 from conftest import areas, first_crossing_time, run_batch, volumes
 from pneumatic_env.params import load_numerics, load_parameters, parameter_array
+from pneumatic_env.physics import kernel, vecmath
 from pneumatic_env.physics import layout as L
 from pneumatic_env.physics.flow import flow_constants, orifice_mass_flow, reduced_flow
 from pneumatic_env.physics.tube import (reynolds_number, sound_speed, tube_attenuation,
@@ -519,3 +520,74 @@ def test_batch_simulator_rejects_bad_currents(default_params):
         sim.step(np.array([0.1, np.inf, 0.0]))
     assert np.array_equal(sim.state, before)  # nothing advanced on bad input
 
+
+
+# --------------------------------------------------------------------------- vectorised batch path
+
+EPS = np.finfo(float).eps
+
+
+def test_vectorisable_elementary_functions_match_the_c_library():
+    """physics/vecmath.py replaces exp, log and acos so loops over environments vectorise."""
+    rng = np.random.default_rng(0)
+    x = np.r_[rng.uniform(-700.0, 700.0, 4000), rng.uniform(-1.0, 1.0, 4000), 0.0, -708.0, 709.0]
+    np.testing.assert_allclose([vecmath.exp_(v) for v in x], np.exp(x), rtol=4 * EPS, atol=0)
+    assert vecmath.exp_(0.0) == 1.0
+    y = np.r_[np.exp(rng.uniform(-700.0, 700.0, 4000)), rng.uniform(0.5, 2.0, 4000), 1.0]
+    np.testing.assert_allclose([vecmath.log_(v) for v in y], np.log(y), rtol=4 * EPS, atol=4 * EPS)
+    assert vecmath.log_(1.0) == 0.0
+    z = np.r_[rng.uniform(-1.0, 1.0, 8000), np.linspace(-1.0, 1.0, 101)]
+    np.testing.assert_allclose([vecmath.acos_(v) for v in z], np.arccos(z), rtol=0, atol=4 * EPS)
+    assert vecmath.acos_(1.0) == 0.0 and vecmath.acos_(-1.0) == math.pi
+
+
+def _eligible_sets():
+    """Parameter sets the batch path advances with ``base_derivatives``: every rod mode."""
+    return [load_parameters("numatics", tube_length_m=2.0),
+            load_parameters("airpel", tube_length_m=0.5, piston_mode="free", load_mass_kg=0.1),
+            load_parameters("numatics", tube_length_m=1.0, piston_mode="spring",
+                            spring_stiffness_n_per_m=4000.0, exhaust_discharge_ratio=0.8,
+                            tube_volume_fraction=1.0)]
+
+
+def test_base_model_rhs_equals_the_general_rhs():
+    """With the spool overlapped and no effect that needs it, the two-path right-hand side
+    of the batch path is the general one, bit for bit, over random states."""
+    rng = np.random.default_rng(3)
+    for p in _eligible_sets():
+        c = kernel.env_constants(parameter_array([p]), 0, 2e-4)
+        assert kernel.base_model_only(c)
+        half = 0.5 * p["stroke_m"]
+        for _ in range(400):
+            x_s, spool_delayed = rng.uniform(-1.5e-3, 1.5e-3, 2)
+            p1, p2 = rng.uniform(2e4, 7e5, 2)
+            x, v = rng.uniform(-half, half), rng.uniform(-0.5, 0.5)
+            direction = float(rng.integers(-1, 2)) if p["piston_mode"] != "fixed" else 0.0
+            coil, v_s = rng.uniform(-2.0, 2.0), rng.uniform(-0.2, 0.2)
+            base = kernel.base_derivatives(c, coil, x_s, v_s, p1, p2, x, v, direction,
+                                           spool_delayed)
+            general = kernel.derivatives(c, coil, x_s, v_s, p1, p2, x, v, c.temperature,
+                                         c.temperature, direction, spool_delayed, p1, p2)
+            assert base == general
+
+
+def test_batch_path_reproduces_the_general_path_bit_for_bit():
+    """BatchSimulator.step (vectorised lanes, general path for stiff substeps and piston
+    events) against kernel.advance_env (the general path alone), env by env."""
+    sets = _eligible_sets()
+    currents = _random_currents(np.random.default_rng(11), 300, len(sets))
+    num = load_numerics()
+    batch = BatchSimulator(parameter_array(sets), num["control_dt_s"], num["substeps"])
+    general = BatchSimulator(parameter_array(sets), num["control_dt_s"], num["substeps"])
+    moved = False
+    for step_currents in currents:
+        batch.step(np.ascontiguousarray(step_currents))
+        for env in range(len(sets)):
+            kernel.advance_env(general.params, general.state, general.history, env,
+                               general.head, float(step_currents[env]), general.control_dt_s,
+                               general.n_substeps, general.outputs)
+        general.advance_clock()
+        np.testing.assert_array_equal(batch.outputs, general.outputs)
+        moved |= bool(np.any(batch.outputs[L.O_V, 1:] != 0.0))
+    np.testing.assert_array_equal(batch.state, general.state)
+    assert moved  # the free and spring rods really moved (events, stops, sticking)

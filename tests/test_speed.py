@@ -14,12 +14,14 @@ def test_quick_speed_run_prints_every_table(tmp_path, capsys):
                    "| env | steps/s (median) |",
                    "| N | threads | what | env-steps/s | env-substeps/s | wall ns per RHS |",
                    "| N | Sync env-steps/s |",
-                   "| operation | ns each | per substep | ns per substep |"):
+                   "| operation | ns each | per substep and env | ns per substep |"):
         assert header in printed, header
     for row in ("| single env / Pendulum |", "| vector env / SyncVectorEnv, N=2, 1 thread |",
                 "| kernel measured / ceiling, N=2, 1 thread |"):
         assert row in printed, row
     assert "pneumatic-env speed --quick --max-n 2" in printed
+    # the env's jitted task kernel runs the same physics as BatchSimulator, bit for bit
+    assert "The env's step reproduced `BatchSimulator.step` bit for bit at every N" in printed
     assert out.read_text(encoding="utf-8") == printed.rstrip("\n") + "\n"
 
 
@@ -30,3 +32,13 @@ def test_bad_counts_are_rejected_with_the_option_name(flag, value, capsys):
         cli.main(["speed", flag, value])
     err = capsys.readouterr().err
     assert f"{flag} = '{value}' is not allowed: must be an integer >= 1" in err
+
+
+def test_batch_loop_compiles_to_simd_code():
+    """The ceiling counts the instructions of the compiled vectorised loop: it must be there,
+    with the divisions and square roots of the flow, tube and orifice sub-models."""
+    from pneumatic_env.speed import vector_loop_instructions
+
+    found = vector_loop_instructions()
+    assert found["vectorised"] and found["lanes"] >= 2
+    assert found["counts"]["vdiv"] > 0 and found["counts"]["vsqrt"] > 0

@@ -4,33 +4,36 @@ One call per control step does everything ``TaskCore.step`` and ``TaskCore.obser
 need, so a single env pays one Numba dispatch instead of dozens of NumPy calls on
 one-element arrays, and the vector env loops over environments in compiled code.
 """
-import numpy as np
 from numba import njit, prange
 
-from ..physics import layout as L
-from ..physics.kernel import advance_env
+from ..physics.kernel import CHUNK_ENVS, advance_chunk
 
 
 @njit(cache=True)
-def _env_step(env, params, state, history, head, action, control_dt_s, n_substeps, outputs,
-              i_max, references, step_count, prev_action, measured, noise, lag, out_rows,
-              tracked_row, scale, effort_weight, chatter_weight, reward, error, reference,
-              applied):
-    a = min(max(action[env], -i_max), i_max)
-    applied[env] = a
-    advance_env(params, state, history, env, head, a, control_dt_s, n_substeps, outputs)
-    step_count[env] += 1
-    for ch in range(out_rows.shape[0]):
-        fresh = outputs[out_rows[ch], env] + noise[env, ch]
-        measured[env, ch] = lag * measured[env, ch] + (1.0 - lag) * fresh
-    k = min(step_count[env], references.shape[1] - 1)
-    ref = references[env, k]
-    e = outputs[tracked_row, env] - ref
-    r = -min(abs(e) / scale, 1.0)
-    r -= effort_weight * (a / i_max) ** 2
-    r -= chatter_weight * ((a - prev_action[env]) / (2.0 * i_max)) ** 2
-    prev_action[env] = a
-    reward[env], error[env], reference[env] = r, e, ref
+def _chunk_step(first, stop, params, state, history, head, action, control_dt_s, n_substeps,
+                outputs, i_max, references, step_count, prev_action, measured, noise, lag,
+                out_rows, tracked_row, scale, effort_weight, chatter_weight, reward, error,
+                reference, applied):
+    """One control step of envs ``first .. stop-1``: clip, simulate (``advance_chunk``),
+    measure (noise, first-order sensor lag), reward."""
+    for env in range(first, stop):
+        applied[env] = min(max(action[env], -i_max), i_max)
+    advance_chunk(params, state, history, first, stop, head, applied, control_dt_s, n_substeps,
+                  outputs)
+    for env in range(first, stop):
+        a = applied[env]
+        step_count[env] += 1
+        for ch in range(out_rows.shape[0]):
+            fresh = outputs[out_rows[ch], env] + noise[env, ch]
+            measured[env, ch] = lag * measured[env, ch] + (1.0 - lag) * fresh
+        k = min(step_count[env], references.shape[1] - 1)
+        ref = references[env, k]
+        e = outputs[tracked_row, env] - ref
+        r = -min(abs(e) / scale, 1.0)
+        r -= effort_weight * (a / i_max) ** 2
+        r -= chatter_weight * ((a - prev_action[env]) / (2.0 * i_max)) ** 2
+        prev_action[env] = a
+        reward[env], error[env], reference[env] = r, e, ref
 
 
 @njit(cache=True)
@@ -39,11 +42,12 @@ def task_step_serial(params, state, history, head, action, control_dt_s, n_subst
                      tracked_row, scale, effort_weight, chatter_weight, reward, error,
                      reference, applied):
     """One control step of every env of the batch, on one thread."""
-    for env in range(state.shape[1]):
-        _env_step(env, params, state, history, head, action, control_dt_s, n_substeps, outputs,
-                  i_max, references, step_count, prev_action, measured, noise, lag, out_rows,
-                  tracked_row, scale, effort_weight, chatter_weight, reward, error, reference,
-                  applied)
+    n_envs = state.shape[1]
+    for first in range(0, n_envs, CHUNK_ENVS):
+        _chunk_step(first, min(first + CHUNK_ENVS, n_envs), params, state, history, head,
+                    action, control_dt_s, n_substeps, outputs, i_max, references, step_count,
+                    prev_action, measured, noise, lag, out_rows, tracked_row, scale,
+                    effort_weight, chatter_weight, reward, error, reference, applied)
 
 
 @njit(cache=True, parallel=True)
@@ -51,12 +55,14 @@ def task_step_parallel(params, state, history, head, action, control_dt_s, n_sub
                        i_max, references, step_count, prev_action, measured, noise, lag,
                        out_rows, tracked_row, scale, effort_weight, chatter_weight, reward,
                        error, reference, applied):
-    """One control step of every env of the batch, environments spread over threads."""
-    for env in prange(state.shape[1]):
-        _env_step(env, params, state, history, head, action, control_dt_s, n_substeps, outputs,
-                  i_max, references, step_count, prev_action, measured, noise, lag, out_rows,
-                  tracked_row, scale, effort_weight, chatter_weight, reward, error, reference,
-                  applied)
+    """One control step of every env of the batch, chunks of envs spread over threads."""
+    n_envs = state.shape[1]
+    for chunk in prange((n_envs + CHUNK_ENVS - 1) // CHUNK_ENVS):
+        first = chunk * CHUNK_ENVS
+        _chunk_step(first, min(first + CHUNK_ENVS, n_envs), params, state, history, head,
+                    action, control_dt_s, n_substeps, outputs, i_max, references, step_count,
+                    prev_action, measured, noise, lag, out_rows, tracked_row, scale,
+                    effort_weight, chatter_weight, reward, error, reference, applied)
 
 
 @njit(cache=True)

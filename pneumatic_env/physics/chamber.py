@@ -2,7 +2,7 @@
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True, error_model="numpy")
 def chamber_volumes(piston_position_m, half_stroke_m, area_cap_m2, area_rod_m2,
                     dead_volume_cap_m3, dead_volume_rod_m3):
     """Eq. 15: V1 = V01 + A1 (L/2 + x), V2 = V02 + A2 (L/2 - x)."""
@@ -11,7 +11,7 @@ def chamber_volumes(piston_position_m, half_stroke_m, area_cap_m2, area_rod_m2,
     return v1, v2
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True, error_model="numpy")
 def pressure_rate(pressure_pa, volume_m3, volume_rate_m3_per_s, mass_in_kg_per_s,
                   mass_out_kg_per_s, gas_rt, alpha_in, alpha_out, alpha_motion):
     """Eq. 14: dP/dt = RT/V (alpha_in mdot_in - alpha_out mdot_out) - alpha P Vdot / V."""

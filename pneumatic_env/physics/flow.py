@@ -3,6 +3,8 @@ import math
 
 from numba import njit
 
+from .vecmath import exp_, log_
+
 FLOW_LAW_PAPER = 0  # Eq. 52
 FLOW_LAW_ISO = 1  # ISO 6358-1 elliptic law with critical ratio b (docs/effects.md)
 
@@ -17,14 +19,14 @@ def flow_constants(heat_capacity_ratio, gas_constant):
     return c1, c2, critical_ratio
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True, error_model="numpy")
 def subsonic_reduced_flow(pressure_ratio, heat_capacity_ratio, c2):
     """The unchoked branch of Eq. 52: C2 r^(1/k) sqrt(1 - r^((k-1)/k))."""
-    r_pow = math.exp(math.log(pressure_ratio) / heat_capacity_ratio)  # r^(1/k)
+    r_pow = exp_(log_(pressure_ratio) / heat_capacity_ratio)  # r^(1/k)
     return c2 * r_pow * math.sqrt(max(1.0 - pressure_ratio / r_pow, 0.0))
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True, error_model="numpy")
 def iso_subsonic_reduced_flow(pressure_ratio, c1, critical_ratio_b):
     """ISO 6358-1 subsonic branch (replaces Eq. 52's): C1 sqrt(1 - ((r - b)/(1 - b))^2).
 
@@ -34,7 +36,7 @@ def iso_subsonic_reduced_flow(pressure_ratio, c1, critical_ratio_b):
     return c1 * math.sqrt(max(1.0 - z * z, 0.0))
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True, error_model="numpy")
 def reduced_flow(pressure_ratio, heat_capacity_ratio, c1, c2, critical_ratio,
                  linear_ratio, linear_slope, flow_law=FLOW_LAW_PAPER):
     """Reduced flow m_r(P_d/P_u) of Eq. 52, linearised above ``linear_ratio``.
@@ -42,20 +44,20 @@ def reduced_flow(pressure_ratio, heat_capacity_ratio, c1, c2, critical_ratio,
     Eq. 52 has an infinite slope at r -> 1, which a fixed-step integrator cannot follow;
     above ``linear_ratio`` the function is replaced by the straight line
     ``linear_slope * (1 - r)`` that meets it at ``linear_ratio`` (continuous, finite slope,
-    zero at r = 1). ``linear_slope = m_r(linear_ratio) / (1 - linear_ratio)``.
+    zero at r = 1). ``linear_slope = m_r(linear_ratio) / (1 - linear_ratio)``. Every
+    branch is computed and one selected (branch-free), so a loop over environments
+    vectorises; with early returns LLVM keeps the loop scalar.
     With ``flow_law = FLOW_LAW_ISO`` the subsonic branch is ISO 6358's ellipse and
     ``critical_ratio`` is its b (docs/effects.md); the linearisation is the same.
     """
-    if pressure_ratio <= critical_ratio:
-        return c1
-    if pressure_ratio < linear_ratio:
-        if flow_law == FLOW_LAW_ISO:
-            return iso_subsonic_reduced_flow(pressure_ratio, c1, critical_ratio)
-        return subsonic_reduced_flow(pressure_ratio, heat_capacity_ratio, c2)
-    return linear_slope * (1.0 - pressure_ratio)
+    iso = iso_subsonic_reduced_flow(pressure_ratio, c1, critical_ratio)
+    paper = subsonic_reduced_flow(pressure_ratio, heat_capacity_ratio, c2)
+    subsonic = iso if flow_law == FLOW_LAW_ISO else paper
+    unchoked = subsonic if pressure_ratio < linear_ratio else linear_slope * (1.0 - pressure_ratio)
+    return c1 if pressure_ratio <= critical_ratio else unchoked
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True, error_model="numpy")
 def orifice_mass_flow(area_m2, discharge_coefficient, p_from_pa, p_to_pa, inv_sqrt_temperature,
                       heat_capacity_ratio, c1, c2, critical_ratio, linear_ratio, linear_slope,
                       flow_law=FLOW_LAW_PAPER):
@@ -63,14 +65,12 @@ def orifice_mass_flow(area_m2, discharge_coefficient, p_from_pa, p_to_pa, inv_sq
 
     The flow always runs from the higher to the lower pressure; a negative value means
     the air flows from ``to`` to ``from``. ``flow_law`` selects the reduced flow
-    (:func:`reduced_flow`).
+    (:func:`reduced_flow`). Equal pressures give m_r(1) = 0 and a closed orifice a zero
+    area, so neither needs a branch.
     """
-    if area_m2 <= 0.0 or p_from_pa == p_to_pa:
-        return 0.0
-    if p_from_pa > p_to_pa:
-        upstream, downstream, sign = p_from_pa, p_to_pa, 1.0
-    else:
-        upstream, downstream, sign = p_to_pa, p_from_pa, -1.0
+    upstream = max(p_from_pa, p_to_pa)
+    downstream = min(p_from_pa, p_to_pa)
+    sign = 1.0 if p_from_pa > p_to_pa else -1.0
     m_r = reduced_flow(downstream / upstream, heat_capacity_ratio, c1, c2, critical_ratio,
                        linear_ratio, linear_slope, flow_law)
     return sign * discharge_coefficient * area_m2 * upstream * inv_sqrt_temperature * m_r

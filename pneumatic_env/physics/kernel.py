@@ -21,7 +21,8 @@ from . import layout as L
 from .chamber import chamber_volumes, pressure_rate
 from .effects import (chamber_energy_rates, coil_decay, dead_volume_with_tube,
                       drooped_supply_pressure, lagged_coil_current, stribeck_friction)
-from .flow import (FLOW_LAW_ISO, flow_constants, iso_subsonic_reduced_flow, orifice_mass_flow,
+from .flow import (FLOW_LAW_ISO, FLOW_LAW_PAPER, flow_constants, iso_subsonic_reduced_flow,
+                   orifice_mass_flow,
                    subsonic_reduced_flow)
 from .piston import (MODE_FIXED, apply_event, end_of_substep, event_fraction,
                      external_force, motion_direction,
@@ -56,7 +57,11 @@ TEMPERATURE_FLOOR_FRACTION = 1e-3  # of the wall temperature, the same guard for
 
 @njit(cache=True)
 def env_constants(params, env, substep_s):
-    """Per-environment constants derived once per control period from the parameter column."""
+    """Per-environment constants derived once per control period from the parameter column.
+
+    Every field is a float (flags are 0.0 / 1.0), so the batch kernel can hold them as the
+    rows of one array (``store_constants`` / ``load_constants``).
+    """
     p = params[:, env]
     k = p[L.P_HEAT_CAPACITY_RATIO]
     gas = p[L.P_GAS_CONSTANT_J_PER_KG_K]
@@ -81,6 +86,10 @@ def env_constants(params, env, substep_s):
     coil_tau = p[L.P_COIL_TIME_CONSTANT_S]
     heat_conductance = p[L.P_WALL_HEAT_TRANSFER_W_PER_K]
     stribeck_v = p[L.P_STRIBECK_VELOCITY_M_PER_S]
+    literal_flag = 1.0 if p[L.P_TUBE_COUPLING] == 1.0 else 0.0
+    coil_lag_flag = 1.0 if coil_tau > 0.0 else 0.0
+    energy_flag = 1.0 if heat_conductance > 0.0 else 0.0
+    stribeck_flag = 1.0 if stribeck_v > 0.0 else 0.0
     return Constants(
         gas * temperature, 1.0 / math.sqrt(temperature), k, c1, c2, critical_ratio,
         linear_ratio, linear_slope,
@@ -90,7 +99,7 @@ def env_constants(params, env, substep_s):
         p[L.P_COIL_FORCE_N_PER_A], p[L.P_DISCHARGE_COEFFICIENT], p[L.P_HOLE_RADIUS_M],
         p[L.P_SPOOL_HALF_WIDTH_M], p[L.P_HOLES_PER_PATH],
         delay_s, delay_s / substep_s, tube_diameter, p[L.P_REYNOLDS_TURBULENT],
-        p[L.P_TUBE_COUPLING] == 1.0,
+        literal_flag,
         area_cap, area_cap - rod_area, rod_area, 0.5 * p[L.P_STROKE_M],
         dead_volume_with_tube(p[L.P_DEAD_VOLUME_CAP_M3], tube_fraction, tube_diameter,
                               tube_length),
@@ -98,14 +107,14 @@ def env_constants(params, env, substep_s):
                               tube_length),
         p[L.P_PISTON_MASS_KG] + p[L.P_LOAD_MASS_KG], p[L.P_DYNAMIC_FRICTION_N],
         max(p[L.P_STATIC_FRICTION_N], p[L.P_DYNAMIC_FRICTION_N]),
-        p[L.P_VISCOUS_FRICTION_N_S_PER_M], p[L.P_LEAKAGE_AREA_M2], int(p[L.P_PISTON_MODE]),
+        p[L.P_VISCOUS_FRICTION_N_S_PER_M], p[L.P_LEAKAGE_AREA_M2], float(int(p[L.P_PISTON_MODE])),
         p[L.P_LOAD_FORCE_N], p[L.P_SPRING_STIFFNESS_N_PER_M], p[L.P_SPRING_REST_POSITION_M],
         p[L.P_DISCHARGE_COEFFICIENT] * p[L.P_EXHAUST_DISCHARGE_RATIO],
-        p[L.P_VALVE_NULL_LEAK_AREA_M2], p[L.P_ROD_SEAL_LEAK_AREA_M2], flow_law,
-        p[L.P_SUPPLY_RESISTANCE_PA_S_PER_KG], coil_tau > 0.0,
+        p[L.P_VALVE_NULL_LEAK_AREA_M2], p[L.P_ROD_SEAL_LEAK_AREA_M2], float(flow_law),
+        p[L.P_SUPPLY_RESISTANCE_PA_S_PER_KG], coil_lag_flag,
         coil_decay(coil_tau, 0.5 * substep_s), coil_decay(coil_tau, substep_s),
-        heat_conductance > 0.0, gas, temperature, heat_conductance,
-        p[L.P_STATIC_FRICTION_N], stribeck_v > 0.0, stribeck_v,
+        energy_flag, gas, temperature, heat_conductance,
+        p[L.P_STATIC_FRICTION_N], stribeck_flag, stribeck_v,
         PRESSURE_FLOOR_FRACTION * p[L.P_AMBIENT_PRESSURE_PA], TEMPERATURE_FLOOR_FRACTION * temperature,
         gas * temperature * max(p[L.P_ALPHA_IN], k)
         * p[L.P_DISCHARGE_COEFFICIENT] * max(1.0, p[L.P_EXHAUST_DISCHARGE_RATIO])
@@ -115,16 +124,25 @@ def env_constants(params, env, substep_s):
     )
 
 
-@njit(cache=True)
-def _flow(c, discharge, area, p_from, p_to, inv_sqrt_t_from, inv_sqrt_t_to):
-    """Eq. 39 from node ``from`` to node ``to``, at the upstream node's temperature."""
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _flow(c, discharge, area, p_from, p_to, inv_sqrt_t_from, inv_sqrt_t_to, flow_law):
+    """Eq. 39 from node ``from`` to node ``to``, at the upstream node's temperature.
+
+    A closed orifice returns at once on the general (scalar) path; in the vectorised loop
+    the test becomes a select.
+    """
+    if area <= 0.0:
+        return 0.0
     inv_sqrt_t = inv_sqrt_t_from if p_from >= p_to else inv_sqrt_t_to
     return orifice_mass_flow(area, discharge, p_from, p_to, inv_sqrt_t, c.k, c.c1, c.c2,
-                             c.critical_ratio, c.linear_ratio, c.linear_slope, c.flow_law)
+                             c.critical_ratio, c.linear_ratio, c.linear_slope, flow_law)
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True, error_model="numpy")
 def _tube(c, mass_flow, chamber_pa):
+    """The flow delivered at the chamber end of the tube (Eq. 30); none in, none out."""
+    if mass_flow == 0.0:
+        return 0.0
     return mass_flow * tube_attenuation(mass_flow, chamber_pa, c.gas_rt, c.delay_s,
                                         c.tube_diameter, c.viscosity, c.reynolds_turbulent)
 
@@ -137,9 +155,10 @@ SUPPLY_DROOP_MAX_ITERATIONS = 60  # a safeguard; the root is usually found in 1-
 def _supply_flow(c, supply_pa, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1,
                  inv_sqrt_t2):
     """Total valve flow out of the supply (both paths, before the tubes), >= 0."""
-    return max(_flow(c, c.discharge, area_a, supply_pa, valve_p1_pa, c.inv_sqrt_t, inv_sqrt_t1)
+    return max(_flow(c, c.discharge, area_a, supply_pa, valve_p1_pa, c.inv_sqrt_t, inv_sqrt_t1,
+                     c.flow_law)
                + _flow(c, c.discharge, area_b, supply_pa, valve_p2_pa, c.inv_sqrt_t,
-                       inv_sqrt_t2), 0.0)
+                       inv_sqrt_t2, c.flow_law), 0.0)
 
 
 @njit(cache=True)
@@ -189,6 +208,14 @@ def supply_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sq
 
 
 @njit(cache=True)
+def _scalar_area(c, spool_m):
+    """``orifice_area`` on the general (scalar) path, returning at once for a closed hole."""
+    if spool_m <= c.half_width - c.hole_radius:
+        return 0.0
+    return orifice_area(spool_m, c.hole_radius, c.half_width, c.holes)
+
+
+@njit(cache=True)
 def valve_chamber_flows(c, spool_delayed_m, valve_p1_pa, valve_p2_pa, p1_pa, p2_pa,
                         inv_sqrt_t1, inv_sqrt_t2):
     """Mass flows into (+) each chamber through its tube: supply and exhaust paths (Eqs. 50-55).
@@ -201,21 +228,41 @@ def valve_chamber_flows(c, spool_delayed_m, valve_p1_pa, valve_p2_pa, p1_pa, p2_
     their own discharge coefficient, the supply pressure droops with the supply flow.
     Returns (supply->1, 1->exhaust, supply->2, 2->exhaust) as flows at the chamber end.
     """
-    area_a = orifice_area(spool_delayed_m, c.hole_radius, c.half_width, c.holes) + c.null_leak
-    area_b = orifice_area(-spool_delayed_m, c.hole_radius, c.half_width, c.holes) + c.null_leak
+    area_a = _scalar_area(c, spool_delayed_m) + c.null_leak
+    area_b = _scalar_area(c, -spool_delayed_m) + c.null_leak
     supply_pa = c.supply_pa
     if c.supply_resistance > 0.0:
         supply_pa = supply_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa,
                                              inv_sqrt_t1, inv_sqrt_t2)
     supply_1 = _tube(c, _flow(c, c.discharge, area_a, supply_pa, valve_p1_pa, c.inv_sqrt_t,
-                              inv_sqrt_t1), p1_pa)
+                              inv_sqrt_t1, c.flow_law), p1_pa)
     exhaust_1 = _tube(c, _flow(c, c.discharge_ex, area_b, valve_p1_pa, c.ambient_pa, inv_sqrt_t1,
-                               c.inv_sqrt_t), p1_pa)
+                               c.inv_sqrt_t, c.flow_law), p1_pa)
     supply_2 = _tube(c, _flow(c, c.discharge, area_b, supply_pa, valve_p2_pa, c.inv_sqrt_t,
-                              inv_sqrt_t2), p2_pa)
+                              inv_sqrt_t2, c.flow_law), p2_pa)
     exhaust_2 = _tube(c, _flow(c, c.discharge_ex, area_a, valve_p2_pa, c.ambient_pa, inv_sqrt_t2,
-                               c.inv_sqrt_t), p2_pa)
+                               c.inv_sqrt_t, c.flow_law), p2_pa)
     return supply_1, exhaust_1, supply_2, exhaust_2
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _motion_and_spool(c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction, friction_n):
+    """Piston acceleration (Eq. 1; zero while held) and spool acceleration (Eq. 38)."""
+    applied = (pneumatic_force(p1, p2, c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
+               - external_force(c.mode, x, c.load_force, c.spring_k, c.spring_rest))
+    accel = piston_acceleration(applied, velocity, direction, friction_n, c.viscous,
+                                c.moving_mass)
+    a_s = spool_acceleration(x_s, v_s, coil_current_a, c.spool_mass, c.spool_damping,
+                             c.spool_spring, c.coil_force)
+    return accel, a_s
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _volumes(c, x):
+    """Chamber volumes (Eq. 15) with the position held in the stroke (a trial step may overshoot)."""
+    x_in_stroke = min(max(x, -c.half_stroke), c.half_stroke)
+    return chamber_volumes(x_in_stroke, c.half_stroke, c.area_cap, c.area_rod, c.dead_cap,
+                           c.dead_rod)
 
 
 @njit(cache=True)
@@ -223,6 +270,7 @@ def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, sp
                 valve_p1, valve_p2):
     """Right-hand side of the state (x_s, v_s, P1, P2, x, v, exhaust mass, T1, T2).
 
+    The general form: all four valve paths, the leakage orifices and every effect.
     ``coil_current_a`` is the current driving the spool (lagged if the coil lag is on).
     T1, T2 change only with the energy model on (``wall_heat_transfer_w_per_k > 0``).
     """
@@ -234,15 +282,15 @@ def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, sp
         inv_sqrt_t2 = c.inv_sqrt_t
     supply_1, exhaust_1, supply_2, exhaust_2 = valve_chamber_flows(
         c, spool_delayed, valve_p1, valve_p2, p1, p2, inv_sqrt_t1, inv_sqrt_t2)
-    leak_12 = _flow(c, c.discharge, c.leak_area, p1, p2, inv_sqrt_t1, inv_sqrt_t2)
-    seal_2 = _flow(c, c.discharge, c.seal_leak, p2, c.ambient_pa, inv_sqrt_t2, c.inv_sqrt_t)
+    leak_12 = _flow(c, c.discharge, c.leak_area, p1, p2, inv_sqrt_t1, inv_sqrt_t2, c.flow_law)
+    seal_2 = _flow(c, c.discharge, c.seal_leak, p2, c.ambient_pa, inv_sqrt_t2, c.inv_sqrt_t,
+                   c.flow_law)
     in_1 = max(supply_1, 0.0) + max(-exhaust_1, 0.0) + max(-leak_12, 0.0)
     out_1 = max(-supply_1, 0.0) + max(exhaust_1, 0.0) + max(leak_12, 0.0)
     in_2 = max(supply_2, 0.0) + max(-exhaust_2, 0.0) + max(leak_12, 0.0) + max(-seal_2, 0.0)
     out_2 = max(-supply_2, 0.0) + max(exhaust_2, 0.0) + max(-leak_12, 0.0) + max(seal_2, 0.0)
     velocity = v if direction != 0.0 else 0.0
-    x_in_stroke = min(max(x, -c.half_stroke), c.half_stroke)  # a trial step may overshoot a stop
-    v1, v2 = chamber_volumes(x_in_stroke, c.half_stroke, c.area_cap, c.area_rod, c.dead_cap, c.dead_rod)
+    v1, v2 = _volumes(c, x)
     if c.energy:
         # air from the supply or the atmosphere enters at temperature_k, leakage air at
         # the temperature of the chamber it left
@@ -263,20 +311,61 @@ def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, sp
                             c.alpha_in, c.alpha_out, c.alpha_motion)
         dt1 = 0.0
         dt2 = 0.0
-    accel = 0.0
-    if direction != 0.0:
-        applied = (pneumatic_force(p1, p2, c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
-                   - external_force(c.mode, x, c.load_force, c.spring_k, c.spring_rest))
-        friction = c.dynamic_friction
-        if c.stribeck:
-            friction = stribeck_friction(velocity, c.dynamic_friction, c.static_friction,
-                                         c.stribeck_v)
-        accel = piston_acceleration(applied, velocity, direction, friction,
-                                    c.viscous, c.moving_mass)
-    a_s = spool_acceleration(x_s, v_s, coil_current_a, c.spool_mass, c.spool_damping,
-                             c.spool_spring, c.coil_force)
+    friction = c.dynamic_friction
+    if c.stribeck:
+        friction = stribeck_friction(velocity, c.dynamic_friction, c.static_friction,
+                                     c.stribeck_v)
+    accel, a_s = _motion_and_spool(c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction,
+                                   friction)
     exhaust_rate = max(exhaust_1, 0.0) + max(exhaust_2, 0.0) + max(seal_2, 0.0)
     return v_s, a_s, dp1, dp2, velocity, accel, exhaust_rate, dt1, dt2
+
+
+@njit(cache=True)
+def base_model_only(c):
+    """Whether an environment runs the paper's model with no effect that needs ``derivatives``.
+
+    Then the spool overlap (p_w >= R_h, Eq. 43) keeps the supply and exhaust paths of a
+    chamber from being open together, and ``base_derivatives`` gives the same result with
+    two valve paths instead of four. Two effects are in it (the exhaust discharge ratio,
+    the tube volume); the others send the environment to the general path.
+    """
+    return (c.energy == 0.0 and c.supply_resistance == 0.0 and c.literal == 0.0
+            and c.leak_area == 0.0 and c.seal_leak == 0.0 and c.null_leak == 0.0
+            and c.coil_lag == 0.0 and c.stribeck == 0.0 and c.flow_law == FLOW_LAW_PAPER
+            and c.half_width >= c.hole_radius and c.delay_substeps >= 1.0)
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def base_derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, direction, spool_delayed):
+    """``derivatives`` for an environment where ``base_model_only`` holds, branch-free.
+
+    With x_s(t - tau) > 0 chamber 1 is open to the supply and chamber 2 to the exhaust
+    through the same area A_in(x_s) (Eqs. 44, 45); with x_s <= 0 the other way round
+    through A_in(-x_s). Each chamber exchanges air through one orifice and one tube, so a
+    loop over environments evaluates 1 area and 2 flows where the general form takes 2 and
+    6, and compiles to SIMD code.
+    """
+    to_chamber_1 = spool_delayed > 0.0
+    area = orifice_area(abs(spool_delayed), c.hole_radius, c.half_width, c.holes)
+    node_1 = c.supply_pa if to_chamber_1 else c.ambient_pa
+    node_2 = c.ambient_pa if to_chamber_1 else c.supply_pa
+    discharge_1 = c.discharge if to_chamber_1 else c.discharge_ex
+    discharge_2 = c.discharge_ex if to_chamber_1 else c.discharge
+    flow_1 = _tube(c, _flow(c, discharge_1, area, node_1, p1, c.inv_sqrt_t, c.inv_sqrt_t,
+                            FLOW_LAW_PAPER), p1)
+    flow_2 = _tube(c, _flow(c, discharge_2, area, node_2, p2, c.inv_sqrt_t, c.inv_sqrt_t,
+                            FLOW_LAW_PAPER), p2)
+    velocity = v if direction != 0.0 else 0.0
+    v1, v2 = _volumes(c, x)
+    dp1 = pressure_rate(p1, v1, c.area_cap * velocity, max(flow_1, 0.0), max(-flow_1, 0.0),
+                        c.gas_rt, c.alpha_in, c.alpha_out, c.alpha_motion)
+    dp2 = pressure_rate(p2, v2, -c.area_rod * velocity, max(flow_2, 0.0), max(-flow_2, 0.0),
+                        c.gas_rt, c.alpha_in, c.alpha_out, c.alpha_motion)
+    accel, a_s = _motion_and_spool(c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction,
+                                   c.dynamic_friction)
+    exhaust_rate = max(-flow_2, 0.0) if to_chamber_1 else max(-flow_1, 0.0)
+    return v_s, a_s, dp1, dp2, velocity, accel, exhaust_rate, 0.0, 0.0
 
 
 @njit(cache=True)
@@ -313,7 +402,7 @@ def _stage(c, history, env, head, frac, coil_current_a, y, y0, direction):
                        direction, spool_delayed, valve_p1, valve_p2)
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True, error_model="numpy")
 def _axpy(y, h, k):
     return (y[0] + h * k[0], y[1] + h * k[1], y[2] + h * k[2], y[3] + h * k[3],
             y[4] + h * k[4], y[5] + h * k[5], y[6] + h * k[6], y[7] + h * k[7],
@@ -351,14 +440,23 @@ def _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start_a, y, y0,
                 _axpy(y, 0.5 * hh, k2), y0, direction)
     k4 = _stage(c, history, env, head, fe, _coil_at(c, command_a, coil_start_a, fe),
                 _axpy(y, hh, k3), y0, direction)
+    return _rk4_combine(c, y, k1, k2, k3, k4, hh, direction)
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _rk4_combine(c, y, k1, k2, k3, k4, hh, direction):
+    """The RK4 update of a step of length ``hh`` from its four stage slopes.
+
+    Pressures (and gas temperatures) are kept above their floors; the piston's position
+    and velocity change only while it slides, the gas temperatures only with the energy
+    model.
+    """
     w = hh / 6.0
     p1 = max(y[2] + w * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2]), c.pressure_floor)
     p2 = max(y[3] + w * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3]), c.pressure_floor)
-    x = y[4]
-    v = y[5]
-    if direction != 0.0:
-        x = y[4] + w * (k1[4] + 2.0 * k2[4] + 2.0 * k3[4] + k4[4])
-        v = y[5] + w * (k1[5] + 2.0 * k2[5] + 2.0 * k3[5] + k4[5])
+    sliding = direction != 0.0
+    x = y[4] + w * (k1[4] + 2.0 * k2[4] + 2.0 * k3[4] + k4[4]) if sliding else y[4]
+    v = y[5] + w * (k1[5] + 2.0 * k2[5] + 2.0 * k3[5] + k4[5]) if sliding else y[5]
     t1 = y[7]
     t2 = y[8]
     if c.energy:
@@ -367,6 +465,25 @@ def _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start_a, y, y0,
     return (y[0] + w * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
             y[1] + w * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]),
             p1, p2, x, v, y[6] + w * (k1[6] + 2.0 * k2[6] + 2.0 * k3[6] + k4[6]), t1, t2)
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def rk4_base_substep(c, y, coil_current_a, direction, spool_delayed_start, spool_delayed_mid,
+                     spool_delayed_end, h):
+    """One whole RK4 substep of ``base_derivatives``; the delayed spool positions at its
+    start, middle and end are read from the ring buffer beforehand (``delayed_value``)."""
+    k1 = base_derivatives(c, coil_current_a, y[0], y[1], y[2], y[3], y[4], y[5], direction,
+                          spool_delayed_start)
+    y2 = _axpy(y, 0.5 * h, k1)
+    k2 = base_derivatives(c, coil_current_a, y2[0], y2[1], y2[2], y2[3], y2[4], y2[5],
+                          direction, spool_delayed_mid)
+    y3 = _axpy(y, 0.5 * h, k2)
+    k3 = base_derivatives(c, coil_current_a, y3[0], y3[1], y3[2], y3[3], y3[4], y3[5],
+                          direction, spool_delayed_mid)
+    y4 = _axpy(y, h, k3)
+    k4 = base_derivatives(c, coil_current_a, y4[0], y4[1], y4[2], y4[3], y4[4], y4[5],
+                          direction, spool_delayed_end)
+    return _rk4_combine(c, y, k1, k2, k3, k4, h, direction)
 
 
 MAX_EVENTS_PER_SUBSTEP = 4
@@ -465,9 +582,182 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
         history[env, slot, L.H_X_S] = y[0]
         history[env, slot, L.H_P1] = y[2]
         history[env, slot, L.H_P2] = y[3]
-    for row in range(len(y)):  # the RK4 rows are the state rows up to t2_k
+    _store_state(c, state, env, y, coil if c.coil_lag else coil_current_a, outputs)
+
+
+CHUNK_ENVS = 64  # environments advanced together by the batch path (their arrays stay in L1/L2)
+N_CONSTANTS = len(Constants._fields)
+N_RK = 9  # state rows the RK4 integrates (S_X_S .. S_T2)
+
+
+@njit(cache=True)
+def store_constants(c, constants, lane):
+    """Write the fields of ``c`` into lane ``lane`` of a flat chunk array (``N_CONSTANTS`` rows
+    of ``CHUNK_ENVS`` lanes): in a loop over lanes each field is one contiguous vector load."""
+    for i in range(N_CONSTANTS):
+        constants[i * CHUNK_ENVS + lane] = c[i]
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def load_constants(constants, lane):
+    """The ``Constants`` of column ``lane`` (inverse of ``store_constants``), field by field."""
+    # one argument per field, in order: a new Constants field makes this fail to compile
+    k = CHUNK_ENVS
+    return Constants(
+        constants[0 * k + lane], constants[1 * k + lane], constants[2 * k + lane], constants[3 * k + lane],
+        constants[4 * k + lane], constants[5 * k + lane], constants[6 * k + lane], constants[7 * k + lane],
+        constants[8 * k + lane], constants[9 * k + lane], constants[10 * k + lane], constants[11 * k + lane],
+        constants[12 * k + lane], constants[13 * k + lane], constants[14 * k + lane], constants[15 * k + lane],
+        constants[16 * k + lane], constants[17 * k + lane], constants[18 * k + lane], constants[19 * k + lane],
+        constants[20 * k + lane], constants[21 * k + lane], constants[22 * k + lane], constants[23 * k + lane],
+        constants[24 * k + lane], constants[25 * k + lane], constants[26 * k + lane], constants[27 * k + lane],
+        constants[28 * k + lane], constants[29 * k + lane], constants[30 * k + lane], constants[31 * k + lane],
+        constants[32 * k + lane], constants[33 * k + lane], constants[34 * k + lane], constants[35 * k + lane],
+        constants[36 * k + lane], constants[37 * k + lane], constants[38 * k + lane], constants[39 * k + lane],
+        constants[40 * k + lane], constants[41 * k + lane], constants[42 * k + lane], constants[43 * k + lane],
+        constants[44 * k + lane], constants[45 * k + lane], constants[46 * k + lane], constants[47 * k + lane],
+        constants[48 * k + lane], constants[49 * k + lane], constants[50 * k + lane], constants[51 * k + lane],
+        constants[52 * k + lane], constants[53 * k + lane], constants[54 * k + lane], constants[55 * k + lane],
+        constants[56 * k + lane], constants[57 * k + lane], constants[58 * k + lane], constants[59 * k + lane])
+
+
+# Rows of the batch path's work array, a flat array of N_WORK rows of CHUNK_ENVS lanes: the
+# RK4 state rows, then the inputs of one substep. The vectorised loop updates the state
+# rows in place. Rows are CHUNK_ENVS apart, a compile-time constant, so LLVM can prove the
+# lanes independent (with run-time row strides it gives up on the aliasing checks).
+W_SPOOL_DELAYED = N_RK  # x_s(t - tau) at the substep's start, middle and end: 3 rows
+W_CURRENT = N_RK + 3
+W_DIRECTION = N_RK + 4
+N_WORK = N_RK + 5
+
+
+@njit(cache=True, error_model="numpy")
+def _base_substeps_vectorised(constants, work, n_lanes, h):
+    """RK4 substep of ``base_derivatives`` for every lane of a chunk; a loop LLVM vectorises.
+
+    ``error_model="numpy"`` lets a division by zero give inf instead of raising, so the
+    divisions do not stop vectorisation.
+    """
+    for j in range(n_lanes):
+        c = load_constants(constants, j)
+        out = rk4_base_substep(c, _work_state(work, j), work[W_CURRENT * CHUNK_ENVS + j],
+                               work[W_DIRECTION * CHUNK_ENVS + j],
+                               work[W_SPOOL_DELAYED * CHUNK_ENVS + j],
+                               work[(W_SPOOL_DELAYED + 1) * CHUNK_ENVS + j],
+                               work[(W_SPOOL_DELAYED + 2) * CHUNK_ENVS + j], h)
+        _set_work_state(work, j, out)
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _work_state(work, j):
+    """The RK4 state tuple of lane ``j`` of the flat work array."""
+    return (work[j], work[CHUNK_ENVS + j], work[2 * CHUNK_ENVS + j], work[3 * CHUNK_ENVS + j],
+            work[4 * CHUNK_ENVS + j], work[5 * CHUNK_ENVS + j], work[6 * CHUNK_ENVS + j],
+            work[7 * CHUNK_ENVS + j], work[8 * CHUNK_ENVS + j])
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _set_work_state(work, j, y):
+    """Store the state tuple ``y`` in lane ``j`` (row by row: a run-time tuple index would not
+    vectorise)."""
+    work[j], work[CHUNK_ENVS + j], work[2 * CHUNK_ENVS + j] = y[0], y[1], y[2]
+    work[3 * CHUNK_ENVS + j], work[4 * CHUNK_ENVS + j], work[5 * CHUNK_ENVS + j] = y[3], y[4], y[5]
+    work[6 * CHUNK_ENVS + j], work[7 * CHUNK_ENVS + j], work[8 * CHUNK_ENVS + j] = y[6], y[7], y[8]
+
+
+@njit(cache=True)
+def _lane_state(a, j):
+    """The RK4 state tuple of row ``j`` of a (lanes, >= N_RK) array."""
+    return (a[j, 0], a[j, 1], a[j, 2], a[j, 3], a[j, 4], a[j, 5], a[j, 6], a[j, 7], a[j, 8])
+
+
+@njit(cache=True)
+def advance_chunk(params, state, history, first, stop, head, coil_current_a, control_dt_s,
+                  n_substeps, outputs):
+    """Advance environments ``first .. stop-1`` by one control period; write their outputs.
+
+    Environments where ``base_model_only`` holds advance together: per substep, the delayed
+    spool positions and the piston's direction are read per lane, one vectorised RK4
+    substep (``_base_substeps_vectorised``) advances every lane, and a lane whose substep
+    needs splitting (stiff flow, ``refinement``) or crosses a piston event (a stop or a
+    velocity reversal, ``piston.event_fraction``) is redone from the substep's start by
+    the general path (``_advance_interval``). Other environments take ``advance_env``.
+    Either way an environment's result does not depend on the rest of the batch.
+    """
+    n = stop - first
+    h = control_dt_s / n_substeps
+    n_slots = history.shape[1]
+    constants = np.empty(N_CONSTANTS * CHUNK_ENVS)
+    fast = np.zeros(n, dtype=np.bool_)
+    for j in range(n):
+        env = first + j
+        c = env_constants(params, env, h)
+        store_constants(c, constants, j)
+        fast[j] = base_model_only(c)
+        if not fast[j]:
+            advance_env(params, state, history, env, head, coil_current_a[env], control_dt_s,
+                        n_substeps, outputs)
+    work = np.zeros(N_WORK * CHUNK_ENVS)
+    start = np.empty((n, N_RK))  # the state at the substep's start
+    for j in range(n):
+        for row in range(N_RK):
+            start[j, row] = state[row, first + j]
+        work[W_CURRENT * CHUNK_ENVS + j] = coil_current_a[first + j]
+    for sub in range(n_substeps):
+        head_sub = head + sub
+        for j in range(n):
+            c = load_constants(constants, j)
+            for row in range(N_RK):
+                work[row * CHUNK_ENVS + j] = start[j, row]
+            for stage in range(3):  # substep fractions 0, 1/2, 1 (all before head)
+                work[(W_SPOOL_DELAYED + stage) * CHUNK_ENVS + j] = delayed_value(
+                    history, first + j, L.H_X_S, head_sub, 0.5 * stage, c.delay_substeps,
+                    start[j, 0], start[j, 0])
+            if c.mode != MODE_FIXED:
+                applied = (pneumatic_force(start[j, 2], start[j, 3], c.area_cap, c.area_rod,
+                                           c.rod_area, c.ambient_pa)
+                           - external_force(c.mode, start[j, 4], c.load_force, c.spring_k,
+                                            c.spring_rest))
+                work[W_DIRECTION * CHUNK_ENVS + j] = motion_direction(
+                    start[j, 4], start[j, 5], applied, c.stick_threshold, c.half_stroke)
+        _base_substeps_vectorised(constants, work, n, h)
+        slot = (head_sub + 1) % n_slots
+        for j in range(n):
+            if not fast[j]:
+                continue
+            env = first + j
+            c = load_constants(constants, j)
+            y0 = _lane_state(start, j)
+            yj = _work_state(work, j)
+            direction = work[W_DIRECTION * CHUNK_ENVS + j]
+            current = work[W_CURRENT * CHUNK_ENVS + j]
+            parts = refinement(c, y0, h)
+            event = direction != 0.0 and event_fraction(
+                y0[4], y0[5], yj[4], yj[5], direction, c.half_stroke) >= 0.0
+            if parts > 1 or event:
+                yj = y0
+                for part in range(parts):
+                    yj = _advance_interval(c, history, env, head_sub, part / parts,
+                                           (part + 1) / parts, h, current, current, yj, y0)
+            x, v = end_of_substep(yj[4], yj[5], c.half_stroke)
+            yj = (yj[0], yj[1], yj[2], yj[3], x, v, yj[6], yj[7], yj[8])
+            for row in range(N_RK):
+                start[j, row] = yj[row]
+            history[env, slot, L.H_X_S] = yj[0]
+            history[env, slot, L.H_P1] = yj[2]
+            history[env, slot, L.H_P2] = yj[3]
+    for j in range(n):
+        if fast[j]:
+            _store_state(load_constants(constants, j), state, first + j, _lane_state(start, j),
+                         work[W_CURRENT * CHUNK_ENVS + j], outputs)
+
+
+@njit(cache=True)
+def _store_state(c, state, env, y, coil_a, outputs):
+    """Write the integrated rows and the coil current back, and the outputs row (Eq. 1)."""
+    for row in range(N_RK):
         state[row, env] = y[row]
-    state[L.S_COIL, env] = coil if c.coil_lag else coil_current_a
+    state[L.S_COIL, env] = coil_a
     f_p = pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
     outputs[L.O_P1, env] = y[2]
     outputs[L.O_P2, env] = y[3]
@@ -481,18 +771,21 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
 @njit(cache=True)
 def step_serial(params, state, history, head, coil_current_a, control_dt_s, n_substeps, outputs):
     """Advance every environment of the batch by one control period on one thread."""
-    for env in range(state.shape[1]):
-        advance_env(params, state, history, env, head, coil_current_a[env], control_dt_s,
-                    n_substeps, outputs)
+    n_envs = state.shape[1]
+    for first in range(0, n_envs, CHUNK_ENVS):
+        advance_chunk(params, state, history, first, min(first + CHUNK_ENVS, n_envs), head,
+                      coil_current_a, control_dt_s, n_substeps, outputs)
 
 
 @njit(cache=True, parallel=True)
 def step_parallel(params, state, history, head, coil_current_a, control_dt_s, n_substeps,
                   outputs):
-    """Advance every environment of the batch by one control period, environments in parallel."""
-    for env in prange(state.shape[1]):
-        advance_env(params, state, history, env, head, coil_current_a[env], control_dt_s,
-                    n_substeps, outputs)
+    """Advance every environment of the batch by one control period, chunks in parallel."""
+    n_envs = state.shape[1]
+    for chunk in prange((n_envs + CHUNK_ENVS - 1) // CHUNK_ENVS):
+        first = chunk * CHUNK_ENVS
+        advance_chunk(params, state, history, first, min(first + CHUNK_ENVS, n_envs), head,
+                      coil_current_a, control_dt_s, n_substeps, outputs)
 
 
 @njit(cache=True)

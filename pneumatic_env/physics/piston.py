@@ -6,13 +6,13 @@ MODE_FREE = 1
 MODE_SPRING = 2
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True, error_model="numpy")
 def pneumatic_force(p1_pa, p2_pa, area_cap_m2, area_rod_m2, rod_area_m2, ambient_pressure_pa):
     """Right-hand side of Eq. 1: F_p = P1 A1 - P2 A2 - P_a A_r."""
     return p1_pa * area_cap_m2 - p2_pa * area_rod_m2 - ambient_pressure_pa * rod_area_m2
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True, error_model="numpy")
 def external_force(mode, piston_position_m, load_force_n, spring_stiffness_n_per_m,
                    spring_rest_position_m):
     """F_L of Eq. 1 (positive resists extension): a constant force, plus the spring's push."""
@@ -53,7 +53,7 @@ def motion_direction(piston_position_m, piston_velocity_m_per_s, applied_force_n
     return 1.0 if applied_force_n > 0.0 else -1.0
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True, error_model="numpy")
 def piston_acceleration(applied_force_n, piston_velocity_m_per_s, direction,
                         dynamic_friction_n, viscous_friction_n_s_per_m, moving_mass_kg):
     """Eq. 1 while sliding: (F_p - F_L - beta v - F_df dir) / (M_p + M_L); zero while held."""
