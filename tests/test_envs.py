@@ -16,6 +16,7 @@ from gymnasium.utils.env_checker import check_env
 import pneumatic_env
 from conftest import areas
 from pneumatic_env.params import ConfigError, load_parameters, save_parameters
+from pneumatic_env.physics import layout as L
 
 FORCE_ID = "pneumatic_env/ForceTrack-Numatics-0.5m-v0"
 POSITION_ID = "pneumatic_env/PositionTrack-Airpel-2m-v0"
@@ -354,3 +355,29 @@ def test_normalized_observation(env_id):
     np.testing.assert_allclose(norm, expected, rtol=1e-5, atol=1e-5)
     assert np.abs(norm).max() > 0.3  # not all near zero either
     assert np.abs(raw[:, :2]).max() > 1e5  # the raw observation is in SI units
+
+
+def test_fitted_load_cell_compliance_becomes_a_force_tracking_env(tmp_path):
+    """A parameter file with the rod on a spring (identification's load_cell_compliance) is a
+    ForceTrack env on that spring, not silently a rigid clamp; a rod mode the task cannot
+    use is refused by keyword and overridden with a warning from a file."""
+    from pneumatic_env.physics.piston import MODE_FIXED, MODE_FREE, MODE_SPRING
+
+    path = tmp_path / "rig.yaml"
+    save_parameters(path, {"piston_mode": 2, "spring_stiffness_n_per_m": 5e5,
+                           "spring_rest_position_m": 0.0, "static_friction_n": 0.0,
+                           "dynamic_friction_n": 0.0}, notes="fitted load cell")
+    env = gym.make(FORCE_ID, params=str(path))
+    assert env.unwrapped.core.base_params["piston_mode"] == MODE_SPRING
+    f = _steady_force(env)
+    x = float(env.unwrapped.core.sim.outputs[L.O_X, 0])
+    assert x > 0.0 and f == pytest.approx(5e5 * x, rel=1e-5)  # the cell reads k x
+    # valve open, at rest: the pressures and so the force are the rigid clamp's
+    assert f == pytest.approx(_steady_force(gym.make(FORCE_ID)), rel=1e-3)
+    with pytest.raises(ValueError, match=r"piston_mode = 'free' is not allowed for "
+                                         r"ForceTrack: allowed \['fixed', 'spring'\]"):
+        gym.make(FORCE_ID, piston_mode="free")
+    with pytest.warns(UserWarning, match="does not fit PositionTrack"):
+        position = gym.make(POSITION_ID, params=str(path))
+    assert position.unwrapped.core.base_params["piston_mode"] == MODE_FREE
+    assert gym.make(FORCE_ID).unwrapped.core.base_params["piston_mode"] == MODE_FIXED

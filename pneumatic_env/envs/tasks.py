@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import gymnasium as gym
 import numpy as np
 
 from .. import params as P
@@ -31,12 +32,16 @@ class TaskSpec:
     piston_mode: str  # "fixed" or "free" (configs/load.yaml)
     tracked: str  # "f" or "x"
     reference: dict  # default reference spec, in units of `reference_scale` (see scale_of)
+    # rod modes a parameter file (e.g. a fitted rig) or a keyword may bring instead
+    rod_modes: tuple = ()
     description: str = ""
     extra_defaults: dict = field(default_factory=dict)
 
 
 FORCE_TRACK = TaskSpec(
     name="ForceTrack", piston_mode="fixed", tracked="f",
+    # a fitted compliant load cell (identification's load_cell_compliance) is the spring mode
+    rod_modes=("fixed", "spring"),
     reference={"kind": "mixture", "choices": [
         {"kind": "random_step", "amplitude": 0.6, "hold_min_s": 0.1, "hold_max_s": 0.5},
         {"kind": "multisine", "amplitude": 0.5, "frequencies_hz": [0.5, 2.0, 5.0],
@@ -48,7 +53,7 @@ FORCE_TRACK = TaskSpec(
     extra_defaults={"fixed_position_m": 0.0},
 )
 POSITION_TRACK = TaskSpec(
-    name="PositionTrack", piston_mode="free", tracked="x",
+    name="PositionTrack", piston_mode="free", tracked="x", rod_modes=("free",),
     reference={"kind": "mixture", "choices": [
         {"kind": "random_step", "amplitude": 0.6, "hold_min_s": 0.2, "hold_max_s": 0.6},
         {"kind": "multisine", "amplitude": 0.6, "frequencies_hz": [0.5, 1.0, 2.0]},
@@ -126,6 +131,32 @@ class EnvOptions:
                 bad(f"sensor_noise['{channel}']", std, "must be a finite number >= 0")
 
 
+def _rod_mode(task: TaskSpec, cylinder: str, params, overrides: dict) -> str:
+    """The rod mode of a task's environments: ``piston_mode`` from the keyword arguments or
+    the parameter file if it is one of ``task.rod_modes``, else the task's own.
+
+    A keyword outside ``rod_modes`` is an error; a parameter file's mode outside it (a rig
+    fitted with the rod free, used for force tracking) gives way to the task's with a
+    warning, never silently.
+    """
+    names = L.DISCRETE_PARAMETERS["piston_mode"]
+    if "piston_mode" in overrides:
+        value = overrides["piston_mode"]
+        mode = names.get(value, value) if not isinstance(value, str) else value
+        if mode not in task.rod_modes:
+            raise ValueError(f"piston_mode = {value!r} is not allowed for {task.name}: "
+                             f"allowed {list(task.rod_modes)}")
+        return mode
+    if params is None:
+        return task.piston_mode
+    mode = names[int(P.load_parameters(cylinder, params=params)["piston_mode"])]
+    if mode in task.rod_modes:
+        return mode
+    gym.logger.warn(f"the parameter file's piston_mode '{mode}' does not fit {task.name} "
+                    f"(allowed {list(task.rod_modes)}); using '{task.piston_mode}'")
+    return task.piston_mode
+
+
 class TaskCore:
     """``n_envs`` episodes of one tracking task, advanced together."""
 
@@ -139,7 +170,8 @@ class TaskCore:
         substeps = self.options.substeps or numerics["substeps"]
         overrides = {**task.extra_defaults, **overrides}
         base = P.load_parameters(cylinder, tube_length_m=tube_length_m, params=params,
-                                 piston_mode=task.piston_mode, **overrides)
+                                 piston_mode=_rod_mode(task, cylinder, params, overrides),
+                                 **{k: v for k, v in overrides.items() if k != "piston_mode"})
         self.base_params = base
         self.cylinder = cylinder
         self._randomization = self._check_randomization(self.options.domain_randomization, base)

@@ -10,6 +10,14 @@ each RK4 substep integrates a smooth right-hand side.
 The effects beyond the paper's model (docs/effects.md, ``effects.py``) are switched per
 environment by their parameter rows; ``env_constants`` turns each into a flag or a
 neutral constant once per control period, so an effect that is off costs a branch.
+
+Two paths share the sub-models. The batch path (``advance_chunk``, used by every step
+function) advances chunks of ``CHUNK_ENVS`` environments running the paper's model one
+RK4 substep at a time in a single loop over the chunk that LLVM compiles to SIMD code
+(``base_derivatives``, branch-free, ``vecmath``). The general path (``advance_env``, one
+environment through the whole control period, ``derivatives``) takes environments with
+other effects on, and redoes a lane's substep that is stiff or crosses a piston event.
+Both give the same numbers bit for bit (tests/test_physics.py).
 """
 import math
 from collections import namedtuple

@@ -2,8 +2,8 @@
 
 The kernel works on struct-of-arrays with the environments innermost:
 ``params[P_*, n_envs]`` and ``state[S_*, n_envs]``; the tube-delay history is kept per
-environment, ``history[env, slot, H_*]``, because the kernel advances one environment
-through all substeps of a control period at a time. Row indices are module-level integer constants so
+environment, ``history[env, slot, H_*]``, because each environment reads its own delay
+(per-lane reads in the kernel's batch path). Row indices are module-level integer constants so
 Numba compiles them as literals. ``PARAMETER_NAMES`` is the single list that the YAML
 configs (``configs/``), the loader and the kernel agree on; every name carries its unit.
 
