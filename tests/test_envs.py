@@ -380,4 +380,10 @@ def test_fitted_load_cell_compliance_becomes_a_force_tracking_env(tmp_path):
     with pytest.warns(UserWarning, match="does not fit PositionTrack"):
         position = gym.make(POSITION_ID, params=str(path))
     assert position.unwrapped.core.base_params["piston_mode"] == MODE_FREE
+    silent = tmp_path / "no_rod.yaml"  # a file that says nothing of the rod: no warning
+    save_parameters(silent, {"supply_pressure_pa": 5.5e5}, notes="fit")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert gym.make(POSITION_ID, params=str(silent)).unwrapped.core.base_params[
+            "piston_mode"] == MODE_FREE
     assert gym.make(FORCE_ID).unwrapped.core.base_params["piston_mode"] == MODE_FIXED

@@ -8,7 +8,9 @@ randomisation, sensor model, observations and rewards, all as arrays. The single
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -149,6 +151,9 @@ def _rod_mode(task: TaskSpec, cylinder: str, params, overrides: dict) -> str:
         return mode
     if params is None:
         return task.piston_mode
+    data = params if isinstance(params, Mapping) else P.read_yaml(Path(params).expanduser())
+    if not isinstance(data, Mapping) or "piston_mode" not in data:
+        return task.piston_mode  # the file says nothing of the rod (load_parameters checks it)
     mode = names[int(P.load_parameters(cylinder, params=params)["piston_mode"])]
     if mode in task.rod_modes:
         return mode
