@@ -1,7 +1,7 @@
 """Keep Numba's on-disk cache consistent with the package source.
 
 Numba keys a cached function on its own source file only. A jitted function that inlines
-functions from another module (the task kernel calls ``kernel.advance_env``, which calls the
+functions from another module (the task kernel calls ``kernel.advance_chunk``, which calls the
 sub-models) keeps running the old code after that other module changes. On import,
 the package hashes all of its Python sources. When the digest differs from the one stored
 with the cache, the package's cache files are deleted and the functions compile afresh.

@@ -11,8 +11,9 @@ One run measures, on the same machine and in the same process:
 4. Gymnasium's ``SyncVectorEnv`` over N single envs;
 5. the independent SciPy solution (``reference_solution.simulate_reference``) on the
    clamped 0.5 A step, at the loosest tolerance that reaches the accuracy target;
-6. a ceiling for the kernel: the operations of one substep (counted in ``KERNEL_WORK``)
-   times the cost of each operation measured in a Numba loop on this machine;
+6. a ceiling for the kernel: the SIMD instructions of the compiled vectorised loop (read
+   from its assembly, ``vector_loop_instructions``) and the scalar work per lane counted
+   in ``KERNEL_WORK``, each at its throughput measured in a Numba loop on this machine;
 
 and prints a table of ratios against the targets. Medians over ``--repeats``;
 measurements of different configurations are interleaved so that load from other
