@@ -714,9 +714,11 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
     for sub in range(n_substeps):
         head_sub = head + sub
         for j in range(n):
-            c = load_constants(constants, j)
             for row in range(N_RK):
                 work[row * CHUNK_ENVS + j] = start[j, row]
+            if not fast[j]:  # advanced by advance_env above; its lane is computed and ignored
+                continue
+            c = load_constants(constants, j)
             for stage in range(3):  # substep fractions 0, 1/2, 1 (all before head)
                 work[(W_SPOOL_DELAYED + stage) * CHUNK_ENVS + j] = delayed_value(
                     history, first + j, L.H_X_S, head_sub, 0.5 * stage, c.delay_substeps,
