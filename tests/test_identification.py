@@ -195,6 +195,7 @@ EFFECT_RIVALS = {
     "channel_time_skew": "pressure_sensor_lag",
     "heat_transfer": "exhaust_discharge",
     "iso_flow_law": "rod_seal_leak",
+    "exhaust_discharge": "valve_null_leak",
 }
 
 
