@@ -559,6 +559,29 @@ def _advance_interval(c, history, env, head, frac_start, frac_end, h, command_a,
 
 
 @njit(cache=True)
+def _split_substep(c, history, env, head_sub, h, command_a, coil_start_a, y0, parts):
+    """One substep from ``y0`` by the general path, in ``parts`` equal parts
+    (``refinement``), each split further at piston events (``_advance_interval``)."""
+    y = y0
+    for part in range(parts):
+        y = _advance_interval(c, history, env, head_sub, part / parts, (part + 1) / parts, h,
+                              command_a, coil_start_a, y, y0)
+    return y
+
+
+@njit(cache=True)
+def _close_substep(c, history, env, slot, y):
+    """The end of a substep: the inelastic stops (``end_of_substep``) and the delay history
+    at the new boundary (written at substep boundaries only, whatever the splitting)."""
+    x, v = end_of_substep(y[4], y[5], c.half_stroke)
+    y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
+    history[env, slot, L.H_X_S] = y[0]
+    history[env, slot, L.H_P1] = y[2]
+    history[env, slot, L.H_P2] = y[3]
+    return y
+
+
+@njit(cache=True)
 def advance_env(params, state, history, env, head, coil_current_a, control_dt_s, n_substeps,
                 outputs):
     """Advance environment ``env`` by one control period; write its outputs row.
@@ -577,19 +600,11 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
     for sub in range(n_substeps):
         head_sub = head + sub
         coil_start = coil if c.coil_lag else coil_current_a
-        y0 = y
-        parts = refinement(c, y, h)
-        for part in range(parts):
-            y = _advance_interval(c, history, env, head_sub, part / parts, (part + 1) / parts, h,
-                                  coil_current_a, coil_start, y, y0)
-        x, v = end_of_substep(y[4], y[5], c.half_stroke)
-        y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
+        y = _split_substep(c, history, env, head_sub, h, coil_current_a, coil_start, y,
+                           refinement(c, y, h))
         if c.coil_lag:
             coil = _coil_at(c, coil_current_a, coil_start, 1.0)
-        slot = (head_sub + 1) % n_slots
-        history[env, slot, L.H_X_S] = y[0]
-        history[env, slot, L.H_P1] = y[2]
-        history[env, slot, L.H_P2] = y[3]
+        y = _close_substep(c, history, env, (head_sub + 1) % n_slots, y)
     _store_state(c, state, env, y, coil if c.coil_lag else coil_current_a, outputs)
 
 
@@ -745,17 +760,10 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
             event = direction != 0.0 and event_fraction(
                 y0[4], y0[5], yj[4], yj[5], direction, c.half_stroke) >= 0.0
             if parts > 1 or event:
-                yj = y0
-                for part in range(parts):
-                    yj = _advance_interval(c, history, env, head_sub, part / parts,
-                                           (part + 1) / parts, h, current, current, yj, y0)
-            x, v = end_of_substep(yj[4], yj[5], c.half_stroke)
-            yj = (yj[0], yj[1], yj[2], yj[3], x, v, yj[6], yj[7], yj[8])
+                yj = _split_substep(c, history, env, head_sub, h, current, current, y0, parts)
+            yj = _close_substep(c, history, env, slot, yj)
             for row in range(N_RK):
                 start[j, row] = yj[row]
-            history[env, slot, L.H_X_S] = yj[0]
-            history[env, slot, L.H_P1] = yj[2]
-            history[env, slot, L.H_P2] = yj[3]
     for j in range(n):
         if fast[j]:
             _store_state(load_constants(constants, j), state, first + j, _lane_state(start, j),
