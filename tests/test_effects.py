@@ -13,7 +13,7 @@ from pneumatic_env.physics import effects as E
 from pneumatic_env.physics import kernel
 from pneumatic_env.physics import layout as L
 from pneumatic_env.physics.flow import flow_constants, reduced_flow, subsonic_reduced_flow
-from pneumatic_env.physics.valve import orifice_area
+from pneumatic_env.physics.valve import orifice_area, steady_spool_position
 from pneumatic_env.simulator import BatchSimulator
 
 from conftest import areas, run_batch
@@ -30,6 +30,7 @@ ON = {
     "coil_time_constant_s": {"coil_time_constant_s": 0.005},
     "wall_heat_transfer_w_per_k": {"wall_heat_transfer_w_per_k": 0.05},
     "stribeck_velocity_m_per_s": {"stribeck_velocity_m_per_s": 0.02},
+    "spool_coulomb_friction_n": {"spool_coulomb_friction_n": 0.1},
 }
 T_S = 293.15
 
@@ -65,6 +66,7 @@ def test_neutral_sub_models_return_the_paper_quantity_exactly():
     assert E.dead_volume_with_tube(1.0e-6, 0.0, 3.2e-3, 2.0) == 1.0e-6
     assert E.drooped_supply_pressure(6.5e5, 0.0108, 0.0) == 6.5e5
     assert E.lagged_coil_current(0.7, -0.3, E.coil_decay(0.0, 5e-5)) == 0.7
+    assert E.spool_play_current(-0.3, 0.7, E.spool_play_band(0.0, 2.78)) == 0.7
     c1, c2, p_cr = flow_constants(1.4, 287.0)
     slope = subsonic_reduced_flow(0.995, 1.4, c2) / 0.005
     for r in (0.3, 0.6, 0.9, 0.998):
@@ -309,6 +311,43 @@ def test_stribeck_friction_falls_from_static_to_dynamic_with_speed():
         assert accel == pytest.approx(expected, rel=1e-12), v
     assert E.stribeck_friction(0.0, f_df, f_sf, v_s) == f_sf
     assert E.stribeck_friction(1.0, f_df, f_sf, v_s) == pytest.approx(f_df, rel=1e-12)
+
+
+# --------------------------------------------------------------------------- 10 spool friction
+
+def test_spool_friction_is_a_play_of_half_width_friction_over_coil_force():
+    """The settled spool sits at Eq. 46's position of the play's current: it does not move
+    for a command change inside the band, and reaches a current from above and from
+    below at two positions 2 F_cs / (2 k_s) apart (hysteresis)."""
+    friction_n = 0.1
+    p = load_parameters(spool_coulomb_friction_n=friction_n)
+    k_fc, k_s = p["coil_force_n_per_a"], p["spool_spring_n_per_m"]
+    band = friction_n / k_fc
+    sim = _sim([load_parameters(), p])
+
+    def settle(command_a, steps=60):  # the spool settles within a few ms (Eq. 38)
+        for _ in range(steps):
+            sim.step(np.array([command_a, command_a]))
+        return sim.outputs[L.O_X_S].copy()
+
+    assert sim.state[L.S_PLAY, 1] == 0.0
+    up = settle(0.3)
+    assert up[0] == pytest.approx(steady_spool_position(0.3, k_s, k_fc), rel=1e-6)
+    assert up[1] == pytest.approx(steady_spool_position(0.3 - band, k_s, k_fc), rel=1e-6)
+    assert sim.state[L.S_PLAY, 1] == pytest.approx(0.3 - band, rel=1e-12)
+    inside = settle(0.3 - 1.5 * band)  # back by less than the band's width: no motion
+    assert inside[1] == pytest.approx(up[1], rel=1e-9)
+    assert inside[0] < up[0] - 0.5 * steady_spool_position(band, k_s, k_fc)
+    down = settle(0.1)
+    from_above = down[1]
+    assert from_above == pytest.approx(steady_spool_position(0.1 + band, k_s, k_fc), rel=1e-6)
+    settle(-0.2)
+    from_below = settle(0.1)[1]
+    assert from_above - from_below == pytest.approx(2 * friction_n / (2 * k_s), rel=1e-6)
+    assert np.all(sim.state[L.S_COIL] == sim.state[L.S_PLAY])  # no coil lag: the same
+    sim.reset()
+    assert np.all(sim.state[L.S_PLAY] == 0.0)
+
 
 
 @pytest.mark.parametrize("cylinder", ["numatics", "airpel"])

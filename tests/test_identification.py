@@ -196,6 +196,7 @@ EFFECT_RIVALS = {
     "heat_transfer": "exhaust_discharge",
     "iso_flow_law": "rod_seal_leak",
     "exhaust_discharge": "valve_null_leak",
+    "spool_friction": "coil_lag",
 }
 
 

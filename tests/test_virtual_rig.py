@@ -59,6 +59,27 @@ def test_strength_zero_is_the_plant_without_the_effect():
             assert np.array_equal(zero.channels[ch], base.channels[ch]), (effect, ch)
 
 
+def test_rig_spool_friction_is_a_stick_slip_play():
+    """Without a breakaway excess the rig's spool friction is the candidate's play; with it
+    the spool sticks longer, then jumps to the Coulomb band and slides."""
+    from pneumatic_env.identification.virtual_rig import _stick_slip_play
+    from pneumatic_env.physics.effects import spool_play_current
+    rng = np.random.default_rng(3)
+    current = np.cumsum(rng.normal(0.0, 0.01, 2000))
+    band = 0.03
+    held, play = 0.0, np.empty_like(current)
+    for k, command in enumerate(current):
+        held = play[k] = spool_play_current(held, command, band)
+    np.testing.assert_allclose(_stick_slip_play(current, band, band), play, rtol=0, atol=1e-15)
+    ramp = np.concatenate([np.linspace(0.0, 0.1, 101), np.linspace(0.1, 0.0, 101)])
+    out = _stick_slip_play(ramp, band, 1.3 * band)
+    rising = ramp[:101]
+    assert np.all(out[:101][rising <= 1.3 * band] == 0.0)  # stuck up to the breakaway
+    sliding = rising > 1.3 * band + 1e-3
+    np.testing.assert_allclose(out[:101][sliding], rising[sliding] - band)  # then slides
+    assert np.all(np.abs(out - ramp) <= 1.3 * band + 1e-12)
+
+
 def test_laminar_leak_equalises_the_sealed_chambers():
     cfg = load_config()
     base = run_rig("none", seed=5, duration_s=DURATION_S)

@@ -33,6 +33,9 @@ How the plant differs from the fitting model:
                                     sliding friction off (pre-sliding), the cell's moving mass
                                     on the rod (the same spring mode; the candidate refits the
                                     mass, so this is close to an inverse crime)
+  spool_friction                    stick-slip play on the current: the spool breaks away at
+                                    1.3 x the Coulomb band and then slides at it (a play of
+                                    the Coulomb band, ``spool_coulomb_friction_n``)
   supply_ripple                     not in the catalog: 3 Hz supply-pressure oscillation
   valve_null_leak, tube_volume,     **same form** as the candidate (the kernel's parameter):
   exhaust_discharge, iso_flow_law,  an inverse crime, softened only by the finer step, the
@@ -75,9 +78,13 @@ KERNEL_EFFECTS = {
     "stribeck": ("stribeck_velocity_m_per_s", lambda s, r: s * r),
 }
 #: Every effect the rig can add.
-RIG_EFFECTS = ("none", "leakage", "rod_seal_leak", "coil_lag", "pressure_sensor_offset",
+RIG_EFFECTS = ("none", "leakage", "rod_seal_leak", "coil_lag", "spool_friction",
+               "pressure_sensor_offset",
                "pressure_sensor_lag", "channel_time_skew", "load_cell_compliance",
                "supply_ripple", *KERNEL_EFFECTS)
+#: Static / Coulomb friction of the rig's spool (spool_friction): assumed, a typical
+#: breakaway excess of seals, so that the plant is not the candidate's play.
+SPOOL_BREAKAWAY_RATIO = 1.3
 EXCITATIONS = ("identification", "steps", "prbs", "multisine", "chirp", "triangle")
 _SEGMENTS = ("rest", "step_pos", "step_neg", "prbs", "multisine", "chirp", "triangle")
 
@@ -167,6 +174,30 @@ def _two_lags(y: np.ndarray, total_tau_s: float, dt_s: float) -> np.ndarray:
     for _ in range(2):
         y, _ = lfilter([1.0 - a], [1.0, -a], y, zi=[a * y[0]])
     return y
+
+
+def _stick_slip_play(current_a: np.ndarray, band_a: float, breakaway_a: float) -> np.ndarray:
+    """The current a spool with Coulomb and static friction follows (quasi-static).
+
+    Stuck, the spool holds its current ``h`` until the command leaves ``h +/- breakaway_a``
+    (static friction); it then slides, held ``band_a`` behind the command (Coulomb
+    friction), for as long as the command keeps moving that way. With ``breakaway_a =
+    band_a`` this is the candidate's play (``effects.spool_play_current``).
+    """
+    out = np.empty_like(current_a)
+    held, sliding = 0.0, 0.0
+    for k, command in enumerate(current_a):
+        if sliding != 0.0:
+            target = command - sliding * band_a
+            if (target - held) * sliding > 0.0:
+                held = target
+            else:
+                sliding = 0.0
+        if sliding == 0.0 and abs(command - held) > breakaway_a:
+            sliding = 1.0 if command > held else -1.0
+            held = command - sliding * band_a
+        out[k] = held
+    return out
 
 
 def _laminar_conductance(p: dict, area_m2: float) -> float:
@@ -263,6 +294,11 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
     fine = np.repeat(i_c[:-1], ratio)
     if effect == "coil_lag":
         fine = _two_lags(fine, s * ref, plant_dt)
+    truth_parameters = dict(true)
+    if effect == "spool_friction":
+        truth_parameters["spool_coulomb_friction_n"] = s * ref
+        band = s * ref / true["coil_force_n_per_a"]
+        fine = _stick_slip_play(fine, band, SPOOL_BREAKAWAY_RATIO * band)
     sim = BatchSimulator(parameter_array([true]), plant_dt,
                          int(cfg.number("virtual_rig", "plant_substeps", positive=True)))
     first = sim.outputs[:, 0].copy()
@@ -325,7 +361,8 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
                     "pneumatic_env.identification.virtual_rig"}
     truth = {"effect": effect, "strength": s, "seed": int(seed), "excitation": excitation_kind,
              "duration_s": duration, "perturbed": bool(perturb),
-             "effect_reference": ref, "parameters": {k: float(v) for k, v in true.items()}}
+             "effect_reference": ref,
+             "parameters": {k: float(v) for k, v in truth_parameters.items()}}
     return RigResult(t=t, channels=channels, rig=rig, truth=truth)
 
 

@@ -86,3 +86,25 @@ def stribeck_friction(velocity_m_per_s, dynamic_friction_n, static_friction_n,
     """
     z = velocity_m_per_s / stribeck_velocity_m_per_s
     return dynamic_friction_n + (static_friction_n - dynamic_friction_n) * math.exp(-z * z)
+
+
+@njit(cache=True)
+def spool_play_band(spool_coulomb_friction_n, coil_force_n_per_a):
+    """Half-width F_cs / K_f (A) of the current band a spool friction F_cs holds still (Eq. 38)."""
+    if coil_force_n_per_a <= 0.0:
+        return 0.0
+    return spool_coulomb_friction_n / coil_force_n_per_a
+
+
+@njit(cache=True)
+def spool_play_current(held_a, command_a, band_a):
+    """Current the spool follows under Coulomb friction: a play (backlash) operator.
+
+    In Eq. 38 with a friction F_cs on the spool, the spool stays where it is while the
+    coil force K_f i differs from its spring force by less than F_cs, and moves with a
+    force K_f i -/+ F_cs when pushed past that band. Where the spool is fast against the
+    command (quasi-static limit) this is Eq. 38 driven by ``held_a`` moved just enough to
+    keep ``command_a`` within ``band_a = F_cs / K_f`` of it. Returns ``command_a`` exactly
+    when ``band_a`` is 0.
+    """
+    return min(max(held_a, command_a - band_a), command_a + band_a)

@@ -28,7 +28,8 @@ from numba import njit, prange
 from . import layout as L
 from .chamber import chamber_volumes, pressure_rate
 from .effects import (chamber_energy_rates, coil_decay, dead_volume_with_tube,
-                      drooped_supply_pressure, lagged_coil_current, stribeck_friction)
+                      drooped_supply_pressure, lagged_coil_current, spool_play_band,
+                      spool_play_current, stribeck_friction)
 from .flow import (FLOW_LAW_ISO, FLOW_LAW_PAPER, flow_constants, iso_subsonic_reduced_flow,
                    orifice_mass_flow,
                    subsonic_reduced_flow)
@@ -38,8 +39,9 @@ from .piston import (MODE_FIXED, apply_event, end_of_substep, event_fraction,
 from .tube import sound_speed, tube_attenuation
 from .valve import orifice_area, spool_acceleration
 
-# advance_env integrates the state rows 0 .. S_T2 with RK4 and sets S_COIL exactly.
-assert (L.S_T1, L.S_T2, L.S_COIL, L.N_STATE) == (7, 8, 9, 10), "kernel assumes this state layout"
+# advance_env integrates the state rows 0 .. S_T2 with RK4 and sets S_COIL, S_PLAY exactly.
+assert (L.S_T1, L.S_T2, L.S_COIL, L.S_PLAY, L.N_STATE) == (7, 8, 9, 10, 11), \
+    "kernel assumes this state layout"
 
 Constants = namedtuple("Constants", (
     "gas_rt", "inv_sqrt_t", "k", "c1", "c2", "critical_ratio", "linear_ratio", "linear_slope",
@@ -52,7 +54,7 @@ Constants = namedtuple("Constants", (
     # effects (docs/effects.md)
     "discharge_ex", "null_leak", "seal_leak", "flow_law", "supply_resistance", "coil_lag",
     "coil_decay_half", "coil_decay_full", "energy", "gas", "temperature", "heat_conductance",
-    "static_friction", "stribeck", "stribeck_v",
+    "static_friction", "stribeck", "stribeck_v", "spool_play_band",
     # numerical guards (docs/convergence.md): pressures and gas temperatures stay positive
     "pressure_floor", "temperature_floor",
     "stiffness_volume",  # lambda_max * V (m^3/s): see refinement()
@@ -123,6 +125,7 @@ def env_constants(params, env, substep_s):
         coil_decay(coil_tau, 0.5 * substep_s), coil_decay(coil_tau, substep_s),
         energy_flag, gas, temperature, heat_conductance,
         p[L.P_STATIC_FRICTION_N], stribeck_flag, stribeck_v,
+        spool_play_band(p[L.P_SPOOL_COULOMB_FRICTION_N], p[L.P_COIL_FORCE_N_PER_A]),
         PRESSURE_FLOOR_FRACTION * p[L.P_AMBIENT_PRESSURE_PA], TEMPERATURE_FLOOR_FRACTION * temperature,
         gas * temperature * max(p[L.P_ALPHA_IN], k)
         * p[L.P_DISCHARGE_COEFFICIENT] * max(1.0, p[L.P_EXHAUST_DISCHARGE_RATIO])
@@ -335,8 +338,9 @@ def base_model_only(c):
 
     Then the spool overlap (p_w >= R_h, Eq. 43) keeps the supply and exhaust paths of a
     chamber from being open together, and ``base_derivatives`` gives the same result with
-    two valve paths instead of four. Two effects are in it (the exhaust discharge ratio,
-    the tube volume); the others send the environment to the general path.
+    two valve paths instead of four. Three effects are in it (the exhaust discharge ratio,
+    the tube volume, the spool friction, whose play acts before the substeps); the others
+    send the environment to the general path.
     """
     return (c.energy == 0.0 and c.supply_resistance == 0.0 and c.literal == 0.0
             and c.leak_area == 0.0 and c.seal_leak == 0.0 and c.null_leak == 0.0
@@ -582,6 +586,19 @@ def _close_substep(c, history, env, slot, y):
 
 
 @njit(cache=True)
+def spool_command(c, state, env, command_a):
+    """The held command as the spool sees it through its Coulomb friction's play
+    (``effects.spool_play_current``), updated in the state row ``spool_play_current_a``.
+
+    The command is held over the control period, so the play moves once, at its start.
+    A coil lag (``coil_time_constant_s``) then acts on the play's output.
+    """
+    played = spool_play_current(state[L.S_PLAY, env], command_a, c.spool_play_band)
+    state[L.S_PLAY, env] = played
+    return played
+
+
+@njit(cache=True)
 def advance_env(params, state, history, env, head, coil_current_a, control_dt_s, n_substeps,
                 outputs):
     """Advance environment ``env`` by one control period; write its outputs row.
@@ -592,6 +609,7 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
     """
     h = control_dt_s / n_substeps
     c = env_constants(params, env, h)
+    coil_current_a = spool_command(c, state, env, coil_current_a)
     n_slots = history.shape[1]
     y = (state[L.S_X_S, env], state[L.S_V_S, env], state[L.S_P1, env], state[L.S_P2, env],
          state[L.S_X, env], state[L.S_V, env], state[L.S_EXHAUST, env], state[L.S_T1, env],
@@ -641,7 +659,8 @@ def load_constants(constants, lane):
         constants[44 * k + lane], constants[45 * k + lane], constants[46 * k + lane], constants[47 * k + lane],
         constants[48 * k + lane], constants[49 * k + lane], constants[50 * k + lane], constants[51 * k + lane],
         constants[52 * k + lane], constants[53 * k + lane], constants[54 * k + lane], constants[55 * k + lane],
-        constants[56 * k + lane], constants[57 * k + lane], constants[58 * k + lane], constants[59 * k + lane])
+        constants[56 * k + lane], constants[57 * k + lane], constants[58 * k + lane], constants[59 * k + lane],
+        constants[60 * k + lane])
 
 
 # Rows of the batch path's work array, a flat array of N_WORK rows of CHUNK_ENVS lanes: the
@@ -712,20 +731,21 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
     n_slots = history.shape[1]
     constants = np.empty(N_CONSTANTS * CHUNK_ENVS)
     fast = np.zeros(n, dtype=np.bool_)
+    work = np.zeros(N_WORK * CHUNK_ENVS)
     for j in range(n):
         env = first + j
         c = env_constants(params, env, h)
         store_constants(c, constants, j)
         fast[j] = base_model_only(c)
-        if not fast[j]:
+        if fast[j]:
+            work[W_CURRENT * CHUNK_ENVS + j] = spool_command(c, state, env, coil_current_a[env])
+        else:
             advance_env(params, state, history, env, head, coil_current_a[env], control_dt_s,
                         n_substeps, outputs)
-    work = np.zeros(N_WORK * CHUNK_ENVS)
     start = np.empty((n, N_RK))  # the state at the substep's start
     for j in range(n):
         for row in range(N_RK):
             start[j, row] = state[row, first + j]
-        work[W_CURRENT * CHUNK_ENVS + j] = coil_current_a[first + j]
     for sub in range(n_substeps):
         head_sub = head + sub
         for j in range(n):

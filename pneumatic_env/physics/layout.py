@@ -71,6 +71,7 @@ PARAMETER_NAMES = (
     "coil_time_constant_s",  # first-order coil current lag
     "wall_heat_transfer_w_per_k",  # lumped hA per chamber; > 0 switches the energy model on
     "stribeck_velocity_m_per_s",  # Stribeck velocity of the sliding friction
+    "spool_coulomb_friction_n",  # spool friction: a play (hysteresis) of the spool's current
 )
 
 # The parameters a cylinder file (configs/cylinders/) defines: bore through leakage.
@@ -88,6 +89,7 @@ EFFECT_NEUTRAL_VALUES = {
     "coil_time_constant_s": 0.0,
     "wall_heat_transfer_w_per_k": 0.0,
     "stribeck_velocity_m_per_s": 0.0,
+    "spool_coulomb_friction_n": 0.0,
 }
 
 _g = globals()
@@ -112,7 +114,9 @@ STATE_NAMES = (
     "exhaust_mass_kg",  # air let out of both chambers since reset (air consumption)
     "t1_k",  # chamber gas temperatures (temperature_k unless wall_heat_transfer_w_per_k > 0)
     "t2_k",
-    "coil_current_a",  # actual coil current (the held command unless coil_time_constant_s > 0)
+    "coil_current_a",  # current driving the spool: the held command through the spool play and
+    # the coil lag (the held command unless spool_coulomb_friction_n or coil_time_constant_s > 0)
+    "spool_play_current_a",  # output of the spool-friction play (the command while it is off)
 )
 for _i, _name in enumerate(STATE_NAMES):
     _g["S_" + _name.upper()] = _i
@@ -125,6 +129,7 @@ S_X = S_PISTON_POSITION_M
 S_V = S_PISTON_VELOCITY_M_PER_S
 S_EXHAUST = S_EXHAUST_MASS_KG
 S_COIL = S_COIL_CURRENT_A
+S_PLAY = S_SPOOL_PLAY_CURRENT_A
 S_T1 = S_T1_K
 S_T2 = S_T2_K
 
