@@ -462,7 +462,19 @@ _RULES.append((
     lambda v: (f"such that the critical pressure ratio P_cr (here "
                f"{_f(_p_cr(v['heat_capacity_ratio']))}) is below flow_linear_ratio = "
                f"{_f(v['flow_linear_ratio'])}")))
-del _pos, _alpha
+# The transmission line replaces the paper's tube coupling and holds the tube's air itself;
+# the supply droop's own root solve is not nested in the line's valve-end solve.
+for _other, _off, _why in (
+        ("tube_coupling", 0.0, "command (0): the transmission line couples valve and chamber"),
+        ("tube_volume_fraction", 0.0, "0: the transmission line holds the tube's air itself"),
+        ("supply_resistance_pa_s_per_kg", 0.0,
+         "0: the supply droop is not implemented with the transmission line")):
+    _RULES.append((
+        _other, "tube_waves",
+        lambda v, o=_other, off=_off: v["tube_waves"] == 0.0 or v[o] == off,
+        lambda v, why=_why: f"{why} (tube_waves = 1)",
+        lambda v, o=_other: f"0 (off) while {o} = {_show(v[o])}"))
+del _pos, _alpha, _other, _off, _why
 
 
 def _check_relations(values: dict, origin: dict, level: dict) -> None:

@@ -52,6 +52,7 @@ class BatchSimulator:
         self.head = 0
         self.history = np.zeros((self.n_envs, self._slots_needed(), L.N_HISTORY))
         self.time_s = np.zeros(self.n_envs)
+        self._check_tube_waves(range(self.n_envs))
         self.reset()
 
     # -- parameters ----------------------------------------------------------------------
@@ -61,6 +62,20 @@ class BatchSimulator:
         c = np.array([sound_speed(p[L.P_HEAT_CAPACITY_RATIO, i], p[L.P_GAS_CONSTANT_J_PER_KG_K, i],
                                   p[L.P_TEMPERATURE_K, i]) for i in range(self.n_envs)])
         return p[L.P_TUBE_LENGTH_M] / c
+
+    def _check_tube_waves(self, envs) -> None:
+        """The transmission line (``tube_waves = 1``) reads waves sent at least one substep ago."""
+        substep_s = self.control_dt_s / self.n_substeps
+        delays = self.delays_s()
+        for env in envs:
+            if self.params[L.P_TUBE_WAVES, env] == 1.0 and delays[env] / substep_s < 1.0:
+                length = self.params[L.P_TUBE_LENGTH_M, env]
+                raise ValueError(
+                    f"tube_waves = 1 (transmission line) of environment {env} needs a tube delay "
+                    f"L_t/c of at least one substep ({substep_s:g} s); tube_length_m = {length:g} "
+                    f"gives {delays[env]:g} s: use a tube of at least "
+                    f"{length * substep_s / delays[env] if delays[env] > 0 else float('inf'):.3g} m "
+                    f"or more substeps, or tube_waves = 0")
 
     def _slots_needed(self) -> int:
         return kernel.history_slots(float(self.delays_s().max()), self.control_dt_s,
@@ -75,6 +90,7 @@ class BatchSimulator:
             raise ValueError(f"set_params: {L.PARAMETER_NAMES[row]} of environment {envs[col]} "
                              f"is {columns[row, col]}, must be finite")
         self.params[:, envs] = columns
+        self._check_tube_waves(envs)
         slots = self._slots_needed()
         if slots > self.history.shape[1]:  # a longer tube than the buffer holds: grow it
             grown = np.zeros((self.n_envs, slots, L.N_HISTORY))
@@ -128,6 +144,9 @@ class BatchSimulator:
             self.history[int(env), :, L.H_X_S] = s["x_s"]
             self.history[int(env), :, L.H_P1] = s["p1"]
             self.history[int(env), :, L.H_P2] = s["p2"]
+            # the lines at rest: every wave is the pressure of its end (no flow)
+            self.history[int(env), :, [L.H_WAVE_VALVE_1, L.H_WAVE_CHAMBER_1]] = s["p1"]
+            self.history[int(env), :, [L.H_WAVE_VALVE_2, L.H_WAVE_CHAMBER_2]] = s["p2"]
             self.time_s[int(env)] = 0.0
             self._write_outputs(int(env))
 

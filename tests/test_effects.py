@@ -31,6 +31,7 @@ ON = {
     "wall_heat_transfer_w_per_k": {"wall_heat_transfer_w_per_k": 0.05},
     "stribeck_velocity_m_per_s": {"stribeck_velocity_m_per_s": 0.02},
     "spool_coulomb_friction_n": {"spool_coulomb_friction_n": 0.1},
+    "tube_waves": {"tube_waves": "transmission_line"},
 }
 T_S = 293.15
 
@@ -305,7 +306,7 @@ def test_stribeck_friction_falls_from_static_to_dynamic_with_speed():
     f_sf, f_df = p["static_friction_n"], p["dynamic_friction_n"]
     for v in (1e-4, 0.01, 0.02, 0.2):
         accel = kernel.derivatives(c, 0.0, 0.0, 0.0, p1, p2, 0.0, v, T_S, T_S, 1.0, 0.0,
-                                   p1, p2)[5]
+                                   p1, p2, (p1, p2, p1, p2))[5]
         friction = f_df + (f_sf - f_df) * math.exp(-(v / v_s) ** 2)
         expected = (applied - p["viscous_friction_n_s_per_m"] * v - friction) / mass
         assert accel == pytest.approx(expected, rel=1e-12), v
@@ -348,6 +349,61 @@ def test_spool_friction_is_a_play_of_half_width_friction_over_coil_force():
     sim.reset()
     assert np.all(sim.state[L.S_PLAY] == 0.0)
 
+
+
+# --------------------------------------------------------------------------- 11 tube waves
+
+def test_segmented_line_reference_conserves_the_air():
+    from pneumatic_env.reference_solution import simulate_segmented_line
+    ref = simulate_segmented_line(load_parameters(tube_length_m=2.0), 0.5, 0.03, n_segments=10)
+    assert ref["line_mass_kg"] > 0.0 and ref["chamber_mass_kg"] > 0.0
+    assert ref["line_mass_kg"] + ref["chamber_mass_kg"] == pytest.approx(
+        ref["valve_mass_kg"], rel=1e-6)
+
+
+@pytest.mark.parametrize("tube_length_m, current_a, tolerance", [
+    (0.5, 0.5, 0.01), (2.0, 0.5, 0.05), (2.0, -0.3, 0.05)])
+def test_transmission_line_follows_an_independent_segmented_line(tube_length_m, current_a,
+                                                                  tolerance):
+    """Chamber pressures of a current step through the transmission line against a
+    30-segment finite-volume line (SciPy, ``reference_solution.simulate_segmented_line``),
+    which conserves the air and so fills the chambers much faster than the paper's
+    attenuated tube (Eq. 30 removes the flow it attenuates)."""
+    from pneumatic_env.tube_study import tube_model_errors
+    errors = tube_model_errors(tube_length_m, current_a)
+    assert errors["transmission line"] < tolerance
+    assert errors["paper tube (Eqs. 30, 31)"] > 3.0 * errors["transmission line"]
+
+
+def test_transmission_line_delays_by_the_tube_and_rings():
+    """Nothing reaches the chamber before the wave, tau = L_t / c (Eq. 31); the filled
+    chamber overshoots the supply pressure and settles on it (a reflected wave)."""
+    p = load_parameters(tube_length_m=3.0, tube_waves=1)
+    tau = 3.0 / math.sqrt(p["heat_capacity_ratio"] * p["gas_constant_j_per_kg_k"]
+                          * p["temperature_k"])
+    out = run_batch([p], np.full(300, 1.0))[:, :, 0]
+    before = int(tau / 1e-3)  # whole control steps before the wave arrives
+    assert before == 8
+    assert np.all(out[:before, L.O_P1] == p["ambient_pressure_pa"])
+    assert out[before + 2, L.O_P1] > p["ambient_pressure_pa"] + 1e3  # (the spool opens in ~2 ms)
+    assert out[:, L.O_P1].max() > p["supply_pressure_pa"] + 5e3  # overshoot
+    assert out[-1, L.O_P1] == pytest.approx(p["supply_pressure_pa"], rel=1e-2)
+    assert out[-1, L.O_P2] == pytest.approx(p["ambient_pressure_pa"], rel=1e-3)
+
+
+def test_transmission_line_refuses_what_it_cannot_do():
+    with pytest.raises(ConfigError, match=r"^override 'tube_volume_fraction' = 0.5 is not "
+                                          r"allowed: must be 0: the transmission line holds "
+                                          r"the tube's air itself \(tube_waves = 1\)$"):
+        load_parameters(tube_waves=1, tube_volume_fraction=0.5)
+    with pytest.raises(ConfigError, match=r"^override 'tube_coupling' = 1.0 is not allowed"):
+        load_parameters(tube_waves=1, tube_coupling="literal")
+    with pytest.raises(ValueError, match=r"^tube_waves = 1 \(transmission line\) of environment "
+                                         r"1 needs a tube delay L_t/c of at least one substep "
+                                         r"\(5e-05 s\); tube_length_m = 0.01 gives 2.91\d*e-05 s: "
+                                         r"use a tube of at least 0.0172 m or more substeps, or "
+                                         r"tube_waves = 0$"):
+        _sim([load_parameters(), load_parameters(tube_length_m=0.01, tube_waves=1)])
 
 
 @pytest.mark.parametrize("cylinder", ["numatics", "airpel"])

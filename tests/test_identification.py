@@ -197,6 +197,7 @@ EFFECT_RIVALS = {
     "iso_flow_law": "rod_seal_leak",
     "exhaust_discharge": "valve_null_leak",
     "spool_friction": "coil_lag",
+    "tube_waves": "tube_volume",
 }
 
 
@@ -239,6 +240,16 @@ def test_load_cell_stiffness_is_recovered_and_the_rest_position_follows_the_clam
     values = diag.final.dataset_values(ds)
     assert values["piston_mode"] == 2
     assert values["spring_rest_position_m"] == ds.values["fixed_position_m"]
+
+
+def test_a_transmission_line_excludes_a_tube_storage_volume():
+    """Greedy selection never combines an effect that fixes a parameter with one that fits
+    it: the transmission line holds the tube's air itself (tube_volume_fraction = 0)."""
+    from pneumatic_env.identification.diagnose import _conflicts
+    table = candidate_table()
+    assert _conflicts(table["tube_waves"], [table["tube_volume"]])
+    assert _conflicts(table["tube_volume"], [table["tube_waves"]])
+    assert not _conflicts(table["tube_waves"], [table["leakage"], table["coil_lag"]])
 
 
 def test_scoped_and_per_recording_overrides():
@@ -329,9 +340,10 @@ def test_candidate_table_is_consistent_with_the_kernel_and_its_configs():
         for p in cand.parameters:
             assert p.lower <= p.initial <= p.upper
             assert p.plausible_min <= p.plausible_max
-            if cand.kind == "plant" and cand.available and math.isinf(p.neutral):
-                # off only in a limit (a rigid load cell): the kernel's defaults do not
-                # switch on what the candidate `set`s (the rod mode)
+            if cand.kind == "plant" and cand.available and (p.neutral is None
+                                                            or math.isinf(p.neutral)):
+                # off only in a limit (a rigid load cell) or by a switch (the transmission
+                # line): the kernel's defaults do not switch on what the candidate `set`s
                 defaults = load_parameters()
                 assert any(defaults[k] != v for k, v in cand.set.items()
                            if not isinstance(v, str))

@@ -567,7 +567,8 @@ def test_base_model_rhs_equals_the_general_rhs():
             base = kernel.base_derivatives(c, coil, x_s, v_s, p1, p2, x, v, direction,
                                            spool_delayed)
             general = kernel.derivatives(c, coil, x_s, v_s, p1, p2, x, v, c.temperature,
-                                         c.temperature, direction, spool_delayed, p1, p2)
+                                         c.temperature, direction, spool_delayed, p1, p2,
+                                         (p1, p2, p1, p2))
             assert base == general
 
 

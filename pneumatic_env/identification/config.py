@@ -94,13 +94,17 @@ def _parse_parameter(where: str, name: str, entry: Any, kind: str, need_initial:
     for key in ("lower", "upper", "plausible_min", "plausible_max", "scale", "initial",
                 "neutral", "fd_step"):
         if key in entry:
+            if key == "neutral" and entry[key] is None:
+                # a switched effect (``set``) with no value of this parameter that is "off"
+                continue
             if key == "neutral" and _is_infinity(entry[key]):
                 # an effect that vanishes only in a limit (a rigid load cell: k -> inf)
                 nums[key] = float(entry[key])
                 continue
             if not _is_number(entry[key]):
-                allowed = ("a finite number, or .inf / -.inf for an effect that vanishes only "
-                           "in that limit") if key == "neutral" else "a finite number"
+                allowed = ("a finite number, .inf / -.inf for an effect that vanishes only "
+                           "in that limit, or null for none (an effect switched on by 'set')"
+                           ) if key == "neutral" else "a finite number"
                 raise ConfigError(f"{where}: entry {name!r}: {key!r} = {entry[key]!r} is not "
                                   f"allowed: must be {allowed}")
             nums[key] = float(entry[key])

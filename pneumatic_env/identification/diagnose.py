@@ -376,7 +376,7 @@ def diagnose(recordings: Sequence[Recording], params=None, candidates: Sequence[
     for rnd in range(1, max_effects + 1):
         round_scores = []
         for cand in pool:
-            if cand in selected:
+            if cand in selected or _conflicts(cand, selected):
                 continue
             log.info("diagnosis round %d: candidate %s", rnd, cand.name)
             round_scores.append(_score(cand, rnd, current, current_mean, refit,
@@ -429,6 +429,13 @@ def diagnose(recordings: Sequence[Recording], params=None, candidates: Sequence[
                      final=current, after_nrmse=after_nrmse, after_residuals=after_res,
                      winner=winner, runner_up=runner_up, suggestion=suggestion,
                      thresholds=thresholds, predictions=predictions)
+
+
+def _conflicts(cand: Candidate, selected: Sequence[Candidate]) -> bool:
+    """Whether ``cand`` fixes a parameter a selected effect fits, or fits one it fixes (e.g.
+    the transmission line holds the tube's air, so it excludes a tube storage volume)."""
+    return any(set(cand.set) & set(other.parameter_names)
+               or set(other.set) & set(cand.parameter_names) for other in selected)
 
 
 def _score(cand: Candidate, rnd: int, current: FitResult, current_mean: float,

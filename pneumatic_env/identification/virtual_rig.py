@@ -40,7 +40,7 @@ How the plant differs from the fitting model:
   valve_null_leak, tube_volume,     **same form** as the candidate (the kernel's parameter):
   exhaust_discharge, iso_flow_law,  an inverse crime, softened only by the finer step, the
   supply_droop, heat_transfer,      perturbed base and the noise
-  stribeck
+  stribeck, tube_waves
   ================================  ==========================================================
 """
 from __future__ import annotations
@@ -76,6 +76,7 @@ KERNEL_EFFECTS = {
     "supply_droop": ("supply_resistance_pa_s_per_kg", lambda s, r: s * r),
     "heat_transfer": ("wall_heat_transfer_w_per_k", lambda s, r: s * r),
     "stribeck": ("stribeck_velocity_m_per_s", lambda s, r: s * r),
+    "tube_waves": ("tube_waves", lambda s, r: r if s > 0.0 else 0.0),  # a switch
 }
 #: Every effect the rig can add.
 RIG_EFFECTS = ("none", "leakage", "rod_seal_leak", "coil_lag", "spool_friction",

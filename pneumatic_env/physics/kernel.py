@@ -2,7 +2,8 @@
 
 Each environment is advanced through ``n_substeps`` classical Runge-Kutta (RK4) substeps
 with the coil current held (zero-order hold). The tube delay reads a per-environment ring
-buffer holding the spool position and chamber pressures at substep boundaries; delayed
+buffer holding the spool position and chamber pressures at substep boundaries (and, with
+the tubes as transmission lines, ``tube_waves``, the waves each tube end sends); delayed
 values between boundaries are interpolated linearly. Piston friction and end stops are
 handled between substeps (``piston.motion_direction`` / ``piston.end_of_substep``), so
 each RK4 substep integrates a smooth right-hand side.
@@ -36,7 +37,8 @@ from .flow import (FLOW_LAW_ISO, FLOW_LAW_PAPER, flow_constants, iso_subsonic_re
 from .piston import (MODE_FIXED, apply_event, end_of_substep, event_fraction,
                      external_force, motion_direction,
                      output_force, piston_acceleration, pneumatic_force)
-from .tube import sound_speed, tube_attenuation
+from .tube import (line_chamber_flow, line_end_wave, line_resistance, sound_speed,
+                   tube_attenuation)
 from .valve import orifice_area, spool_acceleration
 
 # advance_env integrates the state rows 0 .. S_T2 with RK4 and sets S_COIL, S_PLAY exactly.
@@ -55,6 +57,7 @@ Constants = namedtuple("Constants", (
     "discharge_ex", "null_leak", "seal_leak", "flow_law", "supply_resistance", "coil_lag",
     "coil_decay_half", "coil_decay_full", "energy", "gas", "temperature", "heat_conductance",
     "static_friction", "stribeck", "stribeck_v", "spool_play_band",
+    "waves", "line_impedance", "line_friction",
     # numerical guards (docs/convergence.md): pressures and gas temperatures stay positive
     "pressure_floor", "temperature_floor",
     "stiffness_volume",  # lambda_max * V (m^3/s): see refinement()
@@ -100,6 +103,9 @@ def env_constants(params, env, substep_s):
     coil_lag_flag = 1.0 if coil_tau > 0.0 else 0.0
     energy_flag = 1.0 if heat_conductance > 0.0 else 0.0
     stribeck_flag = 1.0 if stribeck_v > 0.0 else 0.0
+    waves_flag = 1.0 if p[L.P_TUBE_WAVES] == 1.0 else 0.0
+    tube_area = 0.25 * math.pi * tube_diameter * tube_diameter
+    line_impedance = sound_speed(k, gas, temperature) / tube_area
     return Constants(
         gas * temperature, 1.0 / math.sqrt(temperature), k, c1, c2, critical_ratio,
         linear_ratio, linear_slope,
@@ -126,12 +132,14 @@ def env_constants(params, env, substep_s):
         energy_flag, gas, temperature, heat_conductance,
         p[L.P_STATIC_FRICTION_N], stribeck_flag, stribeck_v,
         spool_play_band(p[L.P_SPOOL_COULOMB_FRICTION_N], p[L.P_COIL_FORCE_N_PER_A]),
+        waves_flag, line_impedance, tube_length * gas * temperature / tube_area,
         PRESSURE_FLOOR_FRACTION * p[L.P_AMBIENT_PRESSURE_PA], TEMPERATURE_FLOOR_FRACTION * temperature,
         gas * temperature * max(p[L.P_ALPHA_IN], k)
         * p[L.P_DISCHARGE_COEFFICIENT] * max(1.0, p[L.P_EXHAUST_DISCHARGE_RATIO])
         * (p[L.P_HOLES_PER_PATH] * math.pi * p[L.P_HOLE_RADIUS_M] ** 2
            + p[L.P_VALVE_NULL_LEAK_AREA_M2] + p[L.P_LEAKAGE_AREA_M2] + p[L.P_ROD_SEAL_LEAK_AREA_M2])
-        * (linear_slope + c1) / math.sqrt(temperature),
+        * (linear_slope + c1) / math.sqrt(temperature)
+        + waves_flag * gas * temperature * max(p[L.P_ALPHA_IN], k) / line_impedance,
     )
 
 
@@ -256,6 +264,108 @@ def valve_chamber_flows(c, spool_delayed_m, valve_p1_pa, valve_p2_pa, p1_pa, p2_
     return supply_1, exhaust_1, supply_2, exhaust_2
 
 
+LINE_PRESSURE_RTOL = 1e-10  # solver accuracy of the line's valve-end pressure, relative to P_s
+
+
+@njit(cache=True)
+def _port_flow_into_line(c, supply_area, exhaust_area, port_pa):
+    """Net valve flow into a line at valve-end pressure ``port_pa``, and its exhaust part
+    (port -> atmosphere, Eq. 39; the line's air at ``temperature_k``)."""
+    supply = _flow(c, c.discharge, supply_area, c.supply_pa, port_pa, c.inv_sqrt_t, c.inv_sqrt_t,
+                   c.flow_law)
+    exhaust = _flow(c, c.discharge_ex, exhaust_area, port_pa, c.ambient_pa, c.inv_sqrt_t,
+                    c.inv_sqrt_t, c.flow_law)
+    return supply - exhaust, exhaust
+
+
+@njit(cache=True)
+def _line_valve_end_residual(c, supply_area, exhaust_area, wave_in_pa, port_pa):
+    """f(P) = P - W_in - (Z_c + R(q, P)/2) q(P) at a valve-end pressure, and q, the exhaust flow."""
+    q, exhaust = _port_flow_into_line(c, supply_area, exhaust_area, port_pa)
+    resistance = line_resistance(q, port_pa, c.line_friction, c.tube_diameter, c.viscosity,
+                                 c.reynolds_turbulent)
+    return port_pa - wave_in_pa - (c.line_impedance + 0.5 * resistance) * q, q, exhaust
+
+
+@njit(cache=True)
+def _line_valve_end(c, supply_area, exhaust_area, wave_in_pa):
+    """Valve-end pressure P_A of a line, its flow q into the line and the exhaust flow.
+
+    The root of f(P) = P - W_in - (Z_c + R(q, P)/2) q(P), q the valve's net flow at P
+    (``tube.py``, transmission line), bracketed by min(P_a, W_in) (f < 0) and
+    max(P_s, W_in) (f > 0). First guess: the flow at W_in (exact while the valve is
+    choked), then Illinois regula falsi to ``LINE_PRESSURE_RTOL``. A closed valve reflects
+    the wave fully.
+    """
+    if supply_area <= 0.0 and exhaust_area <= 0.0:
+        return wave_in_pa, 0.0, 0.0
+    tolerance = LINE_PRESSURE_RTOL * c.supply_pa
+    lo = max(min(c.ambient_pa, wave_in_pa), c.pressure_floor)
+    hi = max(c.supply_pa, wave_in_pa)
+    _, q_in, _ = _line_valve_end_residual(c, supply_area, exhaust_area, wave_in_pa, wave_in_pa)
+    port = min(max(wave_in_pa + (c.line_impedance + 0.5 * line_resistance(
+        q_in, wave_in_pa, c.line_friction, c.tube_diameter, c.viscosity,
+        c.reynolds_turbulent)) * q_in, lo), hi)
+    f, q, exhaust = _line_valve_end_residual(c, supply_area, exhaust_area, wave_in_pa, port)
+    if abs(f) <= tolerance:
+        return port, q, exhaust
+    if f > 0.0:
+        hi, f_hi = port, f
+        f_lo, q, exhaust = _line_valve_end_residual(c, supply_area, exhaust_area, wave_in_pa, lo)
+        if f_lo >= 0.0:  # only at the pressure floor
+            return lo, q, exhaust
+    else:
+        lo, f_lo = port, f
+        f_hi, _, _ = _line_valve_end_residual(c, supply_area, exhaust_area, wave_in_pa, hi)
+    side = 0
+    for _ in range(SUPPLY_DROOP_MAX_ITERATIONS):
+        port = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
+        f, q, exhaust = _line_valve_end_residual(c, supply_area, exhaust_area, wave_in_pa, port)
+        if abs(f) <= tolerance or hi - lo <= tolerance:
+            break
+        if f > 0.0:
+            hi, f_hi = port, f
+            if side == 1:
+                f_lo *= 0.5
+            side = 1
+        else:
+            lo, f_lo = port, f
+            if side == -1:
+                f_hi *= 0.5
+            side = -1
+    return port, q, exhaust
+
+
+@njit(cache=True)
+def line_flows(c, spool_m, arriving, p1_pa, p2_pa):
+    """The tubes as transmission lines (effect ``tube_waves``): flows and the waves sent.
+
+    ``arriving`` = (W at valve end 1, at valve end 2, at chamber end 1, at chamber end 2),
+    the waves the other ends sent one delay ago. The valve acts on the line at once (no
+    spool delay: the line delays). Returns (flow into chamber 1, into chamber 2, the
+    valve's exhaust flow to the atmosphere, and the waves sent by valve end 1, valve end
+    2, chamber end 1, chamber end 2).
+    """
+    area_a = _scalar_area(c, spool_m) + c.null_leak
+    area_b = _scalar_area(c, -spool_m) + c.null_leak
+    port_1, q_1, exhaust_1 = _line_valve_end(c, area_a, area_b, arriving[0])
+    port_2, q_2, exhaust_2 = _line_valve_end(c, area_b, area_a, arriving[1])
+    flow_1 = line_chamber_flow(arriving[2], p1_pa, c.line_impedance, c.line_friction,
+                               c.tube_diameter, c.viscosity, c.reynolds_turbulent)
+    flow_2 = line_chamber_flow(arriving[3], p2_pa, c.line_impedance, c.line_friction,
+                               c.tube_diameter, c.viscosity, c.reynolds_turbulent)
+    sent = (
+        line_end_wave(port_1, q_1, c.line_impedance, line_resistance(
+            q_1, port_1, c.line_friction, c.tube_diameter, c.viscosity, c.reynolds_turbulent)),
+        line_end_wave(port_2, q_2, c.line_impedance, line_resistance(
+            q_2, port_2, c.line_friction, c.tube_diameter, c.viscosity, c.reynolds_turbulent)),
+        line_end_wave(p1_pa, -flow_1, c.line_impedance, line_resistance(
+            flow_1, p1_pa, c.line_friction, c.tube_diameter, c.viscosity, c.reynolds_turbulent)),
+        line_end_wave(p2_pa, -flow_2, c.line_impedance, line_resistance(
+            flow_2, p2_pa, c.line_friction, c.tube_diameter, c.viscosity, c.reynolds_turbulent)))
+    return flow_1, flow_2, exhaust_1 + exhaust_2, sent
+
+
 @njit(cache=True, forceinline=True, error_model="numpy")
 def _motion_and_spool(c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction, friction_n):
     """Piston acceleration (Eq. 1; zero while held) and spool acceleration (Eq. 38)."""
@@ -278,12 +388,15 @@ def _volumes(c, x):
 
 @njit(cache=True)
 def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, spool_delayed,
-                valve_p1, valve_p2):
+                valve_p1, valve_p2, arriving):
     """Right-hand side of the state (x_s, v_s, P1, P2, x, v, exhaust mass, T1, T2).
 
     The general form: all four valve paths, the leakage orifices and every effect.
     ``coil_current_a`` is the current driving the spool (lagged if the coil lag is on).
     T1, T2 change only with the energy model on (``wall_heat_transfer_w_per_k > 0``).
+    With the tubes as transmission lines (``tube_waves``) the chamber flows come from
+    ``line_flows`` and the waves ``arriving`` at the line ends; ``spool_delayed``,
+    ``valve_p*`` are then unused.
     """
     if c.energy:
         inv_sqrt_t1 = 1.0 / math.sqrt(t1)
@@ -291,8 +404,14 @@ def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, sp
     else:
         inv_sqrt_t1 = c.inv_sqrt_t
         inv_sqrt_t2 = c.inv_sqrt_t
-    supply_1, exhaust_1, supply_2, exhaust_2 = valve_chamber_flows(
-        c, spool_delayed, valve_p1, valve_p2, p1, p2, inv_sqrt_t1, inv_sqrt_t2)
+    vented = 0.0
+    if c.waves:  # a signed flow into each chamber from its line; the line's air at T_s
+        supply_1, supply_2, vented, _ = line_flows(c, x_s, arriving, p1, p2)
+        exhaust_1 = 0.0
+        exhaust_2 = 0.0
+    else:
+        supply_1, exhaust_1, supply_2, exhaust_2 = valve_chamber_flows(
+            c, spool_delayed, valve_p1, valve_p2, p1, p2, inv_sqrt_t1, inv_sqrt_t2)
     leak_12 = _flow(c, c.discharge, c.leak_area, p1, p2, inv_sqrt_t1, inv_sqrt_t2, c.flow_law)
     seal_2 = _flow(c, c.discharge, c.seal_leak, p2, c.ambient_pa, inv_sqrt_t2, c.inv_sqrt_t,
                    c.flow_law)
@@ -328,7 +447,7 @@ def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, sp
                                      c.stribeck_v)
     accel, a_s = _motion_and_spool(c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction,
                                    friction)
-    exhaust_rate = max(exhaust_1, 0.0) + max(exhaust_2, 0.0) + max(seal_2, 0.0)
+    exhaust_rate = max(exhaust_1, 0.0) + max(exhaust_2, 0.0) + max(seal_2, 0.0) + vented
     return v_s, a_s, dp1, dp2, velocity, accel, exhaust_rate, dt1, dt2
 
 
@@ -345,6 +464,7 @@ def base_model_only(c):
     return (c.energy == 0.0 and c.supply_resistance == 0.0 and c.literal == 0.0
             and c.leak_area == 0.0 and c.seal_leak == 0.0 and c.null_leak == 0.0
             and c.coil_lag == 0.0 and c.stribeck == 0.0 and c.flow_law == FLOW_LAW_PAPER
+            and c.waves == 0.0
             and c.half_width >= c.hole_radius and c.delay_substeps >= 1.0)
 
 
@@ -410,8 +530,22 @@ def _stage(c, history, env, head, frac, coil_current_a, y, y0, direction):
     else:
         valve_p1 = y[2]
         valve_p2 = y[3]
+    arriving = (0.0, 0.0, 0.0, 0.0)
+    if c.waves:
+        arriving = _arriving_waves(c, history, env, head, frac)
     return derivatives(c, coil_current_a, y[0], y[1], y[2], y[3], y[4], y[5], y[7], y[8],
-                       direction, spool_delayed, valve_p1, valve_p2)
+                       direction, spool_delayed, valve_p1, valve_p2, arriving)
+
+
+@njit(cache=True)
+def _arriving_waves(c, history, env, head, frac):
+    """The waves at the four line ends ``frac`` of a substep after boundary ``head``: each
+    sent by the other end one delay earlier (the delay is at least one substep)."""
+    d = c.delay_substeps
+    return (delayed_value(history, env, L.H_WAVE_CHAMBER_1, head, frac, d, 0.0, 0.0),
+            delayed_value(history, env, L.H_WAVE_CHAMBER_2, head, frac, d, 0.0, 0.0),
+            delayed_value(history, env, L.H_WAVE_VALVE_1, head, frac, d, 0.0, 0.0),
+            delayed_value(history, env, L.H_WAVE_VALVE_2, head, frac, d, 0.0, 0.0))
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
@@ -579,6 +713,13 @@ def _close_substep(c, history, env, slot, y):
     at the new boundary (written at substep boundaries only, whatever the splitting)."""
     x, v = end_of_substep(y[4], y[5], c.half_stroke)
     y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
+    if c.waves:  # the waves the line ends send at this boundary
+        _, _, _, sent = line_flows(c, y[0], _arriving_waves(c, history, env, slot, 0.0),
+                                   y[2], y[3])
+        history[env, slot, L.H_WAVE_VALVE_1] = sent[0]
+        history[env, slot, L.H_WAVE_VALVE_2] = sent[1]
+        history[env, slot, L.H_WAVE_CHAMBER_1] = sent[2]
+        history[env, slot, L.H_WAVE_CHAMBER_2] = sent[3]
     history[env, slot, L.H_X_S] = y[0]
     history[env, slot, L.H_P1] = y[2]
     history[env, slot, L.H_P2] = y[3]
@@ -660,7 +801,8 @@ def load_constants(constants, lane):
         constants[48 * k + lane], constants[49 * k + lane], constants[50 * k + lane], constants[51 * k + lane],
         constants[52 * k + lane], constants[53 * k + lane], constants[54 * k + lane], constants[55 * k + lane],
         constants[56 * k + lane], constants[57 * k + lane], constants[58 * k + lane], constants[59 * k + lane],
-        constants[60 * k + lane])
+        constants[60 * k + lane], constants[61 * k + lane], constants[62 * k + lane],
+        constants[63 * k + lane])
 
 
 # Rows of the batch path's work array, a flat array of N_WORK rows of CHUNK_ENVS lanes: the

@@ -72,6 +72,7 @@ PARAMETER_NAMES = (
     "wall_heat_transfer_w_per_k",  # lumped hA per chamber; > 0 switches the energy model on
     "stribeck_velocity_m_per_s",  # Stribeck velocity of the sliding friction
     "spool_coulomb_friction_n",  # spool friction: a play (hysteresis) of the spool's current
+    "tube_waves",  # 0: the paper's tube (Eqs. 30, 31); 1: transmission line (waves, reflections)
 )
 
 # The parameters a cylinder file (configs/cylinders/) defines: bore through leakage.
@@ -90,6 +91,7 @@ EFFECT_NEUTRAL_VALUES = {
     "wall_heat_transfer_w_per_k": 0.0,
     "stribeck_velocity_m_per_s": 0.0,
     "spool_coulomb_friction_n": 0.0,
+    "tube_waves": 0.0,
 }
 
 _g = globals()
@@ -102,6 +104,7 @@ DISCRETE_PARAMETERS = {
     "tube_coupling": {0: "command", 1: "literal"},
     "piston_mode": {0: "fixed", 1: "free", 2: "spring"},
     "flow_law": {0: "paper", 1: "iso6358"},
+    "tube_waves": {0: "off", 1: "transmission_line"},
 }
 
 STATE_NAMES = (
@@ -133,9 +136,12 @@ S_PLAY = S_SPOOL_PLAY_CURRENT_A
 S_T1 = S_T1_K
 S_T2 = S_T2_K
 
-# Channels kept in the tube-delay ring buffer, one sample per substep boundary.
-HISTORY_NAMES = ("spool_position_m", "p1_pa", "p2_pa")
-H_X_S, H_P1, H_P2 = 0, 1, 2
+# Channels kept in the tube-delay ring buffer, one sample per substep boundary. The wave
+# channels (Pa) are the transmission line's wave variables (tube_waves = 1, docs/effects.md):
+# the wave each tube end sends into the line, which arrives at the other end one delay later.
+HISTORY_NAMES = ("spool_position_m", "p1_pa", "p2_pa", "wave_from_valve_1_pa",
+                 "wave_from_valve_2_pa", "wave_from_chamber_1_pa", "wave_from_chamber_2_pa")
+H_X_S, H_P1, H_P2, H_WAVE_VALVE_1, H_WAVE_VALVE_2, H_WAVE_CHAMBER_1, H_WAVE_CHAMBER_2 = range(7)
 N_HISTORY = len(HISTORY_NAMES)
 
 # Outputs written once per control step.

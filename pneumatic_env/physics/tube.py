@@ -40,3 +40,71 @@ def tube_attenuation(mass_flow_kg_per_s, end_pressure_pa, gas_rt, delay_s, tube_
 def sound_speed(heat_capacity_ratio, gas_constant, temperature_k):
     """c = sqrt(k R T); the tube delay is tau = L_t / c (Eq. 31)."""
     return math.sqrt(heat_capacity_ratio * gas_constant * temperature_k)
+
+
+# --------------------------------------------------------------------------- transmission line
+# The tube as a transmission line (effect ``tube_waves``, docs/effects.md), by the method of
+# characteristics: a wave leaving one end arrives at the other one delay tau = L_t / c later
+# (Eq. 31), the line's characteristic impedance for mass flow is Z_c = c / A_t, and the
+# tube friction of Eqs. 33/35 over the whole length is lumped half at each end. At an end
+# with pressure P and mass flow q into the line, P = W_in + (Z_c + R/2) q, W_in the wave
+# arriving there; the wave it sends is W_out = P - (R/2) q + Z_c q. Steady flow gives
+# the friction's pressure drop R q; a closed end (q = 0) reflects the wave fully.
+
+LINE_FLOW_RTOL = 1e-12  # solver accuracy of the chamber-end flow (not physics)
+LINE_MAX_ITERATIONS = 60  # a safeguard; Newton from above takes a handful
+
+
+@njit(cache=True)
+def line_resistance(mass_flow_kg_per_s, pressure_pa, line_friction, tube_inner_diameter_m,
+                    air_viscosity_pa_s, reynolds_turbulent):
+    """Friction of the whole line, R = R_t L_t / (rho A_t) with rho = P / (R T) (Pa s/kg).
+
+    ``line_friction = L_t R T / A_t``; R_t laminar (Eq. 33) or turbulent (Eq. 35) by the
+    flow's Reynolds number, as in the attenuation of Eq. 30.
+    """
+    reynolds = reynolds_number(mass_flow_kg_per_s, tube_inner_diameter_m, air_viscosity_pa_s)
+    return (tube_resistance(reynolds, tube_inner_diameter_m, air_viscosity_pa_s,
+                            reynolds_turbulent) * line_friction / pressure_pa)
+
+
+@njit(cache=True)
+def line_end_wave(pressure_pa, mass_flow_into_line_kg_per_s, impedance, resistance):
+    """The wave an end sends into the line, P - (R/2) q + Z_c q (Pa)."""
+    return pressure_pa + (impedance - 0.5 * resistance) * mass_flow_into_line_kg_per_s
+
+
+@njit(cache=True)
+def line_chamber_flow(wave_in_pa, chamber_pa, impedance, line_friction, tube_inner_diameter_m,
+                      air_viscosity_pa_s, reynolds_turbulent):
+    """Mass flow from the line into a chamber, m, the root of m (Z_c + R(m)/2) = W_in - P.
+
+    The left side grows with |m|: linear while laminar, m (Z_c + K |m|^(3/4)) when
+    turbulent (Newton from the frictionless flow, which bounds it from above). Where the
+    jump of R_t at ``reynolds_turbulent`` leaves no root, the flow stays at the transition.
+    """
+    drive = wave_in_pa - chamber_pa
+    if drive == 0.0:
+        return 0.0
+    sign = 1.0 if drive > 0.0 else -1.0
+    magnitude = abs(drive)
+    laminar = magnitude / (impedance + 0.5 * line_resistance(
+        0.0, chamber_pa, line_friction, tube_inner_diameter_m, air_viscosity_pa_s,
+        reynolds_turbulent))
+    transition = reynolds_turbulent * math.pi * tube_inner_diameter_m * air_viscosity_pa_s / 4.0
+    if laminar < transition:
+        return sign * laminar
+    # turbulent: R(u) = k u^(3/4) (Eq. 35 with Re = 4 u / (pi D mu)); Newton on the convex
+    # g(u) = Z_c u + k/2 u^(7/4) - |drive| from above
+    reynolds_per_flow = 4.0 / (math.pi * tube_inner_diameter_m * air_viscosity_pa_s)
+    k = (TURBULENT_RESISTANCE_FACTOR * air_viscosity_pa_s
+         / (tube_inner_diameter_m * tube_inner_diameter_m)
+         * reynolds_per_flow ** 0.75 * line_friction / chamber_pa)
+    u = magnitude / impedance
+    for _ in range(LINE_MAX_ITERATIONS):
+        g = impedance * u + 0.5 * k * u ** 1.75 - magnitude
+        step = g / (impedance + 0.875 * k * u ** 0.75)
+        u -= step
+        if abs(step) <= LINE_FLOW_RTOL * u:
+            break
+    return sign * max(u, transition)
