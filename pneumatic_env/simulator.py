@@ -51,6 +51,8 @@ class BatchSimulator:
         self.outputs = np.zeros((L.N_OUTPUT, self.n_envs))
         self.head = 0
         self.history = np.zeros((self.n_envs, self._slots_needed(), L.N_HISTORY))
+        # the kernel's per-environment constants, refreshed when a parameter column changes
+        self.constants_key, self.constants = kernel.constants_cache(self.n_envs)
         self.time_s = np.zeros(self.n_envs)
         self._check_tube_waves(range(self.n_envs))
         self.reset()
@@ -168,7 +170,7 @@ class BatchSimulator:
         coil_current_a = self._check_currents(coil_current_a, (self.n_envs,))
         fn = kernel.step_parallel if self.parallel else kernel.step_serial
         fn(self.params, self.state, self.history, self.head, coil_current_a, self.control_dt_s,
-           self.n_substeps, self.outputs)
+           self.n_substeps, self.outputs, self.constants_key, self.constants)
         self.advance_clock()
         return self.outputs
 
@@ -199,7 +201,8 @@ class BatchSimulator:
         currents = self._check_currents(currents, (currents.shape[0], self.n_envs))
         out = np.empty((currents.shape[0], L.N_OUTPUT, self.n_envs))
         kernel.rollout_serial(self.params, self.state, self.history, self.head, currents,
-                              self.control_dt_s, self.n_substeps, out)
+                              self.control_dt_s, self.n_substeps, out, self.constants_key,
+                              self.constants)
         self.advance_clock(currents.shape[0])
         if currents.shape[0]:
             self.outputs[:] = out[-1]

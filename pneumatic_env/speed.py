@@ -11,8 +11,8 @@ One run measures, on the same machine and in the same process:
 4. Gymnasium's ``SyncVectorEnv`` over N single envs;
 5. the independent SciPy solution (``reference_solution.simulate_reference``) on the
    clamped 0.5 A step, at the loosest tolerance that reaches the accuracy target;
-6. a ceiling for the kernel: the SIMD instructions of the compiled vectorised loop (read
-   from its assembly, ``vector_loop_instructions``) and the scalar work per lane counted
+6. a ceiling for the kernel: the SIMD instructions of the compiled vectorised loops (read
+   from their assembly, ``vector_loop_instructions``) and the scalar work per lane counted
    in ``KERNEL_WORK``, each at its throughput measured in a Numba loop on this machine;
 
 and prints a table of ratios against the targets. Medians over ``--repeats``;
@@ -34,6 +34,7 @@ import numpy as np
 from numba import njit
 
 from .convergence import TOLERANCE_PERCENT
+from .physics import layout as L
 
 ENV_ID = "pneumatic_env/ForceTrack-Numatics-2m-v0"
 YARDSTICK_ID = "Pendulum-v1"
@@ -62,13 +63,15 @@ RK4_STAGES = 4
 # ambient: the regime of an episode, not of its first milliseconds.
 WARMUP_STEPS = 50
 OPS = ("exp", "log", "sqrt", "div", "flop", "imod")  # scalar operations (KERNEL_WORK)
-VECTOR_OPS = ("vdiv", "vsqrt", "vother")  # SIMD instructions of the vectorised loop
+VECTOR_OPS = ("vdiv", "vsqrt", "vother")  # SIMD instructions of the vectorised loops
 
 # The batch path (kernel.advance_chunk) advances an environment in two parts.
-# 1. The vectorised loop (kernel._base_substeps_vectorised: one RK4 substep of
-#    kernel.base_derivatives for every lane, every branch computed and selected). Its work
-#    is not counted by hand: vector_loop_instructions() reads the SIMD instructions of
-#    the compiled loop (divisions, square roots, the rest).
+# 1. The vectorised loops (VECTOR_LOOPS, every branch computed and selected): per
+#    substep, kernel._begin_substeps (start state, piston direction, stiffness test),
+#    kernel._base_substeps_vectorised (one RK4 substep of kernel.base_derivatives for every
+#    lane) and kernel._end_substeps (event test, end stops). Their work is not counted by
+#    hand: vector_loop_instructions() reads the SIMD instructions of the compiled loops
+#    (divisions, square roots, the rest).
 # 2. Scalar work per lane, counted here by reading pneumatic_env/physics/kernel.py with
 #    the rod clamped (no piston events) and no stiff substep. "flop" is an add, subtract,
 #    multiply, compare, min, max, abs or floor; "div" a floating-point division; "imod" an
@@ -77,16 +80,16 @@ VECTOR_OPS = ("vdiv", "vsqrt", "vother")  # SIMD instructions of the vectorised 
 #    advance_chunk changes.
 KERNEL_WORK = {
     # per lane and substep, kernel.advance_chunk: three kernel.delayed_value ring-buffer
-    # reads (floor, interpolation, two modulos each), kernel.refinement (two
-    # chamber_volumes, the reachable stroke, one division), the event test, the
-    # end-of-substep stop check (piston.end_of_substep), the ring-buffer slot
-    "lane_substep:fixed": {"imod": 7, "div": 1, "flop": 52},
-    # per lane and control period: kernel.env_constants (flow.flow_constants, the
-    # linearised flow slope, tube.sound_speed, areas, dead volumes, the stiffness bound),
-    # kernel.base_model_only, kernel.spool_command (the spool play: its band's division,
-    # a compare, min, max and two adds), kernel._store_state and the outputs
-    "control_step:constants": {"exp": 3, "log": 3, "sqrt": 6, "div": 15, "flop": 75},
+    # reads (the query, its test, floor, weight, interpolation: 7; two kernel.ring_slot
+    # wraps, add and up to 3 compares each: 8), the lane's two path tests
+    "lane_substep:fixed": {"flop": 3 * (7 + 8) + 2},
+    # per lane and control period: kernel.refresh_constants comparing the key (a compare
+    # per parameter and the substep; kernel.env_constants runs only when they changed),
+    # the path test, kernel.spool_command (the spool play: two adds, a min and a max),
+    # kernel._store_state and the outputs (piston.pneumatic_force, piston.output_force)
+    "control_step:cache": {"flop": L.N_PARAMS + 1 + 1 + 4 + 7},
 }
+VECTOR_LOOPS = ("_begin_substeps", "_base_substeps_vectorised", "_end_substeps")  # in kernel
 
 
 # --------------------------------------------------------------------------- options
@@ -583,7 +586,6 @@ def _sample_regimes(sim, currents: np.ndarray, steps: int = 8, envs: int = 128) 
     the general path redoes), sampled at the control-step boundaries of a few more steps
     of the benchmark run."""
     from .physics import kernel
-    from .physics import layout as L
 
     picks = np.linspace(0, sim.n_envs - 1, min(envs, sim.n_envs)).astype(int)
     h = sim.control_dt_s / sim.n_substeps
@@ -604,48 +606,54 @@ SIMD_REGISTERS = (("%zmm", 8), ("%ymm", 4), ("%xmm", 2))  # register name, float
 
 
 def vector_loop_instructions() -> dict:
-    """SIMD instructions of the batch path's vectorised loop, by class (from its assembly).
+    """SIMD instructions of the batch path's vectorised loops, by class (from their assembly).
 
-    ``kernel._base_substeps_vectorised`` is compiled afresh (Numba does not show the
-    assembly of cached code) with the argument types the kernel passes. Every instruction
-    on the widest vector registers present counts; on x86 with AVX2 that is one iteration
-    of the vector body (4 lanes) plus its few loop-invariant broadcasts. Returns the counts
-    per class, the lanes per iteration and whether the loop was vectorised at all.
+    The functions of ``VECTOR_LOOPS`` in ``kernel`` are compiled afresh (Numba does not
+    show the assembly of cached code) with the argument types the kernel passes. Every
+    instruction on the widest vector registers present counts; on x86 with AVX2 that is
+    one iteration of each vector body (4 lanes) plus its few loop-invariant broadcasts.
+    Returns the counts per class (summed over the loops), the lanes per iteration and
+    whether every loop was vectorised.
     """
     from numba import types
 
     from .physics import kernel
-    fn = njit(error_model="numpy")(kernel._base_substeps_vectorised.py_func)
-    signature = (types.float64[::1], types.float64[::1], types.int64, types.float64)
-    fn.compile(signature)
-    lines = [line.split() for line in fn.inspect_asm(signature).splitlines()
-             if line.startswith("\t") and not line.startswith("\t.")]
-    for register, lanes in SIMD_REGISTERS:
-        body = [parts for parts in lines if any(register in p for p in parts[1:])]
-        if register == "%xmm":  # 128-bit: only the packed double instructions are SIMD
-            body = [parts for parts in body if parts[0].endswith("pd")]
-        if body:
-            break
     counts = dict.fromkeys(VECTOR_OPS, 0)
-    for parts in body:
-        op = parts[0]
-        counts["vdiv" if op.startswith("vdivp") or op == "divpd" else
-               "vsqrt" if op.startswith("vsqrtp") or op == "sqrtpd" else "vother"] += 1
-    return {"counts": counts, "lanes": lanes if body else 1, "vectorised": bool(body)}
+    found = []
+    for name in VECTOR_LOOPS:
+        py_func = getattr(kernel, name).py_func
+        fn = njit(error_model="numpy")(py_func)
+        signature = (types.float64[::1], types.float64[::1], types.int64, types.float64)
+        signature = signature[:py_func.__code__.co_argcount]  # (constants, work, n_lanes[, h])
+        fn.compile(signature)
+        lines = [line.split() for line in fn.inspect_asm(signature).splitlines()
+                 if line.startswith("\t") and not line.startswith("\t.")]
+        for register, lanes in SIMD_REGISTERS:
+            body = [parts for parts in lines if any(register in p for p in parts[1:])]
+            if register == "%xmm":  # 128-bit: only the packed double instructions are SIMD
+                body = [parts for parts in body if parts[0].endswith("pd")]
+            if body:
+                break
+        found.append(lanes if body else 1)
+        for parts in body:
+            op = parts[0]
+            counts["vdiv" if op.startswith("vdivp") or op == "divpd" else
+                   "vsqrt" if op.startswith("vsqrtp") or op == "sqrtpd" else "vother"] += 1
+    return {"counts": counts, "lanes": min(found), "vectorised": min(found) > 1}
 
 
 def kernel_ceiling(instructions: dict, op_ns: dict, n_substeps: int) -> dict:
     """Work per environment and substep and the time it takes at the measured cost per
     operation: a floor on the kernel's ns per substep (rod clamped, no stiff substep).
 
-    The vectorised loop's SIMD instructions (``vector_loop_instructions``) at their cost
+    The vectorised loops' SIMD instructions (``vector_loop_instructions``) at their cost
     per element, plus the scalar work per lane of ``KERNEL_WORK`` at the scalar costs.
     """
     ops = {op: float(instructions["counts"][op]) for op in VECTOR_OPS}
     ops.update(dict.fromkeys(OPS, 0.0))
     for op, count in KERNEL_WORK["lane_substep:fixed"].items():
         ops[op] += count
-    for op, count in KERNEL_WORK["control_step:constants"].items():
+    for op, count in KERNEL_WORK["control_step:cache"].items():
         ops[op] += count / n_substeps
     ns = {op: ops[op] * op_ns[op] for op in ops}
     return {"ops": ops, "ns": ns, "total_ns": sum(ns.values())}
@@ -839,11 +847,12 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
     c = res.get("ceiling")
     if c:
         how = (f"one iteration serves {c['lanes']} environments" if c["vectorised"] else
-               "**the loop was not vectorised on this machine**")
+               "**a loop was not vectorised on this machine**")
         lines += ["", f"## Kernel ceiling (N={res['vector']['regime_n']}, 1 thread, serial kernel)",
                   "", "Work per environment and substep: the SIMD instructions of the compiled "
-                  f"vectorised loop (`kernel._base_substeps_vectorised`; {how}), divided by "
-                  "its lanes, and the scalar work per lane counted in `KERNEL_WORK` "
+                  "vectorised loops (" + ", ".join(f"`kernel.{f}`" for f in VECTOR_LOOPS)
+                  + f"; {how}), divided by their lanes, and the scalar work per lane counted "
+                  "in `KERNEL_WORK` "
                   "(`pneumatic_env/speed.py`); each at its throughput measured in a Numba loop "
                   "on this machine (a SIMD instruction: the cost per element of a vectorised "
                   "loop times its lanes, `vother` at the cost of an add or multiply; a scalar "

@@ -13,13 +13,13 @@ from ..physics.kernel import CHUNK_ENVS, advance_chunk
 def _chunk_step(first, stop, params, state, history, head, action, control_dt_s, n_substeps,
                 outputs, i_max, references, step_count, prev_action, measured, noise, lag,
                 out_rows, tracked_row, scale, effort_weight, chatter_weight, reward, error,
-                reference, applied):
+                reference, applied, key, constants):
     """One control step of envs ``first .. stop-1``: clip, simulate (``advance_chunk``),
     measure (noise, first-order sensor lag), reward."""
     for env in range(first, stop):
         applied[env] = min(max(action[env], -i_max), i_max)
     advance_chunk(params, state, history, first, stop, head, applied, control_dt_s, n_substeps,
-                  outputs)
+                  outputs, key, constants)
     for env in range(first, stop):
         a = applied[env]
         step_count[env] += 1
@@ -40,21 +40,22 @@ def _chunk_step(first, stop, params, state, history, head, action, control_dt_s,
 def task_step_serial(params, state, history, head, action, control_dt_s, n_substeps, outputs,
                      i_max, references, step_count, prev_action, measured, noise, lag, out_rows,
                      tracked_row, scale, effort_weight, chatter_weight, reward, error,
-                     reference, applied):
+                     reference, applied, key, constants):
     """One control step of every env of the batch, on one thread."""
     n_envs = state.shape[1]
     for first in range(0, n_envs, CHUNK_ENVS):
         _chunk_step(first, min(first + CHUNK_ENVS, n_envs), params, state, history, head,
                     action, control_dt_s, n_substeps, outputs, i_max, references, step_count,
                     prev_action, measured, noise, lag, out_rows, tracked_row, scale,
-                    effort_weight, chatter_weight, reward, error, reference, applied)
+                    effort_weight, chatter_weight, reward, error, reference, applied, key,
+                    constants)
 
 
 @njit(cache=True, parallel=True)
 def task_step_parallel(params, state, history, head, action, control_dt_s, n_substeps, outputs,
                        i_max, references, step_count, prev_action, measured, noise, lag,
                        out_rows, tracked_row, scale, effort_weight, chatter_weight, reward,
-                       error, reference, applied):
+                       error, reference, applied, key, constants):
     """One control step of every env of the batch, chunks of envs spread over threads."""
     n_envs = state.shape[1]
     for chunk in prange((n_envs + CHUNK_ENVS - 1) // CHUNK_ENVS):
@@ -62,7 +63,8 @@ def task_step_parallel(params, state, history, head, action, control_dt_s, n_sub
         _chunk_step(first, min(first + CHUNK_ENVS, n_envs), params, state, history, head,
                     action, control_dt_s, n_substeps, outputs, i_max, references, step_count,
                     prev_action, measured, noise, lag, out_rows, tracked_row, scale,
-                    effort_weight, chatter_weight, reward, error, reference, applied)
+                    effort_weight, chatter_weight, reward, error, reference, applied, key,
+                    constants)
 
 
 @njit(cache=True)

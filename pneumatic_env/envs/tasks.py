@@ -293,7 +293,7 @@ class TaskCore:
              self.prev_action, self.measured, noise, self._lag, self._out_rows,
              self._tracked_row, self.scale, self.options.effort_weight,
              self.options.chatter_weight, self.last_reward, self.last_error,
-             self.last_reference, self.last_applied)
+             self.last_reference, self.last_applied, sim.constants_key, sim.constants)
         sim.advance_clock()
         return self.last_reward
 

@@ -40,6 +40,7 @@ from .piston import (MODE_FIXED, apply_event, end_of_substep, event_fraction,
 from .tube import (line_chamber_flow, line_end_wave, line_resistance, sound_speed,
                    tube_attenuation)
 from .valve import orifice_area, spool_acceleration
+from .vecmath import _float_to_bits
 
 # advance_env integrates the state rows 0 .. S_T2 with RK4 and sets S_COIL, S_PLAY exactly.
 assert (L.S_T1, L.S_T2, L.S_COIL, L.S_PLAY, L.N_STATE) == (7, 8, 9, 10, 11), \
@@ -500,6 +501,16 @@ def base_derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, direction, spool
     return v_s, a_s, dp1, dp2, velocity, accel, exhaust_rate, 0.0, 0.0
 
 
+@njit(cache=True, forceinline=True)
+def ring_slot(index, n_slots):
+    """``index`` modulo ``n_slots`` (a ring-buffer slot, in [0, n_slots)); a compare instead
+    of an integer division for -n_slots <= index < n_slots, the case of a delay read from
+    a head already in the ring."""
+    if index < -n_slots or index >= n_slots:
+        return index % n_slots
+    return index + n_slots if index < 0 else index
+
+
 @njit(cache=True)
 def delayed_value(history, env, channel, head, stage_substeps, delay_substeps, value_at_head,
                   value_at_stage):
@@ -507,6 +518,7 @@ def delayed_value(history, env, channel, head, stage_substeps, delay_substeps, v
 
     Times are in substeps relative to the last boundary ``head``; a query after ``head``
     (a delay shorter than the stage offset) interpolates towards the stage's own value.
+    The reads are cheapest with ``head`` in [0, n_slots) (``ring_slot``).
     """
     query = stage_substeps - delay_substeps
     if query >= 0.0:
@@ -516,8 +528,8 @@ def delayed_value(history, env, channel, head, stage_substeps, delay_substeps, v
     n_slots = history.shape[1]
     base = math.floor(query)
     weight = query - base
-    lower = history[env, (head + int(base)) % n_slots, channel]
-    upper = history[env, (head + int(base) + 1) % n_slots, channel]
+    lower = history[env, ring_slot(head + int(base), n_slots), channel]
+    upper = history[env, ring_slot(head + int(base) + 1, n_slots), channel]
     return lower + weight * (upper - lower)
 
 
@@ -638,21 +650,27 @@ STIFFNESS_LIMIT = 2.0  # largest h * lambda_max before a substep is split (RK4's
 MAX_REFINEMENT = 64  # a substep is split into at most this many equal parts
 
 
+@njit(cache=True, forceinline=True, error_model="numpy")
+def stiffness_ratio(c, y, h):
+    """h * lambda_max of a substep of ``h`` seconds from ``y`` (see ``refinement``)."""
+    x, v = y[4], y[5]
+    x_min = min(max(x - abs(v) * h, -c.half_stroke), c.half_stroke)
+    x_max = min(max(x + abs(v) * h, -c.half_stroke), c.half_stroke)
+    v1, _ = chamber_volumes(x_min, c.half_stroke, c.area_cap, c.area_rod, c.dead_cap, c.dead_rod)
+    _, v2 = chamber_volumes(x_max, c.half_stroke, c.area_cap, c.area_rod, c.dead_cap, c.dead_rod)
+    return h * c.stiffness_volume / min(v1, v2)
+
+
 @njit(cache=True)
 def refinement(c, y, h):
     """Equal parts (a power of two) to split a substep into so that h * lambda <= the limit.
 
     lambda bounds the flow-pressure stiffness dPdot/dP of a chamber (Eqs. 14, 39, 52):
     R T alpha C_f A_max (max |m_r'| + C1) / (sqrt(T) V_min), with V_min the smaller
-    chamber volume this substep can reach. It is large only when a chamber is nearly empty
-    (piston near a stop), where a fixed substep would chatter.
+    chamber volume this substep can reach (``stiffness_ratio``). It is large only when a
+    chamber is nearly empty (piston near a stop), where a fixed substep would chatter.
     """
-    x, v = y[4], y[5]
-    x_min = min(max(x - abs(v) * h, -c.half_stroke), c.half_stroke)
-    x_max = min(max(x + abs(v) * h, -c.half_stroke), c.half_stroke)
-    v1, _ = chamber_volumes(x_min, c.half_stroke, c.area_cap, c.area_rod, c.dead_cap, c.dead_rod)
-    _, v2 = chamber_volumes(x_max, c.half_stroke, c.area_cap, c.area_rod, c.dead_cap, c.dead_rod)
-    ratio = h * c.stiffness_volume / min(v1, v2)
+    ratio = stiffness_ratio(c, y, h)
     parts = 1
     while ratio > STIFFNESS_LIMIT and parts < MAX_REFINEMENT:
         parts *= 2
@@ -707,6 +725,14 @@ def _split_substep(c, history, env, head_sub, h, command_a, coil_start_a, y0, pa
     return y
 
 
+@njit(cache=True, forceinline=True)
+def _record_history(history, env, slot, x_s, p1, p2):
+    """Write the delay history of ``env`` at ring-buffer slot ``slot`` (a substep boundary)."""
+    history[env, slot, L.H_X_S] = x_s
+    history[env, slot, L.H_P1] = p1
+    history[env, slot, L.H_P2] = p2
+
+
 @njit(cache=True)
 def _close_substep(c, history, env, slot, y):
     """The end of a substep: the inelastic stops (``end_of_substep``) and the delay history
@@ -720,21 +746,20 @@ def _close_substep(c, history, env, slot, y):
         history[env, slot, L.H_WAVE_VALVE_2] = sent[1]
         history[env, slot, L.H_WAVE_CHAMBER_1] = sent[2]
         history[env, slot, L.H_WAVE_CHAMBER_2] = sent[3]
-    history[env, slot, L.H_X_S] = y[0]
-    history[env, slot, L.H_P1] = y[2]
-    history[env, slot, L.H_P2] = y[3]
+    _record_history(history, env, slot, y[0], y[2], y[3])
     return y
 
 
 @njit(cache=True)
-def spool_command(c, state, env, command_a):
-    """The held command as the spool sees it through its Coulomb friction's play
-    (``effects.spool_play_current``), updated in the state row ``spool_play_current_a``.
+def spool_command(play_band_a, state, env, command_a):
+    """The held command as the spool sees it through its Coulomb friction's play of
+    half-width ``play_band_a`` (``effects.spool_play_current``), updated in the state row
+    ``spool_play_current_a``.
 
     The command is held over the control period, so the play moves once, at its start.
     A coil lag (``coil_time_constant_s``) then acts on the play's output.
     """
-    played = spool_play_current(state[L.S_PLAY, env], command_a, c.spool_play_band)
+    played = spool_play_current(state[L.S_PLAY, env], command_a, play_band_a)
     state[L.S_PLAY, env] = played
     return played
 
@@ -750,20 +775,20 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
     """
     h = control_dt_s / n_substeps
     c = env_constants(params, env, h)
-    coil_current_a = spool_command(c, state, env, coil_current_a)
+    coil_current_a = spool_command(c.spool_play_band, state, env, coil_current_a)
     n_slots = history.shape[1]
     y = (state[L.S_X_S, env], state[L.S_V_S, env], state[L.S_P1, env], state[L.S_P2, env],
          state[L.S_X, env], state[L.S_V, env], state[L.S_EXHAUST, env], state[L.S_T1, env],
          state[L.S_T2, env])
     coil = state[L.S_COIL, env]
     for sub in range(n_substeps):
-        head_sub = head + sub
+        head_sub = ring_slot(head + sub, n_slots)
         coil_start = coil if c.coil_lag else coil_current_a
         y = _split_substep(c, history, env, head_sub, h, coil_current_a, coil_start, y,
                            refinement(c, y, h))
         if c.coil_lag:
             coil = _coil_at(c, coil_current_a, coil_start, 1.0)
-        y = _close_substep(c, history, env, (head_sub + 1) % n_slots, y)
+        y = _close_substep(c, history, env, ring_slot(head_sub + 1, n_slots), y)
     _store_state(c, state, env, y, coil if c.coil_lag else coil_current_a, outputs)
 
 
@@ -806,13 +831,95 @@ def load_constants(constants, lane):
 
 
 # Rows of the batch path's work array, a flat array of N_WORK rows of CHUNK_ENVS lanes: the
-# RK4 state rows, then the inputs of one substep. The vectorised loop updates the state
-# rows in place. Rows are CHUNK_ENVS apart, a compile-time constant, so LLVM can prove the
-# lanes independent (with run-time row strides it gives up on the aliasing checks).
-W_SPOOL_DELAYED = N_RK  # x_s(t - tau) at the substep's start, middle and end: 3 rows
-W_CURRENT = N_RK + 3
-W_DIRECTION = N_RK + 4
-N_WORK = N_RK + 5
+# RK4 state rows, the state at the substep's start, the inputs of one substep and the
+# lanes the general path redoes. The vectorised loops update the rows in place. Rows are
+# CHUNK_ENVS apart, a compile-time constant, so LLVM can prove the lanes independent (with
+# run-time row strides it gives up on the aliasing checks).
+W_START = N_RK  # the RK4 state at the substep's start: N_RK rows
+W_SPOOL_DELAYED = 2 * N_RK  # x_s(t - tau) at the substep's start, middle and end: 3 rows
+W_CURRENT = W_SPOOL_DELAYED + 3
+W_DIRECTION = W_CURRENT + 1
+W_REDO = W_DIRECTION + 1  # 1.0 where the general path redoes the substep (stiff, or an event)
+N_WORK = W_REDO + 1
+
+# The batch path caches the per-environment constants (``env_constants``) between control
+# periods: per chunk, the N_CONSTANTS rows of ``store_constants`` and a row C_BASE_ONLY
+# (1.0 where ``base_model_only`` holds); per environment, the key they were derived from
+# (its parameter column and the substep length). ``refresh_constants`` recomputes an
+# environment's constants when its key changed, so parameters may change at any time.
+C_BASE_ONLY = N_CONSTANTS
+C_SPOOL_PLAY_BAND = Constants._fields.index("spool_play_band")  # read per control period
+N_CACHED_CONSTANTS = N_CONSTANTS + 1
+K_SUBSTEP = L.N_PARAMS  # the key row of the substep length (s)
+N_KEY = L.N_PARAMS + 1
+
+
+def constants_cache(n_envs):
+    """An empty cache of the batch path's constants for ``n_envs`` environments, every
+    entry stale: (key (N_KEY, n_envs), constants (chunks, N_CACHED_CONSTANTS * CHUNK_ENVS))."""
+    n_chunks = (n_envs + CHUNK_ENVS - 1) // CHUNK_ENVS
+    return (np.full((N_KEY, n_envs), np.nan),
+            np.zeros((n_chunks, N_CACHED_CONSTANTS * CHUNK_ENVS)))
+
+
+@njit(cache=True)
+def refresh_constants(params, first, stop, substep_s, key, constants):
+    """Recompute the cached constants of environments ``first .. stop-1`` (one chunk;
+    ``constants`` is its row of the cache) whose parameter column differs from the key bit
+    for bit, or whose substep length does (a NaN key always does)."""
+    n = stop - first
+    stale = np.zeros(n, dtype=np.bool_)
+    for row in range(L.N_PARAMS):  # row by row: contiguous lanes
+        for j in range(n):
+            stale[j] |= (_float_to_bits(params[row, first + j])
+                         != _float_to_bits(key[row, first + j]))
+    for j in range(n):
+        env = first + j
+        if stale[j] or not key[K_SUBSTEP, env] == substep_s:
+            c = env_constants(params, env, substep_s)
+            store_constants(c, constants, j)
+            constants[C_BASE_ONLY * CHUNK_ENVS + j] = 1.0 if base_model_only(c) else 0.0
+            for row in range(L.N_PARAMS):
+                key[row, env] = params[row, env]
+            key[K_SUBSTEP, env] = substep_s
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _work_rows(work, first_row, j):
+    """The RK4 state tuple in rows ``first_row ..`` of lane ``j`` of the flat work array."""
+    i = first_row * CHUNK_ENVS + j
+    k = CHUNK_ENVS
+    return (work[i], work[i + k], work[i + 2 * k], work[i + 3 * k], work[i + 4 * k],
+            work[i + 5 * k], work[i + 6 * k], work[i + 7 * k], work[i + 8 * k])
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _set_work_rows(work, first_row, j, y):
+    """Store the state tuple ``y`` in rows ``first_row ..`` of lane ``j`` (row by row: a
+    run-time tuple index would not vectorise)."""
+    i = first_row * CHUNK_ENVS + j
+    k = CHUNK_ENVS
+    work[i], work[i + k], work[i + 2 * k] = y[0], y[1], y[2]
+    work[i + 3 * k], work[i + 4 * k], work[i + 5 * k] = y[3], y[4], y[5]
+    work[i + 6 * k], work[i + 7 * k], work[i + 8 * k] = y[6], y[7], y[8]
+
+
+@njit(cache=True, error_model="numpy")
+def _begin_substeps(constants, work, n_lanes, h):
+    """Before a vectorised substep, for every lane of a chunk: keep the state at the
+    substep's start, set the piston's direction over the substep (``motion_direction``;
+    0 with the rod fixed), and mark the lane for the general path where ``refinement``
+    would split the substep (stiff flow). A loop LLVM vectorises."""
+    for j in range(n_lanes):
+        c = load_constants(constants, j)
+        y = _work_rows(work, 0, j)
+        _set_work_rows(work, W_START, j, y)
+        applied = (pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
+                   - external_force(c.mode, y[4], c.load_force, c.spring_k, c.spring_rest))
+        direction = motion_direction(y[4], y[5], applied, c.stick_threshold, c.half_stroke)
+        work[W_DIRECTION * CHUNK_ENVS + j] = 0.0 if c.mode == MODE_FIXED else direction
+        stiff = stiffness_ratio(c, y, h) > STIFFNESS_LIMIT  # refinement(c, y, h) > 1
+        work[W_REDO * CHUNK_ENVS + j] = 1.0 if stiff else 0.0
 
 
 @njit(cache=True, error_model="numpy")
@@ -824,112 +931,100 @@ def _base_substeps_vectorised(constants, work, n_lanes, h):
     """
     for j in range(n_lanes):
         c = load_constants(constants, j)
-        out = rk4_base_substep(c, _work_state(work, j), work[W_CURRENT * CHUNK_ENVS + j],
+        out = rk4_base_substep(c, _work_rows(work, 0, j), work[W_CURRENT * CHUNK_ENVS + j],
                                work[W_DIRECTION * CHUNK_ENVS + j],
                                work[W_SPOOL_DELAYED * CHUNK_ENVS + j],
                                work[(W_SPOOL_DELAYED + 1) * CHUNK_ENVS + j],
                                work[(W_SPOOL_DELAYED + 2) * CHUNK_ENVS + j], h)
-        _set_work_state(work, j, out)
+        _set_work_rows(work, 0, j, out)
 
 
-@njit(cache=True, forceinline=True, error_model="numpy")
-def _work_state(work, j):
-    """The RK4 state tuple of lane ``j`` of the flat work array."""
-    return (work[j], work[CHUNK_ENVS + j], work[2 * CHUNK_ENVS + j], work[3 * CHUNK_ENVS + j],
-            work[4 * CHUNK_ENVS + j], work[5 * CHUNK_ENVS + j], work[6 * CHUNK_ENVS + j],
-            work[7 * CHUNK_ENVS + j], work[8 * CHUNK_ENVS + j])
-
-
-@njit(cache=True, forceinline=True, error_model="numpy")
-def _set_work_state(work, j, y):
-    """Store the state tuple ``y`` in lane ``j`` (row by row: a run-time tuple index would not
-    vectorise)."""
-    work[j], work[CHUNK_ENVS + j], work[2 * CHUNK_ENVS + j] = y[0], y[1], y[2]
-    work[3 * CHUNK_ENVS + j], work[4 * CHUNK_ENVS + j], work[5 * CHUNK_ENVS + j] = y[3], y[4], y[5]
-    work[6 * CHUNK_ENVS + j], work[7 * CHUNK_ENVS + j], work[8 * CHUNK_ENVS + j] = y[6], y[7], y[8]
-
-
-@njit(cache=True)
-def _lane_state(a, j):
-    """The RK4 state tuple of row ``j`` of a (lanes, >= N_RK) array."""
-    return (a[j, 0], a[j, 1], a[j, 2], a[j, 3], a[j, 4], a[j, 5], a[j, 6], a[j, 7], a[j, 8])
+@njit(cache=True, error_model="numpy")
+def _end_substeps(constants, work, n_lanes):
+    """After a vectorised substep, for every lane of a chunk: mark the lane for the general
+    path where the sliding piston met an event (a stop or a velocity reversal,
+    ``event_fraction``), and apply the end stops (``end_of_substep``). A loop LLVM
+    vectorises."""
+    k = CHUNK_ENVS
+    for j in range(n_lanes):
+        c = load_constants(constants, j)
+        direction = work[W_DIRECTION * k + j]
+        x0, v0 = work[(W_START + L.S_X) * k + j], work[(W_START + L.S_V) * k + j]
+        x, v = work[L.S_X * k + j], work[L.S_V * k + j]
+        event = direction != 0.0 and event_fraction(x0, v0, x, v, direction,
+                                                    c.half_stroke) >= 0.0
+        work[W_REDO * k + j] = 1.0 if event else work[W_REDO * k + j]
+        work[L.S_X * k + j], work[L.S_V * k + j] = end_of_substep(x, v, c.half_stroke)
 
 
 @njit(cache=True)
 def advance_chunk(params, state, history, first, stop, head, coil_current_a, control_dt_s,
-                  n_substeps, outputs):
+                  n_substeps, outputs, key, constants):
     """Advance environments ``first .. stop-1`` by one control period; write their outputs.
 
-    Environments where ``base_model_only`` holds advance together: per substep, the delayed
-    spool positions and the piston's direction are read per lane, one vectorised RK4
-    substep (``_base_substeps_vectorised``) advances every lane, and a lane whose substep
-    needs splitting (stiff flow, ``refinement``) or crosses a piston event (a stop or a
-    velocity reversal, ``piston.event_fraction``) is redone from the substep's start by
-    the general path (``_advance_interval``). Other environments take ``advance_env``.
+    ``first`` is a multiple of ``CHUNK_ENVS``; ``key``, ``constants`` are the cache of
+    ``constants_cache``. Environments where ``base_model_only`` holds advance together:
+    per substep, one vectorised loop keeps the start state and finds the piston's
+    direction and the stiff lanes (``_begin_substeps``), the delayed spool positions are
+    read per lane, one vectorised RK4 substep (``_base_substeps_vectorised``) advances
+    every lane, and one vectorised loop finds the lanes whose piston met an event and
+    applies the stops (``_end_substeps``). A lane whose substep needs splitting (stiff
+    flow, ``refinement``) or crosses a piston event is redone from the substep's start by
+    the general path (``_split_substep``). Other environments take ``advance_env``.
     Either way an environment's result does not depend on the rest of the batch.
     """
     n = stop - first
     h = control_dt_s / n_substeps
     n_slots = history.shape[1]
-    constants = np.empty(N_CONSTANTS * CHUNK_ENVS)
-    fast = np.zeros(n, dtype=np.bool_)
+    chunk_constants = constants[first // CHUNK_ENVS]
+    refresh_constants(params, first, stop, h, key, chunk_constants)
+    fast = chunk_constants[C_BASE_ONLY * CHUNK_ENVS:]
     work = np.zeros(N_WORK * CHUNK_ENVS)
     for j in range(n):
         env = first + j
-        c = env_constants(params, env, h)
-        store_constants(c, constants, j)
-        fast[j] = base_model_only(c)
-        if fast[j]:
-            work[W_CURRENT * CHUNK_ENVS + j] = spool_command(c, state, env, coil_current_a[env])
-        else:
+        if fast[j] == 0.0:
             advance_env(params, state, history, env, head, coil_current_a[env], control_dt_s,
                         n_substeps, outputs)
-    start = np.empty((n, N_RK))  # the state at the substep's start
-    for j in range(n):
-        for row in range(N_RK):
-            start[j, row] = state[row, first + j]
+        else:
+            work[W_CURRENT * CHUNK_ENVS + j] = spool_command(
+                chunk_constants[C_SPOOL_PLAY_BAND * CHUNK_ENVS + j], state, env,
+                coil_current_a[env])
+    # lanes advance_env advanced are computed below too, and ignored
+    for row in range(N_RK):
+        for j in range(n):
+            work[row * CHUNK_ENVS + j] = state[row, first + j]
     for sub in range(n_substeps):
-        head_sub = head + sub
+        head_sub = ring_slot(head + sub, n_slots)
+        _begin_substeps(chunk_constants, work, n, h)
         for j in range(n):
-            for row in range(N_RK):
-                work[row * CHUNK_ENVS + j] = start[j, row]
-            if not fast[j]:  # advanced by advance_env above; its lane is computed and ignored
-                continue
-            c = load_constants(constants, j)
-            for stage in range(3):  # substep fractions 0, 1/2, 1 (all before head)
-                work[(W_SPOOL_DELAYED + stage) * CHUNK_ENVS + j] = delayed_value(
-                    history, first + j, L.H_X_S, head_sub, 0.5 * stage, c.delay_substeps,
-                    start[j, 0], start[j, 0])
-            if c.mode != MODE_FIXED:
-                applied = (pneumatic_force(start[j, 2], start[j, 3], c.area_cap, c.area_rod,
-                                           c.rod_area, c.ambient_pa)
-                           - external_force(c.mode, start[j, 4], c.load_force, c.spring_k,
-                                            c.spring_rest))
-                work[W_DIRECTION * CHUNK_ENVS + j] = motion_direction(
-                    start[j, 4], start[j, 5], applied, c.stick_threshold, c.half_stroke)
-        _base_substeps_vectorised(constants, work, n, h)
-        slot = (head_sub + 1) % n_slots
+            if fast[j] != 0.0:
+                delay_substeps = load_constants(chunk_constants, j).delay_substeps
+                x_s = work[W_START * CHUNK_ENVS + j]
+                for stage in range(3):  # substep fractions 0, 1/2, 1 (all before head)
+                    work[(W_SPOOL_DELAYED + stage) * CHUNK_ENVS + j] = delayed_value(
+                        history, first + j, L.H_X_S, head_sub, 0.5 * stage, delay_substeps,
+                        x_s, x_s)
+        _base_substeps_vectorised(chunk_constants, work, n, h)
+        _end_substeps(chunk_constants, work, n)
+        slot = ring_slot(head_sub + 1, n_slots)
         for j in range(n):
-            if not fast[j]:
+            if fast[j] == 0.0:
                 continue
             env = first + j
-            c = load_constants(constants, j)
-            y0 = _lane_state(start, j)
-            yj = _work_state(work, j)
-            direction = work[W_DIRECTION * CHUNK_ENVS + j]
-            current = work[W_CURRENT * CHUNK_ENVS + j]
-            parts = refinement(c, y0, h)
-            event = direction != 0.0 and event_fraction(
-                y0[4], y0[5], yj[4], yj[5], direction, c.half_stroke) >= 0.0
-            if parts > 1 or event:
-                yj = _split_substep(c, history, env, head_sub, h, current, current, y0, parts)
-            yj = _close_substep(c, history, env, slot, yj)
-            for row in range(N_RK):
-                start[j, row] = yj[row]
+            if work[W_REDO * CHUNK_ENVS + j] != 0.0:
+                c = load_constants(chunk_constants, j)
+                y0 = _work_rows(work, W_START, j)
+                current = work[W_CURRENT * CHUNK_ENVS + j]
+                y = _split_substep(c, history, env, head_sub, h, current, current, y0,
+                                   refinement(c, y0, h))
+                _set_work_rows(work, 0, j, _close_substep(c, history, env, slot, y))
+            else:  # the stops were applied by _end_substeps
+                _record_history(history, env, slot, work[L.S_X_S * CHUNK_ENVS + j],
+                                work[L.S_P1 * CHUNK_ENVS + j], work[L.S_P2 * CHUNK_ENVS + j])
     for j in range(n):
-        if fast[j]:
-            _store_state(load_constants(constants, j), state, first + j, _lane_state(start, j),
-                         work[W_CURRENT * CHUNK_ENVS + j], outputs)
+        if fast[j] != 0.0:
+            _store_state(load_constants(chunk_constants, j), state, first + j,
+                         _work_rows(work, 0, j), work[W_CURRENT * CHUNK_ENVS + j], outputs)
 
 
 @njit(cache=True)
@@ -949,35 +1044,36 @@ def _store_state(c, state, env, y, coil_a, outputs):
 
 
 @njit(cache=True)
-def step_serial(params, state, history, head, coil_current_a, control_dt_s, n_substeps, outputs):
+def step_serial(params, state, history, head, coil_current_a, control_dt_s, n_substeps, outputs,
+                key, constants):
     """Advance every environment of the batch by one control period on one thread."""
     n_envs = state.shape[1]
     for first in range(0, n_envs, CHUNK_ENVS):
         advance_chunk(params, state, history, first, min(first + CHUNK_ENVS, n_envs), head,
-                      coil_current_a, control_dt_s, n_substeps, outputs)
+                      coil_current_a, control_dt_s, n_substeps, outputs, key, constants)
 
 
 @njit(cache=True, parallel=True)
 def step_parallel(params, state, history, head, coil_current_a, control_dt_s, n_substeps,
-                  outputs):
+                  outputs, key, constants):
     """Advance every environment of the batch by one control period, chunks in parallel."""
     n_envs = state.shape[1]
     for chunk in prange((n_envs + CHUNK_ENVS - 1) // CHUNK_ENVS):
         first = chunk * CHUNK_ENVS
         advance_chunk(params, state, history, first, min(first + CHUNK_ENVS, n_envs), head,
-                      coil_current_a, control_dt_s, n_substeps, outputs)
+                      coil_current_a, control_dt_s, n_substeps, outputs, key, constants)
 
 
 @njit(cache=True)
 def rollout_serial(params, state, history, head, coil_current_a, control_dt_s, n_substeps,
-                   outputs):
+                   outputs, key, constants):
     """Run a whole open-loop current sequence ``coil_current_a[step, env]`` in one call.
 
     ``outputs[step, O_*, env]`` receives the outputs after each control period.
     """
     for step in range(coil_current_a.shape[0]):
         step_serial(params, state, history, head + step * n_substeps, coil_current_a[step],
-                    control_dt_s, n_substeps, outputs[step])
+                    control_dt_s, n_substeps, outputs[step], key, constants)
 
 
 def history_slots(max_delay_s, control_dt_s, n_substeps):

@@ -63,12 +63,13 @@ def piston_acceleration(applied_force_n, piston_velocity_m_per_s, direction,
             - dynamic_friction_n * direction) / moving_mass_kg
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True, error_model="numpy")
 def event_fraction(x0_m, v0_m_per_s, x1_m, v1_m_per_s, direction, half_stroke_m):
     """Where in a sliding step [0, 1] the piston reaches a stop or its velocity reverses.
 
     Linear interpolation of the attempted step's position (stop) and velocity (reversal);
-    -1 when neither happens within the step.
+    -1 when neither happens within the step. Inlined and free of raising divisions, so the
+    batch path's event test (``kernel._end_substeps``) vectorises.
     """
     theta = -1.0
     stop = direction * half_stroke_m
@@ -94,9 +95,10 @@ def apply_event(piston_position_m, piston_velocity_m_per_s, direction, half_stro
     return min(max(x, -half_stroke_m), half_stroke_m), 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True, error_model="numpy")
 def end_of_substep(piston_position_m, piston_velocity_m_per_s, half_stroke_m):
-    """Keep the piston within +-L/2 (inelastic stops) after a substep."""
+    """Keep the piston within +-L/2 (inelastic stops) after a substep (inlined: it
+    vectorises in ``kernel._end_substeps``)."""
     x = piston_position_m
     v = piston_velocity_m_per_s
     if x >= half_stroke_m:
