@@ -375,6 +375,21 @@ def test_transmission_line_follows_an_independent_segmented_line(tube_length_m, 
     assert errors["paper tube (Eqs. 30, 31)"] > 3.0 * errors["transmission line"]
 
 
+def test_line_chamber_flow_solves_its_end_equation():
+    """m (Z_c + R(m)/2) = W_in - P at the chamber end, laminar and turbulent (Eqs. 33, 35)."""
+    from pneumatic_env.physics.tube import line_chamber_flow, line_resistance, sound_speed
+    c = _constants(tube_length_m=2.0, tube_waves=1)
+    p = 5e5
+    for drive in (-3e5, -2e4, -50.0, 50.0, 1e3, 2e4, 3e5):
+        m = line_chamber_flow(p + drive, p, c.line_impedance, c.line_friction,
+                              c.tube_diameter, c.viscosity, c.reynolds_turbulent)
+        resistance = line_resistance(m, p, c.line_friction, c.tube_diameter, c.viscosity,
+                                     c.reynolds_turbulent)
+        assert m * (c.line_impedance + 0.5 * resistance) == pytest.approx(drive, rel=1e-9)
+    area = math.pi / 4 * load_parameters()["tube_inner_diameter_m"] ** 2
+    assert c.line_impedance == pytest.approx(sound_speed(1.4, 287.0, T_S) / area, rel=1e-3)
+
+
 def test_transmission_line_delays_by_the_tube_and_rings():
     """Nothing reaches the chamber before the wave, tau = L_t / c (Eq. 31); the filled
     chamber overshoots the supply pressure and settles on it (a reflected wave)."""

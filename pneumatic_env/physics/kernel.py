@@ -171,6 +171,21 @@ SUPPLY_DROOP_RTOL = 1e-10  # solver accuracy of the supply droop, relative to P_
 SUPPLY_DROOP_MAX_ITERATIONS = 60  # a safeguard; the root is usually found in 1-4 steps
 
 
+@njit(cache=True, inline="always")
+def _illinois_update(lo, f_lo, hi, f_hi, x, f, side):
+    """One bracket update of the Illinois method (regula falsi) with the new point (x, f):
+    it replaces the end of its sign, and halves the other end's value when that end was
+    kept twice in a row (``side``: the sign replaced last). Returns (lo, f_lo, hi, f_hi,
+    side)."""
+    if f > 0.0:
+        if side == 1:
+            f_lo *= 0.5
+        return lo, f_lo, x, f, 1
+    if side == -1:
+        f_hi *= 0.5
+    return x, f, hi, f_hi, -1
+
+
 @njit(cache=True)
 def _supply_flow(c, supply_pa, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1,
                  inv_sqrt_t2):
@@ -213,16 +228,7 @@ def supply_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sq
             c, guess, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2)
         if abs(f_guess) <= tolerance:
             return guess
-        if f_guess > 0.0:
-            hi, f_hi = guess, f_guess
-            if side == 1:
-                f_lo *= 0.5
-            side = 1
-        else:
-            lo, f_lo = guess, f_guess
-            if side == -1:
-                f_hi *= 0.5
-            side = -1
+        lo, f_lo, hi, f_hi, side = _illinois_update(lo, f_lo, hi, f_hi, guess, f_guess, side)
         guess = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
     return guess
 
@@ -324,16 +330,7 @@ def _line_valve_end(c, supply_area, exhaust_area, wave_in_pa):
         f, q, exhaust = _line_valve_end_residual(c, supply_area, exhaust_area, wave_in_pa, port)
         if abs(f) <= tolerance or hi - lo <= tolerance:
             break
-        if f > 0.0:
-            hi, f_hi = port, f
-            if side == 1:
-                f_lo *= 0.5
-            side = 1
-        else:
-            lo, f_lo = port, f
-            if side == -1:
-                f_hi *= 0.5
-            side = -1
+        lo, f_lo, hi, f_hi, side = _illinois_update(lo, f_lo, hi, f_hi, port, f, side)
     return port, q, exhaust
 
 
