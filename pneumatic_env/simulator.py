@@ -91,8 +91,13 @@ class BatchSimulator:
             row, col = np.argwhere(~np.isfinite(columns))[0]
             raise ValueError(f"set_params: {L.PARAMETER_NAMES[row]} of environment {envs[col]} "
                              f"is {columns[row, col]}, must be finite")
+        previous = self.params[:, envs].copy()
         self.params[:, envs] = columns
-        self._check_tube_waves(envs)
+        try:
+            self._check_tube_waves(envs)
+        except ValueError:
+            self.params[:, envs] = previous  # a refused change leaves the batch as it was
+            raise
         slots = self._slots_needed()
         if slots > self.history.shape[1]:  # a longer tube than the buffer holds: grow it
             grown = np.zeros((self.n_envs, slots, L.N_HISTORY))

@@ -419,6 +419,11 @@ def test_transmission_line_refuses_what_it_cannot_do():
                                          r"use a tube of at least 0.0172 m or more substeps, or "
                                          r"tube_waves = 0$"):
         _sim([load_parameters(), load_parameters(tube_length_m=0.01, tube_waves=1)])
+    sim = _sim([load_parameters(), load_parameters()])
+    before = sim.params.copy()
+    with pytest.raises(ValueError, match=r"^tube_waves = 1 \(transmission line\) of environment 1"):
+        sim.set_params([1], parameter_array([load_parameters(tube_length_m=0.01, tube_waves=1)]))
+    np.testing.assert_array_equal(sim.params, before)  # the refused change is not kept
 
 
 @pytest.mark.parametrize("cylinder", ["numatics", "airpel"])
