@@ -336,13 +336,13 @@ def _line_valve_end(c, supply_area, exhaust_area, wave_in_pa):
 
 @njit(cache=True)
 def line_flows(c, spool_m, arriving, p1_pa, p2_pa):
-    """The tubes as transmission lines (effect ``tube_waves``): flows and the waves sent.
+    """The tubes as transmission lines (effect ``tube_waves``): the flows at their ends.
 
     ``arriving`` = (W at valve end 1, at valve end 2, at chamber end 1, at chamber end 2),
     the waves the other ends sent one delay ago. The valve acts on the line at once (no
     spool delay: the line delays). Returns (flow into chamber 1, into chamber 2, the
-    valve's exhaust flow to the atmosphere, and the waves sent by valve end 1, valve end
-    2, chamber end 1, chamber end 2).
+    valve's exhaust flow to the atmosphere, and the pressure and the flow into the line at
+    valve end 1 and at valve end 2).
     """
     area_a = _scalar_area(c, spool_m) + c.null_leak
     area_b = _scalar_area(c, -spool_m) + c.null_leak
@@ -352,16 +352,15 @@ def line_flows(c, spool_m, arriving, p1_pa, p2_pa):
                                c.tube_diameter, c.viscosity, c.reynolds_turbulent)
     flow_2 = line_chamber_flow(arriving[3], p2_pa, c.line_impedance, c.line_friction,
                                c.tube_diameter, c.viscosity, c.reynolds_turbulent)
-    sent = (
-        line_end_wave(port_1, q_1, c.line_impedance, line_resistance(
-            q_1, port_1, c.line_friction, c.tube_diameter, c.viscosity, c.reynolds_turbulent)),
-        line_end_wave(port_2, q_2, c.line_impedance, line_resistance(
-            q_2, port_2, c.line_friction, c.tube_diameter, c.viscosity, c.reynolds_turbulent)),
-        line_end_wave(p1_pa, -flow_1, c.line_impedance, line_resistance(
-            flow_1, p1_pa, c.line_friction, c.tube_diameter, c.viscosity, c.reynolds_turbulent)),
-        line_end_wave(p2_pa, -flow_2, c.line_impedance, line_resistance(
-            flow_2, p2_pa, c.line_friction, c.tube_diameter, c.viscosity, c.reynolds_turbulent)))
-    return flow_1, flow_2, exhaust_1 + exhaust_2, sent
+    return flow_1, flow_2, exhaust_1 + exhaust_2, port_1, q_1, port_2, q_2
+
+
+@njit(cache=True)
+def _sent_wave(c, pressure_pa, mass_flow_into_line):
+    """The wave a line end sends (``tube.line_end_wave``) with the line's friction there."""
+    return line_end_wave(pressure_pa, mass_flow_into_line, c.line_impedance, line_resistance(
+        mass_flow_into_line, pressure_pa, c.line_friction, c.tube_diameter, c.viscosity,
+        c.reynolds_turbulent))
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
@@ -404,7 +403,7 @@ def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, sp
         inv_sqrt_t2 = c.inv_sqrt_t
     vented = 0.0
     if c.waves:  # a signed flow into each chamber from its line; the line's air at T_s
-        supply_1, supply_2, vented, _ = line_flows(c, x_s, arriving, p1, p2)
+        supply_1, supply_2, vented, _, _, _, _ = line_flows(c, x_s, arriving, p1, p2)
         exhaust_1 = 0.0
         exhaust_2 = 0.0
     else:
@@ -737,12 +736,12 @@ def _close_substep(c, history, env, slot, y):
     x, v = end_of_substep(y[4], y[5], c.half_stroke)
     y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
     if c.waves:  # the waves the line ends send at this boundary
-        _, _, _, sent = line_flows(c, y[0], _arriving_waves(c, history, env, slot, 0.0),
-                                   y[2], y[3])
-        history[env, slot, L.H_WAVE_VALVE_1] = sent[0]
-        history[env, slot, L.H_WAVE_VALVE_2] = sent[1]
-        history[env, slot, L.H_WAVE_CHAMBER_1] = sent[2]
-        history[env, slot, L.H_WAVE_CHAMBER_2] = sent[3]
+        flow_1, flow_2, _, port_1, q_1, port_2, q_2 = line_flows(
+            c, y[0], _arriving_waves(c, history, env, slot, 0.0), y[2], y[3])
+        history[env, slot, L.H_WAVE_VALVE_1] = _sent_wave(c, port_1, q_1)
+        history[env, slot, L.H_WAVE_VALVE_2] = _sent_wave(c, port_2, q_2)
+        history[env, slot, L.H_WAVE_CHAMBER_1] = _sent_wave(c, y[2], -flow_1)
+        history[env, slot, L.H_WAVE_CHAMBER_2] = _sent_wave(c, y[3], -flow_2)
     _record_history(history, env, slot, y[0], y[2], y[3])
     return y
 
