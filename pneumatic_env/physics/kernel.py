@@ -309,10 +309,9 @@ def _line_valve_end(c, supply_area, exhaust_area, wave_in_pa):
     tolerance = LINE_PRESSURE_RTOL * c.supply_pa
     lo = max(min(c.ambient_pa, wave_in_pa), c.pressure_floor)
     hi = max(c.supply_pa, wave_in_pa)
-    _, q_in, _ = _line_valve_end_residual(c, supply_area, exhaust_area, wave_in_pa, wave_in_pa)
-    port = min(max(wave_in_pa + (c.line_impedance + 0.5 * line_resistance(
-        q_in, wave_in_pa, c.line_friction, c.tube_diameter, c.viscosity,
-        c.reynolds_turbulent)) * q_in, lo), hi)
+    # f(W_in) = -(Z_c + R/2) q(W_in), so the guess W_in + (Z_c + R/2) q(W_in) is W_in - f(W_in)
+    f_in, _, _ = _line_valve_end_residual(c, supply_area, exhaust_area, wave_in_pa, wave_in_pa)
+    port = min(max(wave_in_pa - f_in, lo), hi)
     f, q, exhaust = _line_valve_end_residual(c, supply_area, exhaust_area, wave_in_pa, port)
     if abs(f) <= tolerance:
         return port, q, exhaust
