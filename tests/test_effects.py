@@ -28,6 +28,7 @@ ON = {
     "flow_law": {"flow_law": "iso6358", "iso_critical_ratio_b": 0.3},
     "supply_resistance_pa_s_per_kg": {"supply_resistance_pa_s_per_kg": 5e6},
     "coil_time_constant_s": {"coil_time_constant_s": 0.005},
+    "coil_lag_shape": {"coil_time_constant_s": 0.005, "coil_lag_shape": 0.2},
     "wall_heat_transfer_w_per_k": {"wall_heat_transfer_w_per_k": 0.05},
     "stribeck_velocity_m_per_s": {"stribeck_velocity_m_per_s": 0.02},
     "spool_coulomb_friction_n": {"spool_coulomb_friction_n": 0.1},
@@ -256,6 +257,55 @@ def test_coil_lag_is_a_first_order_lag_of_the_current():
     assert sim.state[L.S_COIL, 1] == pytest.approx(i1 * math.exp(-3e-3 / tau), rel=1e-12)
     sim.reset()
     assert np.all(sim.state[L.S_COIL] == 0.0)
+
+
+@pytest.mark.parametrize("coil_tau, force_tau", [(0.002, 0.001), (0.0015, 0.0015),
+                                                (0.002, 0.0), (0.003, 1e-8)])
+def test_coil_and_force_lags_match_an_independent_linear_simulation(coil_tau, force_tau):
+    """The coil lag and the force lag behind it are two cascaded first-order lags of the held
+    command: the kernel's exact solution equals SciPy's simulation of
+    1 / ((tau_c s + 1)(tau_f s + 1)) with a zero-order-hold input (equal time constants
+    included, where the closed form has its removable singularity, and a vanishing force
+    lag). The parameters are the total T = tau_c + tau_f and shape tau_c tau_f / T^2."""
+    from scipy.signal import lsim
+    total = coil_tau + force_tau
+    shape = coil_tau * force_tau / total ** 2
+    assert E.coil_time_constants(total, shape) == pytest.approx((coil_tau, force_tau),
+                                                                rel=1e-6, abs=1e-15)
+    rng = np.random.default_rng(3)
+    command = rng.uniform(-1.0, 1.0, 12)
+    sim = _sim([load_parameters(coil_time_constant_s=total, coil_lag_shape=shape)])
+    coil, force = [0.0], [0.0]
+    for u in command:
+        sim.step(np.array([u]))
+        coil.append(sim.state[L.S_COIL, 0])
+        force.append(sim.state[L.S_COIL_FORCE, 0])
+    t = np.arange(command.size + 1) * 1e-3
+    u = np.append(command, 0.0)
+    # states (i, j): tau_c i' = u - i, tau_f j' = i - j (j = i without a force lag)
+    rate_f = 1.0 / force_tau if force_tau > 0 else 0.0
+    a = np.array([[-1.0 / coil_tau, 0.0], [rate_f, -rate_f]])
+    b = np.array([[1.0 / coil_tau], [0.0]])
+    c = np.array([[1.0, 0.0], [0.0, 1.0]]) if force_tau > 0 else np.array([[1.0, 0.0]] * 2)
+    _, ref, _ = lsim((a, b, c, np.zeros((2, 1))), u, t, interp=False)
+    np.testing.assert_allclose(coil, ref[:, 0], atol=1e-9)
+    np.testing.assert_allclose(force, ref[:, 1], atol=1e-9)
+    # the spool feels the force current: without a force lag it is the coil current
+    if force_tau == 0.0:
+        np.testing.assert_array_equal(force, coil)
+
+
+def test_the_force_lag_drives_the_spool():
+    """With a force lag the spool follows the force current (Eq. 38 with K_f j): it lags
+    the spool of the coil lag alone, and settles at the same position (Eq. 46)."""
+    sets = [load_parameters(coil_time_constant_s=0.002),
+            load_parameters(coil_time_constant_s=0.004, coil_lag_shape=0.25)]
+    sim = _sim(sets)
+    sim.step(np.full(2, 0.5))
+    assert 0.0 < sim.outputs[L.O_X_S, 1] < 0.5 * sim.outputs[L.O_X_S, 0]
+    for _ in range(60):
+        sim.step(np.full(2, 0.5))
+    assert sim.outputs[L.O_X_S, 1] == pytest.approx(sim.outputs[L.O_X_S, 0], rel=1e-6)
 
 
 # --------------------------------------------------------------------------- 8 heat transfer

@@ -54,6 +54,50 @@ def lagged_coil_current(command_a, current_at_start_a, decay):
 
 
 @njit(cache=True)
+def coil_time_constants(coil_lag_s, coil_lag_shape):
+    """(tau_c, tau_f) of the coil lag and the force lag from their total T = tau_c + tau_f
+    and shape r = tau_c tau_f / T^2 (0: one lag of T; 1/4: two lags of T/2): the roots
+    T (1 +- sqrt(1 - 4 r)) / 2, the larger taken as the coil's.
+
+    The force current's response 1 / (tau_c tau_f s^2 + T s + 1) depends on (T, r T^2)
+    smoothly, with no fold where the two time constants are equal, so both are identifiable
+    from data (a fit in (tau_c, tau_f) has a singular Jacobian there).
+    """
+    root = math.sqrt(max(1.0 - 4.0 * coil_lag_shape, 0.0))
+    # the smaller root as 2 r T / (1 + root): no cancellation for a small shape
+    return 0.5 * coil_lag_s * (1.0 + root), 2.0 * coil_lag_shape * coil_lag_s / (1.0 + root)
+
+
+@njit(cache=True)
+def coil_force_gain(coil_decay_now, elapsed_over_force_tau, elapsed_rate_difference):
+    """g(t) = tau_c / (tau_c - tau_f) (exp(-t/tau_c) - exp(-t/tau_f)): the share of the coil
+    current's initial error (i0 - i_cmd) in the force current j at time t.
+
+    Written as exp(-t/tau_c) (t/tau_f) expm1(z)/z with z = -t (1/tau_f - 1/tau_c), which has
+    no cancellation as tau_f -> tau_c (the limit (t/tau) exp(-t/tau)). Arguments:
+    ``coil_decay_now`` = exp(-t/tau_c), ``elapsed_over_force_tau`` = t/tau_f,
+    ``elapsed_rate_difference`` = t (1/tau_f - 1/tau_c).
+    """
+    z = -elapsed_rate_difference
+    ratio = 1.0 + 0.5 * z if abs(z) < 1e-8 else math.expm1(z) / z
+    return coil_decay_now * elapsed_over_force_tau * ratio
+
+
+@njit(cache=True)
+def lagged_coil_force_current(command_a, coil_at_start_a, force_at_start_a, force_decay,
+                              force_gain):
+    """Force current j of tau_f dj/dt = i - j, driven by the lagged coil current i of
+    ``lagged_coil_current`` with the command held (exact solution of the two cascaded lags).
+
+    ``force_decay`` = exp(-t/tau_f), ``force_gain`` = ``coil_force_gain`` at t. The spool
+    (Eq. 38) feels the coil force K_f j (eddy currents in the armature and pole pieces make
+    the force lag the current).
+    """
+    return (command_a + (force_at_start_a - command_a) * force_decay
+            + (coil_at_start_a - command_a) * force_gain)
+
+
+@njit(cache=True)
 def chamber_energy_rates(pressure_pa, temperature_k, volume_m3, volume_rate_m3_per_s,
                          mass_in_kg_per_s, mass_out_kg_per_s, enthalpy_in_kg_k_per_s,
                          gas_constant, heat_capacity_ratio, heat_conductance_w_per_k,

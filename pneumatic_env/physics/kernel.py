@@ -28,8 +28,10 @@ from numba import njit, prange
 
 from . import layout as L
 from .chamber import chamber_volumes, pressure_rate
-from .effects import (chamber_energy_rates, coil_decay, dead_volume_with_tube,
-                      drooped_supply_pressure, lagged_coil_current, spool_play_band,
+from .effects import (chamber_energy_rates, coil_decay, coil_force_gain, coil_time_constants,
+                      dead_volume_with_tube,
+                      drooped_supply_pressure, lagged_coil_current,
+                      lagged_coil_force_current, spool_play_band,
                       spool_play_current, stribeck_friction)
 from .flow import (FLOW_LAW_ISO, FLOW_LAW_PAPER, flow_constants, iso_subsonic_reduced_flow,
                    orifice_mass_flow,
@@ -42,8 +44,9 @@ from .tube import (line_chamber_flow, line_end_wave, line_resistance, sound_spee
 from .valve import orifice_area, spool_acceleration
 from .vecmath import _float_to_bits
 
-# advance_env integrates the state rows 0 .. S_T2 with RK4 and sets S_COIL, S_PLAY exactly.
-assert (L.S_T1, L.S_T2, L.S_COIL, L.S_PLAY, L.N_STATE) == (7, 8, 9, 10, 11), \
+# advance_env integrates the state rows 0 .. S_T2 with RK4 and sets S_COIL, S_PLAY,
+# S_COIL_FORCE exactly.
+assert (L.S_T1, L.S_T2, L.S_COIL, L.S_PLAY, L.S_COIL_FORCE, L.N_STATE) == (7, 8, 9, 10, 11, 12), \
     "kernel assumes this state layout"
 
 Constants = namedtuple("Constants", (
@@ -56,7 +59,8 @@ Constants = namedtuple("Constants", (
     "load_force", "spring_k", "spring_rest",
     # effects (docs/effects.md)
     "discharge_ex", "null_leak", "seal_leak", "flow_law", "supply_resistance", "coil_lag",
-    "coil_decay_half", "coil_decay_full", "energy", "gas", "temperature", "heat_conductance",
+    "coil_decay_half", "coil_decay_full", "coil_force_lag", "force_rate", "force_rate_difference",
+    "energy", "gas", "temperature", "heat_conductance",
     "static_friction", "stribeck", "stribeck_v", "spool_play_band",
     "waves", "line_impedance", "line_friction",
     # numerical guards (docs/convergence.md): pressures and gas temperatures stay positive
@@ -97,11 +101,17 @@ def env_constants(params, env, substep_s):
     area_cap = 0.25 * math.pi * bore * bore
     rod_area = 0.25 * math.pi * rod * rod
     tube_fraction = p[L.P_TUBE_VOLUME_FRACTION]
-    coil_tau = p[L.P_COIL_TIME_CONSTANT_S]
+    coil_tau, force_tau = coil_time_constants(p[L.P_COIL_TIME_CONSTANT_S],
+                                              p[L.P_COIL_LAG_SHAPE])
     heat_conductance = p[L.P_WALL_HEAT_TRANSFER_W_PER_K]
     stribeck_v = p[L.P_STRIBECK_VELOCITY_M_PER_S]
     literal_flag = 1.0 if p[L.P_TUBE_COUPLING] == 1.0 else 0.0
     coil_lag_flag = 1.0 if coil_tau > 0.0 else 0.0
+    force_lag_flag = 1.0 if force_tau > 0.0 else 0.0
+    force_rate = substep_s / force_tau if force_tau > 0.0 else 0.0  # substeps per tau_f
+    force_rate_difference = 0.0  # substep (1/tau_f - 1/tau_c), with both lags on
+    if force_tau > 0.0 and coil_tau > 0.0:
+        force_rate_difference = force_rate - substep_s / coil_tau
     energy_flag = 1.0 if heat_conductance > 0.0 else 0.0
     stribeck_flag = 1.0 if stribeck_v > 0.0 else 0.0
     waves_flag = 1.0 if p[L.P_TUBE_WAVES] == 1.0 else 0.0
@@ -130,6 +140,7 @@ def env_constants(params, env, substep_s):
         p[L.P_VALVE_NULL_LEAK_AREA_M2], p[L.P_ROD_SEAL_LEAK_AREA_M2], float(flow_law),
         p[L.P_SUPPLY_RESISTANCE_PA_S_PER_KG], coil_lag_flag,
         coil_decay(coil_tau, 0.5 * substep_s), coil_decay(coil_tau, substep_s),
+        force_lag_flag, force_rate, force_rate_difference,
         energy_flag, gas, temperature, heat_conductance,
         p[L.P_STATIC_FRICTION_N], stribeck_flag, stribeck_v,
         spool_play_band(p[L.P_SPOOL_COULOMB_FRICTION_N], p[L.P_COIL_FORCE_N_PER_A]),
@@ -459,7 +470,7 @@ def base_model_only(c):
     """
     return (c.energy == 0.0 and c.supply_resistance == 0.0 and c.literal == 0.0
             and c.leak_area == 0.0 and c.seal_leak == 0.0 and c.null_leak == 0.0
-            and c.coil_lag == 0.0 and c.stribeck == 0.0 and c.flow_law == FLOW_LAW_PAPER
+            and c.coil_lag == 0.0 and c.coil_force_lag == 0.0 and c.stribeck == 0.0 and c.flow_law == FLOW_LAW_PAPER
             and c.waves == 0.0
             and c.half_width >= c.hole_radius and c.delay_substeps >= 1.0)
 
@@ -563,35 +574,46 @@ def _axpy(y, h, k):
 
 
 @njit(cache=True, inline="always")
-def _coil_at(c, command_a, coil_start_a, frac):
-    """Coil current ``frac`` of a substep after ``coil_start_a`` (exact first-order lag)."""
-    if not c.coil_lag:
-        return command_a
+def _coil_at(c, command_a, coil_start, frac):
+    """(coil current, force current) ``frac`` of a substep after ``coil_start`` = their values
+    at the substep's start: the exact solution of the coil lag and the force lag behind it
+    (``lagged_coil_current``, ``lagged_coil_force_current``); the force current drives the
+    spool. Without a lag a current is the command (and the force current the coil current)."""
+    if not c.coil_lag and not c.coil_force_lag:
+        return command_a, command_a
     if frac == 0.0:
-        return coil_start_a
+        return coil_start
     if frac == 0.5:
-        return lagged_coil_current(command_a, coil_start_a, c.coil_decay_half)
-    if frac == 1.0:
-        return lagged_coil_current(command_a, coil_start_a, c.coil_decay_full)
-    return lagged_coil_current(command_a, coil_start_a, c.coil_decay_full ** frac)
+        decay = c.coil_decay_half
+    elif frac == 1.0:
+        decay = c.coil_decay_full
+    else:
+        decay = c.coil_decay_full ** frac
+    coil = lagged_coil_current(command_a, coil_start[0], decay)
+    if not c.coil_force_lag:
+        return coil, coil
+    return coil, lagged_coil_force_current(
+        command_a, coil_start[0], coil_start[1], math.exp(-frac * c.force_rate),
+        coil_force_gain(decay, frac * c.force_rate, frac * c.force_rate_difference))
 
 
 @njit(cache=True)
-def _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start_a, y, y0, direction):
+def _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start, y, y0, direction):
     """One classical RK4 step over substep fractions [frac0, frac0 + dfrac] (h: substep, s).
 
-    ``y0`` is the state at the substep boundary ``head`` (the delay interpolation's anchor).
+    ``y0`` is the state at the substep boundary ``head`` (the delay interpolation's anchor);
+    ``coil_start`` the (coil, force) currents there (``_coil_at``).
     """
     hh = dfrac * h
     fm = frac0 + 0.5 * dfrac
     fe = frac0 + dfrac
-    k1 = _stage(c, history, env, head, frac0, _coil_at(c, command_a, coil_start_a, frac0), y, y0,
-                direction)
-    k2 = _stage(c, history, env, head, fm, _coil_at(c, command_a, coil_start_a, fm),
+    k1 = _stage(c, history, env, head, frac0, _coil_at(c, command_a, coil_start, frac0)[1], y,
+                y0, direction)
+    k2 = _stage(c, history, env, head, fm, _coil_at(c, command_a, coil_start, fm)[1],
                 _axpy(y, 0.5 * hh, k1), y0, direction)
-    k3 = _stage(c, history, env, head, fm, _coil_at(c, command_a, coil_start_a, fm),
+    k3 = _stage(c, history, env, head, fm, _coil_at(c, command_a, coil_start, fm)[1],
                 _axpy(y, 0.5 * hh, k2), y0, direction)
-    k4 = _stage(c, history, env, head, fe, _coil_at(c, command_a, coil_start_a, fe),
+    k4 = _stage(c, history, env, head, fe, _coil_at(c, command_a, coil_start, fe)[1],
                 _axpy(y, hh, k3), y0, direction)
     return _rk4_combine(c, y, k1, k2, k3, k4, hh, direction)
 
@@ -674,7 +696,7 @@ def refinement(c, y, h):
 
 
 @njit(cache=True)
-def _advance_interval(c, history, env, head, frac_start, frac_end, h, command_a, coil_start_a,
+def _advance_interval(c, history, env, head, frac_start, frac_end, h, command_a, coil_start,
                       y, y0):
     """Integrate substep fractions [frac_start, frac_end], splitting at piston events.
 
@@ -691,7 +713,7 @@ def _advance_interval(c, history, env, head, frac_start, frac_end, h, command_a,
                        - external_force(c.mode, y[4], c.load_force, c.spring_k, c.spring_rest))
             direction = motion_direction(y[4], y[5], applied, c.stick_threshold, c.half_stroke)
         dfrac = frac_end - frac0
-        trial = _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start_a, y, y0,
+        trial = _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start, y, y0,
                      direction)
         theta = -1.0
         if direction != 0.0:
@@ -699,24 +721,24 @@ def _advance_interval(c, history, env, head, frac_start, frac_end, h, command_a,
         if theta < 0.0:
             return trial
         if theta * dfrac > MIN_EVENT_FRACTION:
-            y = _rk4(c, history, env, head, frac0, theta * dfrac, h, command_a, coil_start_a,
+            y = _rk4(c, history, env, head, frac0, theta * dfrac, h, command_a, coil_start,
                      y, y0, direction)
             frac0 += theta * dfrac
         x, v = apply_event(y[4], y[5], direction, c.half_stroke)
         y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
     # out of events: the rest of the interval with the piston held
-    return _rk4(c, history, env, head, frac0, frac_end - frac0, h, command_a, coil_start_a, y,
+    return _rk4(c, history, env, head, frac0, frac_end - frac0, h, command_a, coil_start, y,
                 y0, 0.0)
 
 
 @njit(cache=True)
-def _split_substep(c, history, env, head_sub, h, command_a, coil_start_a, y0, parts):
+def _split_substep(c, history, env, head_sub, h, command_a, coil_start, y0, parts):
     """One substep from ``y0`` by the general path, in ``parts`` equal parts
     (``refinement``), each split further at piston events (``_advance_interval``)."""
     y = y0
     for part in range(parts):
         y = _advance_interval(c, history, env, head_sub, part / parts, (part + 1) / parts, h,
-                              command_a, coil_start_a, y, y0)
+                              command_a, coil_start, y, y0)
     return y
 
 
@@ -775,16 +797,16 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
     y = (state[L.S_X_S, env], state[L.S_V_S, env], state[L.S_P1, env], state[L.S_P2, env],
          state[L.S_X, env], state[L.S_V, env], state[L.S_EXHAUST, env], state[L.S_T1, env],
          state[L.S_T2, env])
-    coil = state[L.S_COIL, env]
+    coil = (state[L.S_COIL, env], state[L.S_COIL_FORCE, env])
     for sub in range(n_substeps):
         head_sub = ring_slot(head + sub, n_slots)
-        coil_start = coil if c.coil_lag else coil_current_a
+        coil_start = (coil[0] if c.coil_lag else coil_current_a,
+                      coil[1] if c.coil_force_lag else (coil[0] if c.coil_lag else coil_current_a))
         y = _split_substep(c, history, env, head_sub, h, coil_current_a, coil_start, y,
                            refinement(c, y, h))
-        if c.coil_lag:
-            coil = _coil_at(c, coil_current_a, coil_start, 1.0)
+        coil = _coil_at(c, coil_current_a, coil_start, 1.0)
         y = _close_substep(c, history, env, ring_slot(head_sub + 1, n_slots), y)
-    _store_state(c, state, env, y, coil if c.coil_lag else coil_current_a, outputs)
+    _store_state(c, state, env, y, coil, outputs)
 
 
 CHUNK_ENVS = 64  # environments advanced together by the batch path (their arrays stay in L1/L2)
@@ -821,8 +843,8 @@ def load_constants(constants, lane):
         constants[48 * k + lane], constants[49 * k + lane], constants[50 * k + lane], constants[51 * k + lane],
         constants[52 * k + lane], constants[53 * k + lane], constants[54 * k + lane], constants[55 * k + lane],
         constants[56 * k + lane], constants[57 * k + lane], constants[58 * k + lane], constants[59 * k + lane],
-        constants[60 * k + lane], constants[61 * k + lane], constants[62 * k + lane],
-        constants[63 * k + lane])
+        constants[60 * k + lane], constants[61 * k + lane], constants[62 * k + lane], constants[63 * k + lane],
+        constants[64 * k + lane], constants[65 * k + lane], constants[66 * k + lane])
 
 
 # Rows of the batch path's work array, a flat array of N_WORK rows of CHUNK_ENVS lanes: the
@@ -1010,24 +1032,27 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
                 c = load_constants(chunk_constants, j)
                 y0 = _work_rows(work, W_START, j)
                 current = work[W_CURRENT * CHUNK_ENVS + j]
-                y = _split_substep(c, history, env, head_sub, h, current, current, y0,
-                                   refinement(c, y0, h))
+                y = _split_substep(c, history, env, head_sub, h, current, (current, current),
+                                   y0, refinement(c, y0, h))
                 _set_work_rows(work, 0, j, _close_substep(c, history, env, slot, y))
             else:  # the stops were applied by _end_substeps
                 _record_history(history, env, slot, work[L.S_X_S * CHUNK_ENVS + j],
                                 work[L.S_P1 * CHUNK_ENVS + j], work[L.S_P2 * CHUNK_ENVS + j])
     for j in range(n):
         if fast[j] != 0.0:
+            current = work[W_CURRENT * CHUNK_ENVS + j]
             _store_state(load_constants(chunk_constants, j), state, first + j,
-                         _work_rows(work, 0, j), work[W_CURRENT * CHUNK_ENVS + j], outputs)
+                         _work_rows(work, 0, j), (current, current), outputs)
 
 
 @njit(cache=True)
-def _store_state(c, state, env, y, coil_a, outputs):
-    """Write the integrated rows and the coil current back, and the outputs row (Eq. 1)."""
+def _store_state(c, state, env, y, coil, outputs):
+    """Write the integrated rows and the (coil, force) currents back, and the outputs row
+    (Eq. 1)."""
     for row in range(N_RK):
         state[row, env] = y[row]
-    state[L.S_COIL, env] = coil_a
+    state[L.S_COIL, env] = coil[0]
+    state[L.S_COIL_FORCE, env] = coil[1]
     f_p = pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
     outputs[L.O_P1, env] = y[2]
     outputs[L.O_P2, env] = y[3]

@@ -68,7 +68,8 @@ PARAMETER_NAMES = (
     "flow_law",  # 0: paper Eq. 52, 1: ISO 6358 (elliptic, critical ratio b)
     "iso_critical_ratio_b",
     "supply_resistance_pa_s_per_kg",  # supply droop P_s - R_sup mdot_supply
-    "coil_time_constant_s",  # first-order coil current lag
+    "coil_time_constant_s",  # total coil lag T = tau_c + tau_f (one lag of T at shape 0)
+    "coil_lag_shape",  # tau_c tau_f / T^2 in [0, 1/4]: 0 one lag, 1/4 two equal lags
     "wall_heat_transfer_w_per_k",  # lumped hA per chamber; > 0 switches the energy model on
     "stribeck_velocity_m_per_s",  # Stribeck velocity of the sliding friction
     "spool_coulomb_friction_n",  # spool friction: a play (hysteresis) of the spool's current
@@ -88,6 +89,7 @@ EFFECT_NEUTRAL_VALUES = {
     "flow_law": 0.0,
     "supply_resistance_pa_s_per_kg": 0.0,
     "coil_time_constant_s": 0.0,
+    "coil_lag_shape": 0.0,
     "wall_heat_transfer_w_per_k": 0.0,
     "stribeck_velocity_m_per_s": 0.0,
     "spool_coulomb_friction_n": 0.0,
@@ -120,6 +122,8 @@ STATE_NAMES = (
     "coil_current_a",  # current driving the spool: the held command through the spool play and
     # the coil lag (the held command unless spool_coulomb_friction_n or coil_time_constant_s > 0)
     "spool_play_current_a",  # output of the spool-friction play (the command while it is off)
+    "coil_force_current_a",  # the coil's force over K_f: the coil current through the force
+    # lag (the coil current unless coil_lag_shape > 0); it drives the spool
 )
 for _i, _name in enumerate(STATE_NAMES):
     _g["S_" + _name.upper()] = _i
@@ -133,6 +137,7 @@ S_V = S_PISTON_VELOCITY_M_PER_S
 S_EXHAUST = S_EXHAUST_MASS_KG
 S_COIL = S_COIL_CURRENT_A
 S_PLAY = S_SPOOL_PLAY_CURRENT_A
+S_COIL_FORCE = S_COIL_FORCE_CURRENT_A
 S_T1 = S_T1_K
 S_T2 = S_T2_K
 
