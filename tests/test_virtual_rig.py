@@ -59,6 +59,29 @@ def test_strength_zero_is_the_plant_without_the_effect():
             assert np.array_equal(zero.channels[ch], base.channels[ch]), (effect, ch)
 
 
+def test_rig_coil_without_its_hold_is_the_candidates_two_lags():
+    """The rig's coil (``_coil_plant``) is the kernel's cascade of a current lag and a force
+    lag when the amplifier's hold is one plant step; the hold delays it."""
+    from pneumatic_env.identification.virtual_rig import _coil_plant
+    from pneumatic_env.params import load_parameters, parameter_array
+    from pneumatic_env.physics import layout as L
+    from pneumatic_env.simulator import BatchSimulator
+    dt, total, share = 1e-4, 3e-3, 0.35
+    command = np.repeat([0.0, 0.8, -0.5, 0.3], 41)  # changes between amplifier updates
+    shape = share * (1.0 - share)
+    sim = BatchSimulator(parameter_array([load_parameters(coil_time_constant_s=total,
+                                                          coil_lag_shape=shape)]), dt, 2,
+                         parallel=False)
+    force = []
+    for u in command:
+        sim.step(np.array([u]))
+        force.append(sim.state[L.S_COIL_FORCE, 0])
+    rig = _coil_plant(command, total, dt, dt, share)
+    np.testing.assert_allclose(rig, force, atol=1e-9)
+    held = _coil_plant(command, total, dt, 2e-4, share)
+    assert np.abs(held - rig).max() > 1e-3  # the hold is a form difference
+
+
 def test_rig_spool_friction_is_a_stick_slip_play():
     """Without a breakaway excess the rig's spool friction is the candidate's play; with it
     the spool sticks longer, then jumps to the Coulomb band and slides."""

@@ -23,8 +23,9 @@ How the plant differs from the fitting model:
   ================================  ==========================================================
   leakage, rod_seal_leak            laminar leak, flow proportional to the pressure
                                     difference, applied between plant steps (orifice, Eq. 39)
-  coil_lag                          two cascaded first-order lags of tau/2 on the current
-                                    (one first-order lag)
+  coil_lag                          the amplifier holds the current over its 0.2 ms period,
+                                    then a current lag and a force lag of 0.65 T and 0.35 T
+                                    (two cascaded lags of total T, no hold)
   pressure_sensor_lag               two cascaded lags of tau/2 at the plant rate (one lag at
                                     the sample rate)
   pressure_sensor_offset            offsets that drift by 10 % over the recording (constant)
@@ -51,7 +52,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.signal import lfilter
+from scipy.signal import cont2discrete, lfilter, lfilter_zi
 
 from pneumatic_env.params import load_parameters, parameter_array
 from pneumatic_env.physics import layout as L
@@ -177,6 +178,24 @@ def _two_lags(y: np.ndarray, total_tau_s: float, dt_s: float) -> np.ndarray:
     return y
 
 
+def _coil_plant(command_a: np.ndarray, total_tau_s: float, dt_s: float, amplifier_period_s: float,
+                force_share: float) -> np.ndarray:
+    """The current-equivalent of the rig's coil force at the end of each plant step: the
+    amplifier holds the command over each of its periods (a whole number of plant steps),
+    then a current lag of ``(1 - force_share) total_tau_s`` and a force lag of
+    ``force_share total_tau_s`` in series (their exact zero-order-hold discretisation),
+    starting at rest at the first command."""
+    hold = max(1, int(round(amplifier_period_s / dt_s)))
+    held = np.repeat(command_a[::hold], hold)[:command_a.size]
+    den = np.polymul([(1.0 - force_share) * total_tau_s, 1.0], [force_share * total_tau_s, 1.0])
+    num, den = cont2discrete(([1.0], np.trim_zeros(den, "f")), dt_s, method="zoh")[:2]
+    num = np.ravel(num)
+    # lfilter's y[n] is the value at sample n with the input held over the step before it
+    padded = np.append(held, held[-1])
+    y, _ = lfilter(num, den, padded, zi=lfilter_zi(num, den) * held[0])
+    return y[1:]
+
+
 def _stick_slip_play(current_a: np.ndarray, band_a: float, breakaway_a: float) -> np.ndarray:
     """The current a spool with Coulomb and static friction follows (quasi-static).
 
@@ -293,8 +312,10 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         true = load_parameters(cylinder, params=true)
 
     fine = np.repeat(i_c[:-1], ratio)
-    if effect == "coil_lag":
-        fine = _two_lags(fine, s * ref, plant_dt)
+    if effect == "coil_lag" and s > 0.0:
+        fine = _coil_plant(fine, s * ref, plant_dt,
+                           cfg.number("virtual_rig", "coil_amplifier_period_s", positive=True),
+                           cfg.number("virtual_rig", "coil_force_lag_share", minimum=0.0))
     truth_parameters = dict(true)
     if effect == "spool_friction":
         truth_parameters["spool_coulomb_friction_n"] = s * ref
