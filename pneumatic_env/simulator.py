@@ -50,7 +50,7 @@ class BatchSimulator:
         self.state = np.zeros((L.N_STATE, self.n_envs))
         self.outputs = np.zeros((L.N_OUTPUT, self.n_envs))
         self.head = 0
-        self.history = np.zeros((self.n_envs, self._slots_needed(), L.N_HISTORY))
+        self.history = np.zeros((self._slots_needed(), L.N_HISTORY, self.n_envs))
         # the kernel's per-environment constants, refreshed when a parameter column changes
         self.constants_key, self.constants = kernel.constants_cache(self.n_envs)
         self.time_s = np.zeros(self.n_envs)
@@ -99,14 +99,13 @@ class BatchSimulator:
             self.params[:, envs] = previous  # a refused change leaves the batch as it was
             raise
         slots = self._slots_needed()
-        if slots > self.history.shape[1]:  # a longer tube than the buffer holds: grow it
-            grown = np.zeros((self.n_envs, slots, L.N_HISTORY))
-            for i in range(self.n_envs):  # unroll each ring so the newest sample stays at head
-                order = (self.head - np.arange(self.history.shape[1])) % self.history.shape[1]
-                newest_first = self.history[i, order]
-                pad = np.repeat(newest_first[-1:], slots - len(order), axis=0)
-                grown_newest_first = np.concatenate([newest_first, pad])
-                grown[i, (self.head - np.arange(slots)) % slots] = grown_newest_first
+        if slots > self.history.shape[0]:  # a longer tube than the buffer holds: grow it
+            # unroll the ring so the newest sample stays at head; pad with the oldest
+            order = (self.head - np.arange(self.history.shape[0])) % self.history.shape[0]
+            newest_first = self.history[order]
+            pad = np.repeat(newest_first[-1:], slots - len(order), axis=0)
+            grown = np.empty((slots, L.N_HISTORY, self.n_envs))
+            grown[(self.head - np.arange(slots)) % slots] = np.concatenate([newest_first, pad])
             self.history = grown
 
     # -- state ---------------------------------------------------------------------------
@@ -148,12 +147,12 @@ class BatchSimulator:
             col[L.S_X_S], col[L.S_P1], col[L.S_P2] = s["x_s"], s["p1"], s["p2"]
             col[L.S_X], col[L.S_V] = s["x"], s["v"]
             col[L.S_T1] = col[L.S_T2] = p[L.P_TEMPERATURE_K]  # gas temperatures (effects)
-            self.history[int(env), :, L.H_X_S] = s["x_s"]
-            self.history[int(env), :, L.H_P1] = s["p1"]
-            self.history[int(env), :, L.H_P2] = s["p2"]
+            self.history[:, L.H_X_S, int(env)] = s["x_s"]
+            self.history[:, L.H_P1, int(env)] = s["p1"]
+            self.history[:, L.H_P2, int(env)] = s["p2"]
             # the lines at rest: every wave is the pressure of its end (no flow)
-            self.history[int(env), :, [L.H_WAVE_VALVE_1, L.H_WAVE_CHAMBER_1]] = s["p1"]
-            self.history[int(env), :, [L.H_WAVE_VALVE_2, L.H_WAVE_CHAMBER_2]] = s["p2"]
+            self.history[:, [L.H_WAVE_VALVE_1, L.H_WAVE_CHAMBER_1], int(env)] = s["p1"]
+            self.history[:, [L.H_WAVE_VALVE_2, L.H_WAVE_CHAMBER_2], int(env)] = s["p2"]
             self.time_s[int(env)] = 0.0
             self._write_outputs(int(env))
 
@@ -192,7 +191,7 @@ class BatchSimulator:
 
     def advance_clock(self, n_steps: int = 1) -> None:
         """Move the ring-buffer head and the clocks after the kernel advanced ``n_steps`` periods."""
-        self.head = (self.head + n_steps * self.n_substeps) % self.history.shape[1]
+        self.head = (self.head + n_steps * self.n_substeps) % self.history.shape[0]
         self.time_s += n_steps * self.control_dt_s
 
     def rollout(self, coil_current_a: np.ndarray) -> np.ndarray:

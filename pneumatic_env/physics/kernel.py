@@ -531,11 +531,11 @@ def delayed_value(history, env, channel, head, stage_substeps, delay_substeps, v
         if stage_substeps <= 0.0:
             return value_at_head
         return value_at_head + (query / stage_substeps) * (value_at_stage - value_at_head)
-    n_slots = history.shape[1]
+    n_slots = history.shape[0]
     base = math.floor(query)
     weight = query - base
-    lower = history[env, ring_slot(head + int(base), n_slots), channel]
-    upper = history[env, ring_slot(head + int(base) + 1, n_slots), channel]
+    lower = history[ring_slot(head + int(base), n_slots), channel, env]
+    upper = history[ring_slot(head + int(base) + 1, n_slots), channel, env]
     return lower + weight * (upper - lower)
 
 
@@ -745,9 +745,9 @@ def _split_substep(c, history, env, head_sub, h, command_a, coil_start, y0, part
 @njit(cache=True, forceinline=True)
 def _record_history(history, env, slot, x_s, p1, p2):
     """Write the delay history of ``env`` at ring-buffer slot ``slot`` (a substep boundary)."""
-    history[env, slot, L.H_X_S] = x_s
-    history[env, slot, L.H_P1] = p1
-    history[env, slot, L.H_P2] = p2
+    history[slot, L.H_X_S, env] = x_s
+    history[slot, L.H_P1, env] = p1
+    history[slot, L.H_P2, env] = p2
 
 
 @njit(cache=True)
@@ -759,10 +759,10 @@ def _close_substep(c, history, env, slot, y):
     if c.waves:  # the waves the line ends send at this boundary
         flow_1, flow_2, _, port_1, q_1, port_2, q_2 = line_flows(
             c, y[0], _arriving_waves(c, history, env, slot, 0.0), y[2], y[3])
-        history[env, slot, L.H_WAVE_VALVE_1] = _sent_wave(c, port_1, q_1)
-        history[env, slot, L.H_WAVE_VALVE_2] = _sent_wave(c, port_2, q_2)
-        history[env, slot, L.H_WAVE_CHAMBER_1] = _sent_wave(c, y[2], -flow_1)
-        history[env, slot, L.H_WAVE_CHAMBER_2] = _sent_wave(c, y[3], -flow_2)
+        history[slot, L.H_WAVE_VALVE_1, env] = _sent_wave(c, port_1, q_1)
+        history[slot, L.H_WAVE_VALVE_2, env] = _sent_wave(c, port_2, q_2)
+        history[slot, L.H_WAVE_CHAMBER_1, env] = _sent_wave(c, y[2], -flow_1)
+        history[slot, L.H_WAVE_CHAMBER_2, env] = _sent_wave(c, y[3], -flow_2)
     _record_history(history, env, slot, y[0], y[2], y[3])
     return y
 
@@ -793,7 +793,7 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
     h = control_dt_s / n_substeps
     c = env_constants(params, env, h)
     coil_current_a = spool_command(c.spool_play_band, state, env, coil_current_a)
-    n_slots = history.shape[1]
+    n_slots = history.shape[0]
     y = (state[L.S_X_S, env], state[L.S_V_S, env], state[L.S_P1, env], state[L.S_P2, env],
          state[L.S_X, env], state[L.S_V, env], state[L.S_EXHAUST, env], state[L.S_T1, env],
          state[L.S_T2, env])
@@ -992,7 +992,7 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
     """
     n = stop - first
     h = control_dt_s / n_substeps
-    n_slots = history.shape[1]
+    n_slots = history.shape[0]
     chunk_constants = constants[first // CHUNK_ENVS]
     refresh_constants(params, first, stop, h, key, chunk_constants)
     fast = chunk_constants[C_BASE_ONLY * CHUNK_ENVS:]

@@ -1,9 +1,10 @@
 """Array layout of the physics core: parameter rows, state rows, history channels.
 
 The kernel works on struct-of-arrays with the environments innermost:
-``params[P_*, n_envs]`` and ``state[S_*, n_envs]``; the tube-delay history is kept per
-environment, ``history[env, slot, H_*]``, because each environment reads its own delay
-(per-lane reads in the kernel's batch path). Row indices are module-level integer constants so
+``params[P_*, n_envs]``, ``state[S_*, n_envs]`` and the tube-delay ring buffer
+``history[slot, H_*, n_envs]``: the batch path writes one slot of a chunk's lanes at every
+substep boundary and reads the lanes' delayed slots, which lie side by side for equal
+delays. Row indices are module-level integer constants so
 Numba compiles them as literals. ``PARAMETER_NAMES`` is the single list that the YAML
 configs (``configs/``), the loader and the kernel agree on; every name carries its unit.
 
