@@ -592,3 +592,24 @@ def test_batch_path_reproduces_the_general_path_bit_for_bit():
         moved |= bool(np.any(batch.outputs[L.O_V, 1:] != 0.0))
     np.testing.assert_array_equal(batch.state, general.state)
     assert moved  # the free and spring rods really moved (events, stops, sticking)
+
+
+def test_a_longer_tube_grows_the_delay_buffer_without_disturbing_the_others():
+    """``set_params`` with a tube longer than the ring buffer holds grows the buffer; the
+    other environments go on bit for bit as if nothing had changed (their history is kept
+    in order, newest sample at the head)."""
+    short = load_parameters(tube_length_m=0.5)
+    grown = BatchSimulator(parameter_array([short, short]), 1e-3, 5, parallel=False)
+    alone = BatchSimulator(parameter_array([short, short]), 1e-3, 5, parallel=False)
+    currents = 0.6 * np.sin(np.arange(60) * 0.3)
+    for k in range(30):
+        grown.step(np.full(2, currents[k]))
+        alone.step(np.full(2, currents[k]))
+    slots = grown.history.shape[0]
+    grown.set_params([0], parameter_array([load_parameters(tube_length_m=3.0)]))
+    grown.reset([0])
+    assert grown.history.shape[0] > slots
+    for k in range(30, 60):
+        grown.step(np.full(2, currents[k]))
+        alone.step(np.full(2, currents[k]))
+        np.testing.assert_array_equal(grown.outputs[:, 1], alone.outputs[:, 1])

@@ -470,8 +470,8 @@ def base_model_only(c):
     """
     return (c.energy == 0.0 and c.supply_resistance == 0.0 and c.literal == 0.0
             and c.leak_area == 0.0 and c.seal_leak == 0.0 and c.null_leak == 0.0
-            and c.coil_lag == 0.0 and c.coil_force_lag == 0.0 and c.stribeck == 0.0 and c.flow_law == FLOW_LAW_PAPER
-            and c.waves == 0.0
+            and c.coil_lag == 0.0 and c.coil_force_lag == 0.0 and c.stribeck == 0.0
+            and c.flow_law == FLOW_LAW_PAPER and c.waves == 0.0
             and c.half_width >= c.hole_radius and c.delay_substeps >= 1.0)
 
 
@@ -800,8 +800,8 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
     coil = (state[L.S_COIL, env], state[L.S_COIL_FORCE, env])
     for sub in range(n_substeps):
         head_sub = ring_slot(head + sub, n_slots)
-        coil_start = (coil[0] if c.coil_lag else coil_current_a,
-                      coil[1] if c.coil_force_lag else (coil[0] if c.coil_lag else coil_current_a))
+        coil_now = coil[0] if c.coil_lag else coil_current_a  # the command without a lag
+        coil_start = (coil_now, coil[1] if c.coil_force_lag else coil_now)
         y = _split_substep(c, history, env, head_sub, h, coil_current_a, coil_start, y,
                            refinement(c, y, h))
         coil = _coil_at(c, coil_current_a, coil_start, 1.0)

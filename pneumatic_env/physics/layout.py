@@ -120,8 +120,8 @@ STATE_NAMES = (
     "exhaust_mass_kg",  # air let out of both chambers since reset (air consumption)
     "t1_k",  # chamber gas temperatures (temperature_k unless wall_heat_transfer_w_per_k > 0)
     "t2_k",
-    "coil_current_a",  # current driving the spool: the held command through the spool play and
-    # the coil lag (the held command unless spool_coulomb_friction_n or coil_time_constant_s > 0)
+    "coil_current_a",  # coil current: the held command through the spool play and the coil
+    # lag (the held command unless spool_coulomb_friction_n or coil_time_constant_s > 0)
     "spool_play_current_a",  # output of the spool-friction play (the command while it is off)
     "coil_force_current_a",  # the coil's force over K_f: the coil current through the force
     # lag (the coil current unless coil_lag_shape > 0); it drives the spool
