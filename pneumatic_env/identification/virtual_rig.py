@@ -312,11 +312,15 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         true = load_parameters(cylinder, params=true)
 
     fine = np.repeat(i_c[:-1], ratio)
+    truth_parameters = dict(true)
     if effect == "coil_lag" and s > 0.0:
+        share = cfg.number("virtual_rig", "coil_force_lag_share", minimum=0.0)
         fine = _coil_plant(fine, s * ref, plant_dt,
                            cfg.number("virtual_rig", "coil_amplifier_period_s", positive=True),
-                           cfg.number("virtual_rig", "coil_force_lag_share", minimum=0.0))
-    truth_parameters = dict(true)
+                           share)
+        # the nearest kernel coil (the amplifier's hold has no kernel parameter)
+        truth_parameters.update(coil_time_constant_s=s * ref,
+                                coil_lag_shape=share * (1.0 - share))
     if effect == "spool_friction":
         truth_parameters["spool_coulomb_friction_n"] = s * ref
         band = s * ref / true["coil_force_n_per_a"]
