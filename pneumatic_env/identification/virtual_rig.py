@@ -84,9 +84,6 @@ RIG_EFFECTS = ("none", "leakage", "rod_seal_leak", "coil_lag", "spool_friction",
                "pressure_sensor_offset",
                "pressure_sensor_lag", "channel_time_skew", "load_cell_compliance",
                "supply_ripple", *KERNEL_EFFECTS)
-#: Static / Coulomb friction of the rig's spool (spool_friction): assumed, a typical
-#: breakaway excess of seals, so that the plant is not the candidate's play.
-SPOOL_BREAKAWAY_RATIO = 1.3
 EXCITATIONS = ("identification", "steps", "prbs", "multisine", "chirp", "triangle")
 _SEGMENTS = ("rest", "step_pos", "step_neg", "prbs", "multisine", "chirp", "triangle")
 
@@ -324,7 +321,8 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
     if effect == "spool_friction":
         truth_parameters["spool_coulomb_friction_n"] = s * ref
         band = s * ref / true["coil_force_n_per_a"]
-        fine = _stick_slip_play(fine, band, SPOOL_BREAKAWAY_RATIO * band)
+        breakaway = cfg.number("virtual_rig", "spool_breakaway_ratio", minimum=1.0)
+        fine = _stick_slip_play(fine, band, breakaway * band)
     sim = BatchSimulator(parameter_array([true]), plant_dt,
                          int(cfg.number("virtual_rig", "plant_substeps", positive=True)))
     first = sim.outputs[:, 0].copy()
