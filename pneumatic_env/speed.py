@@ -31,7 +31,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
+from numba import njit, types
 
 from .convergence import TOLERANCE_PERCENT
 from .physics import layout as L
@@ -69,27 +69,32 @@ VECTOR_OPS = ("vdiv", "vsqrt", "vother")  # SIMD instructions of the vectorised 
 # 1. The vectorised loops (VECTOR_LOOPS, every branch computed and selected): per
 #    substep, kernel._begin_substeps (start state, piston direction, stiffness test),
 #    kernel._base_substeps_vectorised (one RK4 substep of kernel.base_derivatives for every
-#    lane) and kernel._end_substeps (event test, end stops). Their work is not counted by
-#    hand: vector_loop_instructions() reads the SIMD instructions of the compiled loops
+#    lane), kernel._end_substeps (event test, end stops) and kernel._record_fast_history
+#    (the delay history, once per channel). Their work is not counted by hand:
+#    vector_loop_instructions() reads the SIMD instructions of the compiled loops
 #    (divisions, square roots, the rest).
 # 2. Scalar work per lane, counted here by reading pneumatic_env/physics/kernel.py with
 #    the rod clamped (no piston events) and no stiff substep. "flop" is an add, subtract,
-#    multiply, compare, min, max, abs or floor; "div" a floating-point division; "imod" an
-#    integer modulo; pow (``**``) counts as one exp and one log. Expressions of the
-#    per-environment constants alone are not counted. Update this table when
-#    advance_chunk changes.
+#    multiply, compare, select, min, max, abs, floor or conversion; "div" a floating-point
+#    division; "imod" an integer modulo; pow (``**``) counts as one exp and one log.
+#    Expressions of the per-environment constants alone are not counted. Update this
+#    table when advance_chunk changes.
 KERNEL_WORK = {
-    # per lane and substep, kernel.advance_chunk: three kernel.delayed_value ring-buffer
-    # reads (the query, its test, floor, weight, interpolation: 7; two kernel.ring_slot
-    # wraps, add and up to 3 compares each: 8), the lane's two path tests
-    "lane_substep:fixed": {"flop": 3 * (7 + 8) + 2},
+    # per lane and substep: kernel._delayed_spool_rows (LLVM does not vectorise its
+    # gathers from the ring buffer), per stage: the query, floor, weight, conversion to an
+    # integer, the slot and its wrap (add, compare, select), the next slot and its wrap,
+    # the interpolation (3) and the test of a query at head + 1 (compare, select): 15;
+    # then advance_chunk's two tests of the lane's path (general path or redone)
+    "lane_substep:fixed": {"flop": 3 * 15 + 2},
     # per lane and control period: kernel.refresh_constants comparing the key (a compare
     # per parameter and the substep; kernel.env_constants runs only when they changed),
     # the path test, kernel.spool_command (the spool play: two adds, a min and a max),
     # kernel._store_state and the outputs (piston.pneumatic_force, piston.output_force)
     "control_step:cache": {"flop": L.N_PARAMS + 1 + 1 + 4 + 7},
 }
-VECTOR_LOOPS = ("_begin_substeps", "_base_substeps_vectorised", "_end_substeps")  # in kernel
+# the vectorised loops in kernel, each with its calls per substep
+VECTOR_LOOPS = {"_begin_substeps": 1, "_base_substeps_vectorised": 1, "_end_substeps": 1,
+                "_record_fast_history": 3}
 
 
 # --------------------------------------------------------------------------- options
@@ -605,6 +610,12 @@ def _sample_regimes(sim, currents: np.ndarray, steps: int = 8, envs: int = 128) 
 SIMD_REGISTERS = (("%zmm", 8), ("%ymm", 4), ("%xmm", 2))  # register name, float64 lanes
 
 
+# the Numba type of each argument of the VECTOR_LOOPS, by name
+_LOOP_ARGUMENT_TYPES = {"constants": types.float64[::1], "work": types.float64[::1],
+                        "history_row": types.float64[::1], "n_lanes": types.int64,
+                        "work_row": types.int64, "h": types.float64}
+
+
 def vector_loop_instructions() -> dict:
     """SIMD instructions of the batch path's vectorised loops, by class (from their assembly).
 
@@ -612,19 +623,17 @@ def vector_loop_instructions() -> dict:
     show the assembly of cached code) with the argument types the kernel passes. Every
     instruction on the widest vector registers present counts; on x86 with AVX2 that is
     one iteration of each vector body (4 lanes) plus its few loop-invariant broadcasts.
-    Returns the counts per class (summed over the loops), the lanes per iteration and
-    whether every loop was vectorised.
+    Returns the counts per class per substep (summed over the loops, times their calls per
+    substep), the lanes per iteration and whether every loop was vectorised.
     """
-    from numba import types
-
     from .physics import kernel
     counts = dict.fromkeys(VECTOR_OPS, 0)
     found = []
-    for name in VECTOR_LOOPS:
+    for name, calls in VECTOR_LOOPS.items():
         py_func = getattr(kernel, name).py_func
         fn = njit(error_model="numpy")(py_func)
-        signature = (types.float64[::1], types.float64[::1], types.int64, types.float64)
-        signature = signature[:py_func.__code__.co_argcount]  # (constants, work, n_lanes[, h])
+        arguments = py_func.__code__.co_varnames[:py_func.__code__.co_argcount]
+        signature = tuple(_LOOP_ARGUMENT_TYPES[a] for a in arguments)
         fn.compile(signature)
         lines = [line.split() for line in fn.inspect_asm(signature).splitlines()
                  if line.startswith("\t") and not line.startswith("\t.")]
@@ -638,7 +647,7 @@ def vector_loop_instructions() -> dict:
         for parts in body:
             op = parts[0]
             counts["vdiv" if op.startswith("vdivp") or op == "divpd" else
-                   "vsqrt" if op.startswith("vsqrtp") or op == "sqrtpd" else "vother"] += 1
+                   "vsqrt" if op.startswith("vsqrtp") or op == "sqrtpd" else "vother"] += calls
     return {"counts": counts, "lanes": min(found), "vectorised": min(found) > 1}
 
 
@@ -850,7 +859,9 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
                "**a loop was not vectorised on this machine**")
         lines += ["", f"## Kernel ceiling (N={res['vector']['regime_n']}, 1 thread, serial kernel)",
                   "", "Work per environment and substep: the SIMD instructions of the compiled "
-                  "vectorised loops (" + ", ".join(f"`kernel.{f}`" for f in VECTOR_LOOPS)
+                  "vectorised loops (" + ", ".join(
+                      f"`kernel.{f}`" + (f" {calls} times" if calls > 1 else "")
+                      for f, calls in VECTOR_LOOPS.items())
                   + f"; {how}), divided by their lanes, and the scalar work per lane counted "
                   "in `KERNEL_WORK` "
                   "(`pneumatic_env/speed.py`); each at its throughput measured in a Numba loop "

@@ -866,6 +866,7 @@ N_WORK = W_REDO + 1
 # environment's constants when its key changed, so parameters may change at any time.
 C_BASE_ONLY = N_CONSTANTS
 C_SPOOL_PLAY_BAND = Constants._fields.index("spool_play_band")  # read per control period
+C_DELAY_SUBSTEPS = Constants._fields.index("delay_substeps")  # read per substep
 N_CACHED_CONSTANTS = N_CONSTANTS + 1
 K_SUBSTEP = L.N_PARAMS  # the key row of the substep length (s)
 N_KEY = L.N_PARAMS + 1
@@ -974,6 +975,47 @@ def _end_substeps(constants, work, n_lanes):
         work[L.S_X * k + j], work[L.S_V * k + j] = end_of_substep(x, v, c.half_stroke)
 
 
+@njit(cache=True, error_model="numpy")
+def _delayed_spool_rows(constants, work, history, first, n_lanes, head_sub):
+    """For every lane of a chunk, the delayed spool position x_s(t - tau) at the substep's
+    start, middle and end (``delayed_value`` with a delay of at least one substep, as
+    ``base_model_only`` requires). Branch-free, so no lane waits on a mispredicted
+    branch; the ring buffer's reads are gathers, which LLVM keeps scalar."""
+    n_slots = history.shape[0]
+    k = CHUNK_ENVS
+    for j in range(n_lanes):
+        delay_substeps = constants[C_DELAY_SUBSTEPS * k + j]
+        x_s = work[W_START * k + j]
+        for stage in range(3):  # substep fractions 0, 1/2, 1 (at or before head + 1)
+            query = 0.5 * stage - delay_substeps
+            base = math.floor(query)
+            weight = query - base
+            lower_slot = head_sub + int(base)  # in [-n_slots, n_slots)
+            lower_slot = lower_slot + n_slots if lower_slot < 0 else lower_slot
+            upper_slot = lower_slot + 1
+            upper_slot = 0 if upper_slot == n_slots else upper_slot
+            lower = history[lower_slot, L.H_X_S, first + j]
+            upper = history[upper_slot, L.H_X_S, first + j]
+            interpolated = lower + weight * (upper - lower)
+            # a query at head + 1 (a delay of exactly one substep) is the start's own value
+            work[(W_SPOOL_DELAYED + stage) * k + j] = x_s if query >= 0.0 else interpolated
+
+
+@njit(cache=True, error_model="numpy")
+def _record_fast_history(constants, work, n_lanes, work_row, history_row):
+    """Copy state row ``work_row`` of a chunk's lanes into ``history_row`` (that channel's
+    entries of the chunk at one ring slot, ``_record_history``) for the lanes the
+    vectorised substep advanced; the lanes of ``advance_env`` and the lanes the general
+    path redoes keep theirs. A loop LLVM vectorises (one row per loop: with more rows
+    written, it would not check their aliasing at run time)."""
+    k = CHUNK_ENVS
+    for j in range(n_lanes):
+        # both entries loaded and a bitwise or: no branch, so no conditional load
+        kept, advanced = history_row[j], work[work_row * k + j]
+        keep = (constants[C_BASE_ONLY * k + j] == 0.0) | (work[W_REDO * k + j] != 0.0)
+        history_row[j] = kept if keep else advanced
+
+
 @njit(cache=True)
 def advance_chunk(params, state, history, first, stop, head, coil_current_a, control_dt_s,
                   n_substeps, outputs, key, constants):
@@ -1013,31 +1055,21 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
     for sub in range(n_substeps):
         head_sub = ring_slot(head + sub, n_slots)
         _begin_substeps(chunk_constants, work, n, h)
-        for j in range(n):
-            if fast[j] != 0.0:
-                delay_substeps = load_constants(chunk_constants, j).delay_substeps
-                x_s = work[W_START * CHUNK_ENVS + j]
-                for stage in range(3):  # substep fractions 0, 1/2, 1 (all before head)
-                    work[(W_SPOOL_DELAYED + stage) * CHUNK_ENVS + j] = delayed_value(
-                        history, first + j, L.H_X_S, head_sub, 0.5 * stage, delay_substeps,
-                        x_s, x_s)
+        _delayed_spool_rows(chunk_constants, work, history, first, n, head_sub)
         _base_substeps_vectorised(chunk_constants, work, n, h)
         _end_substeps(chunk_constants, work, n)
         slot = ring_slot(head_sub + 1, n_slots)
+        for row, channel in ((L.S_X_S, L.H_X_S), (L.S_P1, L.H_P1), (L.S_P2, L.H_P2)):
+            _record_fast_history(chunk_constants, work, n, row, history[slot, channel, first:stop])
         for j in range(n):
-            if fast[j] == 0.0:
-                continue
-            env = first + j
-            if work[W_REDO * CHUNK_ENVS + j] != 0.0:
+            if fast[j] != 0.0 and work[W_REDO * CHUNK_ENVS + j] != 0.0:
+                env = first + j
                 c = load_constants(chunk_constants, j)
                 y0 = _work_rows(work, W_START, j)
                 current = work[W_CURRENT * CHUNK_ENVS + j]
                 y = _split_substep(c, history, env, head_sub, h, current, (current, current),
                                    y0, refinement(c, y0, h))
                 _set_work_rows(work, 0, j, _close_substep(c, history, env, slot, y))
-            else:  # the stops were applied by _end_substeps
-                _record_history(history, env, slot, work[L.S_X_S * CHUNK_ENVS + j],
-                                work[L.S_P1 * CHUNK_ENVS + j], work[L.S_P2 * CHUNK_ENVS + j])
     for j in range(n):
         if fast[j] != 0.0:
             current = work[W_CURRENT * CHUNK_ENVS + j]
