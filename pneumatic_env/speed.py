@@ -69,8 +69,11 @@ VECTOR_OPS = ("vdiv", "vsqrt", "vother")  # SIMD instructions of the vectorised 
 # 1. The vectorised loops (VECTOR_LOOPS, every branch computed and selected): per
 #    substep, kernel._begin_substeps (start state, piston direction, stiffness test),
 #    kernel._base_substeps_vectorised (one RK4 substep of kernel.base_derivatives for every
-#    lane), kernel._end_substeps (event test, end stops) and kernel._record_fast_history
-#    (the delay history, once per channel). Their work is not counted by hand:
+#    lane), kernel._end_substeps (event test, end stops) and kernel._copy_fast_lanes (the
+#    delay history, once per channel); per control period, kernel._accumulate_differing_bits
+#    (the constants cache's key, once per parameter), kernel._fast_commands (the spool
+#    play) and the state and outputs (kernel._copy_fast_lanes per row,
+#    kernel._fast_output_forces). Their work is not counted by hand:
 #    vector_loop_instructions() reads the SIMD instructions of the compiled loops
 #    (divisions, square roots, the rest).
 # 2. Scalar work per lane, counted here by reading pneumatic_env/physics/kernel.py with
@@ -86,15 +89,18 @@ KERNEL_WORK = {
     # the interpolation (3) and the test of a query at head + 1 (compare, select): 15;
     # then advance_chunk's two tests of the lane's path (general path or redone)
     "lane_substep:fixed": {"flop": 3 * 15 + 2},
-    # per lane and control period: kernel.refresh_constants comparing the key (a compare
-    # per parameter and the substep; kernel.env_constants runs only when they changed),
-    # the path test, kernel.spool_command (the spool play: two adds, a min and a max),
-    # kernel._store_state and the outputs (piston.pneumatic_force, piston.output_force)
-    "control_step:cache": {"flop": L.N_PARAMS + 1 + 1 + 4 + 7},
+    # per lane and control period: kernel.refresh_constants testing the key (its
+    # differing bits and the substep; kernel.env_constants runs only when they changed)
+    # and advance_chunk's test of the lane's path
+    "control_step:cache": {"flop": 3},
 }
-# the vectorised loops in kernel, each with its calls per substep
-VECTOR_LOOPS = {"_begin_substeps": 1, "_base_substeps_vectorised": 1, "_end_substeps": 1,
-                "_record_fast_history": 3}
+# the vectorised loops in kernel: calls per substep and per control period
+VECTOR_LOOPS = {"_begin_substeps": (1, 0), "_base_substeps_vectorised": (1, 0),
+                "_end_substeps": (1, 0), "_accumulate_differing_bits": (0, L.N_PARAMS),
+                "_fast_commands": (0, 1), "_fast_output_forces": (0, 1),
+                # 3 history channels per substep; per period the RK4 state rows, the two
+                # coil rows and the outputs that are state rows
+                "_copy_fast_lanes": (3, 9 + 2 + 6)}
 
 
 # --------------------------------------------------------------------------- options
@@ -611,9 +617,12 @@ SIMD_REGISTERS = (("%zmm", 8), ("%ymm", 4), ("%xmm", 2))  # register name, float
 
 
 # the Numba type of each argument of the VECTOR_LOOPS, by name
-_LOOP_ARGUMENT_TYPES = {"constants": types.float64[::1], "work": types.float64[::1],
-                        "history_row": types.float64[::1], "n_lanes": types.int64,
-                        "work_row": types.int64, "h": types.float64}
+_ROW = types.float64[::1]
+_LOOP_ARGUMENT_TYPES = {"constants": _ROW, "work": _ROW, "target_row": _ROW,
+                        "force_row": _ROW, "command_row": _ROW, "play_row": _ROW,
+                        "values": _ROW, "key_values": _ROW, "differing_bits": types.int64[::1],
+                        "n_lanes": types.int64, "work_row": types.int64,
+                        "keep_redone": types.boolean, "h": types.float64}
 
 
 def vector_loop_instructions() -> dict:
@@ -623,13 +632,14 @@ def vector_loop_instructions() -> dict:
     show the assembly of cached code) with the argument types the kernel passes. Every
     instruction on the widest vector registers present counts; on x86 with AVX2 that is
     one iteration of each vector body (4 lanes) plus its few loop-invariant broadcasts.
-    Returns the counts per class per substep (summed over the loops, times their calls per
-    substep), the lanes per iteration and whether every loop was vectorised.
+    Returns the counts per class of each loop, the lanes per iteration and whether every
+    loop was vectorised.
     """
     from .physics import kernel
-    counts = dict.fromkeys(VECTOR_OPS, 0)
+    loops = {}
     found = []
-    for name, calls in VECTOR_LOOPS.items():
+    for name in VECTOR_LOOPS:
+        counts = loops[name] = dict.fromkeys(VECTOR_OPS, 0)
         py_func = getattr(kernel, name).py_func
         fn = njit(error_model="numpy")(py_func)
         arguments = py_func.__code__.co_varnames[:py_func.__code__.co_argcount]
@@ -647,19 +657,22 @@ def vector_loop_instructions() -> dict:
         for parts in body:
             op = parts[0]
             counts["vdiv" if op.startswith("vdivp") or op == "divpd" else
-                   "vsqrt" if op.startswith("vsqrtp") or op == "sqrtpd" else "vother"] += calls
-    return {"counts": counts, "lanes": min(found), "vectorised": min(found) > 1}
+                   "vsqrt" if op.startswith("vsqrtp") or op == "sqrtpd" else "vother"] += 1
+    return {"loops": loops, "lanes": min(found), "vectorised": min(found) > 1}
 
 
 def kernel_ceiling(instructions: dict, op_ns: dict, n_substeps: int) -> dict:
     """Work per environment and substep and the time it takes at the measured cost per
     operation: a floor on the kernel's ns per substep (rod clamped, no stiff substep).
 
-    The vectorised loops' SIMD instructions (``vector_loop_instructions``) at their cost
-    per element, plus the scalar work per lane of ``KERNEL_WORK`` at the scalar costs.
+    The vectorised loops' SIMD instructions (``vector_loop_instructions``, times the
+    loops' calls per substep of ``VECTOR_LOOPS``) at their cost per element, plus the
+    scalar work per lane of ``KERNEL_WORK`` at the scalar costs.
     """
-    ops = {op: float(instructions["counts"][op]) for op in VECTOR_OPS}
-    ops.update(dict.fromkeys(OPS, 0.0))
+    ops = dict.fromkeys(VECTOR_OPS + OPS, 0.0)
+    for name, (per_substep, per_period) in VECTOR_LOOPS.items():
+        for op, count in instructions["loops"][name].items():
+            ops[op] += count * (per_substep + per_period / n_substeps)
     for op, count in KERNEL_WORK["lane_substep:fixed"].items():
         ops[op] += count
     for op, count in KERNEL_WORK["control_step:cache"].items():
@@ -860,8 +873,8 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
         lines += ["", f"## Kernel ceiling (N={res['vector']['regime_n']}, 1 thread, serial kernel)",
                   "", "Work per environment and substep: the SIMD instructions of the compiled "
                   "vectorised loops (" + ", ".join(
-                      f"`kernel.{f}`" + (f" {calls} times" if calls > 1 else "")
-                      for f, calls in VECTOR_LOOPS.items())
+                      f"`kernel.{f}`" for f in VECTOR_LOOPS) + ", each times its calls per "
+                  "substep in `VECTOR_LOOPS`"
                   + f"; {how}), divided by their lanes, and the scalar work per lane counted "
                   "in `KERNEL_WORK` "
                   "(`pneumatic_env/speed.py`); each at its throughput measured in a Numba loop "

@@ -880,20 +880,27 @@ def constants_cache(n_envs):
             np.zeros((n_chunks, N_CACHED_CONSTANTS * CHUNK_ENVS)))
 
 
+@njit(cache=True, error_model="numpy")
+def _accumulate_differing_bits(values, key_values, differing_bits):
+    """OR the bits in which ``values`` and ``key_values`` differ into ``differing_bits``
+    (zero where every value so far equals its key bit for bit). A loop LLVM vectorises."""
+    for j in range(differing_bits.shape[0]):
+        differing_bits[j] |= _float_to_bits(values[j]) ^ _float_to_bits(key_values[j])
+
+
 @njit(cache=True)
 def refresh_constants(params, first, stop, substep_s, key, constants):
     """Recompute the cached constants of environments ``first .. stop-1`` (one chunk;
     ``constants`` is its row of the cache) whose parameter column differs from the key bit
     for bit, or whose substep length does (a NaN key always does)."""
     n = stop - first
-    stale = np.zeros(n, dtype=np.bool_)
+    differing_bits = np.zeros(n, dtype=np.int64)
     for row in range(L.N_PARAMS):  # row by row: contiguous lanes
-        for j in range(n):
-            stale[j] |= (_float_to_bits(params[row, first + j])
-                         != _float_to_bits(key[row, first + j]))
+        _accumulate_differing_bits(params[row, first:stop], key[row, first:stop],
+                                   differing_bits)
     for j in range(n):
         env = first + j
-        if stale[j] or not key[K_SUBSTEP, env] == substep_s:
+        if differing_bits[j] != 0 or not key[K_SUBSTEP, env] == substep_s:
             c = env_constants(params, env, substep_s)
             store_constants(c, constants, j)
             constants[C_BASE_ONLY * CHUNK_ENVS + j] = 1.0 if base_model_only(c) else 0.0
@@ -1002,18 +1009,49 @@ def _delayed_spool_rows(constants, work, history, first, n_lanes, head_sub):
 
 
 @njit(cache=True, error_model="numpy")
-def _record_fast_history(constants, work, n_lanes, work_row, history_row):
-    """Copy state row ``work_row`` of a chunk's lanes into ``history_row`` (that channel's
-    entries of the chunk at one ring slot, ``_record_history``) for the lanes the
-    vectorised substep advanced; the lanes of ``advance_env`` and the lanes the general
-    path redoes keep theirs. A loop LLVM vectorises (one row per loop: with more rows
-    written, it would not check their aliasing at run time)."""
+def _copy_fast_lanes(constants, work, n_lanes, work_row, target_row, keep_redone):
+    """Copy row ``work_row`` of a chunk's lanes into ``target_row`` (one row of the chunk's
+    state, outputs or delay history at one ring slot) for the lanes of the batch path;
+    the lanes of ``advance_env`` keep theirs, and so do the lanes the general path redid
+    when ``keep_redone`` (it wrote their history itself). A loop LLVM vectorises (one row
+    per loop: with more rows written, it would not check their aliasing at run time)."""
     k = CHUNK_ENVS
     for j in range(n_lanes):
-        # both entries loaded and a bitwise or: no branch, so no conditional load
-        kept, advanced = history_row[j], work[work_row * k + j]
-        keep = (constants[C_BASE_ONLY * k + j] == 0.0) | (work[W_REDO * k + j] != 0.0)
-        history_row[j] = kept if keep else advanced
+        # both entries loaded and bitwise logic: no branch, so no conditional load
+        kept, advanced = target_row[j], work[work_row * k + j]
+        keep = ((constants[C_BASE_ONLY * k + j] == 0.0)
+                | (keep_redone & (work[W_REDO * k + j] != 0.0)))
+        target_row[j] = kept if keep else advanced
+
+
+@njit(cache=True, error_model="numpy")
+def _fast_commands(constants, work, n_lanes, command_row, play_row):
+    """The held command of each batch-path lane of a chunk as the spool sees it through
+    its play (``spool_command``), into row ``W_CURRENT``; ``play_row`` is the chunk's
+    state row ``spool_play_current_a`` (the lanes of ``advance_env`` keep theirs). A loop
+    LLVM vectorises."""
+    k = CHUNK_ENVS
+    for j in range(n_lanes):
+        held = play_row[j]
+        played = spool_play_current(held, command_row[j], constants[C_SPOOL_PLAY_BAND * k + j])
+        play_row[j] = held if constants[C_BASE_ONLY * k + j] == 0.0 else played
+        work[W_CURRENT * k + j] = played
+
+
+@njit(cache=True, error_model="numpy")
+def _fast_output_forces(constants, work, n_lanes, force_row):
+    """The force output (Eq. 1, ``output_force``) of each batch-path lane of a chunk into
+    ``force_row`` (the chunk's outputs row ``O_F``; the lanes of ``advance_env`` keep
+    theirs). A loop LLVM vectorises."""
+    k = CHUNK_ENVS
+    for j in range(n_lanes):
+        c = load_constants(constants, j)
+        y = _work_rows(work, 0, j)
+        force = output_force(c.mode, pneumatic_force(y[2], y[3], c.area_cap, c.area_rod,
+                                                     c.rod_area, c.ambient_pa),
+                             y[4], c.spring_k, c.spring_rest)
+        kept = force_row[j]
+        force_row[j] = kept if constants[C_BASE_ONLY * k + j] == 0.0 else force
 
 
 @njit(cache=True)
@@ -1044,14 +1082,11 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
         if fast[j] == 0.0:
             advance_env(params, state, history, env, head, coil_current_a[env], control_dt_s,
                         n_substeps, outputs)
-        else:
-            work[W_CURRENT * CHUNK_ENVS + j] = spool_command(
-                chunk_constants[C_SPOOL_PLAY_BAND * CHUNK_ENVS + j], state, env,
-                coil_current_a[env])
+    _fast_commands(chunk_constants, work, n, coil_current_a[first:stop],
+                   state[L.S_PLAY, first:stop])
     # lanes advance_env advanced are computed below too, and ignored
     for row in range(N_RK):
-        for j in range(n):
-            work[row * CHUNK_ENVS + j] = state[row, first + j]
+        work[row * CHUNK_ENVS:row * CHUNK_ENVS + n] = state[row, first:stop]
     for sub in range(n_substeps):
         head_sub = ring_slot(head + sub, n_slots)
         _begin_substeps(chunk_constants, work, n, h)
@@ -1060,7 +1095,8 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
         _end_substeps(chunk_constants, work, n)
         slot = ring_slot(head_sub + 1, n_slots)
         for row, channel in ((L.S_X_S, L.H_X_S), (L.S_P1, L.H_P1), (L.S_P2, L.H_P2)):
-            _record_fast_history(chunk_constants, work, n, row, history[slot, channel, first:stop])
+            _copy_fast_lanes(chunk_constants, work, n, row, history[slot, channel, first:stop],
+                             True)
         for j in range(n):
             if fast[j] != 0.0 and work[W_REDO * CHUNK_ENVS + j] != 0.0:
                 env = first + j
@@ -1070,11 +1106,19 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
                 y = _split_substep(c, history, env, head_sub, h, current, (current, current),
                                    y0, refinement(c, y0, h))
                 _set_work_rows(work, 0, j, _close_substep(c, history, env, slot, y))
-    for j in range(n):
-        if fast[j] != 0.0:
-            current = work[W_CURRENT * CHUNK_ENVS + j]
-            _store_state(load_constants(chunk_constants, j), state, first + j,
-                         _work_rows(work, 0, j), (current, current), outputs)
+    # the batch path's lanes: state and outputs as _store_state writes them
+    for row in range(N_RK):
+        _copy_fast_lanes(chunk_constants, work, n, row, state[row, first:stop], False)
+    for row in (L.S_COIL, L.S_COIL_FORCE):  # no coil lag on the batch path
+        _copy_fast_lanes(chunk_constants, work, n, W_CURRENT, state[row, first:stop], False)
+    for output_row, row in OUTPUT_STATE_ROWS:
+        _copy_fast_lanes(chunk_constants, work, n, row, outputs[output_row, first:stop], False)
+    _fast_output_forces(chunk_constants, work, n, outputs[L.O_F, first:stop])
+
+
+# the outputs that are state rows: (outputs row, state row)
+OUTPUT_STATE_ROWS = ((L.O_P1, L.S_P1), (L.O_P2, L.S_P2), (L.O_X, L.S_X), (L.O_V, L.S_V),
+                     (L.O_X_S, L.S_X_S), (L.O_EXHAUST, L.S_EXHAUST))
 
 
 @njit(cache=True)
@@ -1085,14 +1129,10 @@ def _store_state(c, state, env, y, coil, outputs):
         state[row, env] = y[row]
     state[L.S_COIL, env] = coil[0]
     state[L.S_COIL_FORCE, env] = coil[1]
+    for output_row, row in OUTPUT_STATE_ROWS:
+        outputs[output_row, env] = y[row]
     f_p = pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
-    outputs[L.O_P1, env] = y[2]
-    outputs[L.O_P2, env] = y[3]
-    outputs[L.O_X, env] = y[4]
     outputs[L.O_F, env] = output_force(c.mode, f_p, y[4], c.spring_k, c.spring_rest)
-    outputs[L.O_V, env] = y[5]
-    outputs[L.O_X_S, env] = y[0]
-    outputs[L.O_EXHAUST, env] = y[6]
 
 
 @njit(cache=True)
