@@ -227,6 +227,24 @@ def test_effect_at_realistic_strength_is_diagnosed(effect_diagnoses, effect):
     assert after < 0.85 * before
 
 
+def test_stribeck_friction_is_diagnosed_on_a_moving_rod(rig_dir):
+    # Stribeck friction shows only where the rod slides (spring rod). The calibrated static
+    # friction of the base model sits in the wrong stick-event basin for this recording
+    # (5.0 N against the rig's 4.3 N); without the fit's static-friction restarts
+    # (fit.static_friction_restarts) the candidate stays there and is refused
+    csv = _rig(rig_dir, "stribeck", 1, piston="spring")
+    diag = diagnose([read_checked(csv)], candidates=["stribeck"], max_effects=1)
+    assert diag.selected == ["stribeck"], [(s.name, s.relative_improvement, s.reasons)
+                                           for s in diag.scores]
+    before = np.mean(list(diag.baseline_nrmse.values()))
+    after = np.mean(list(diag.after_nrmse.values()))
+    assert after < 0.5 * before
+    truth = _truth(csv)["parameters"]
+    assert 0.5 < diag.final.values["stribeck_velocity_m_per_s"] / truth[
+        "stribeck_velocity_m_per_s"] < 2.0
+    assert abs(diag.final.values["static_friction_n"] / truth["static_friction_n"] - 1) < 0.1
+
+
 def test_load_cell_stiffness_is_recovered_and_the_rest_position_follows_the_clamp(
         effect_diagnoses):
     csv, diag = effect_diagnoses("load_cell_compliance")
@@ -511,3 +529,14 @@ def test_missing_position_with_a_moving_piston_warns_and_skips_friction(rig_dir,
     names = {p.name for p in base_fit_parameters(datasets)}
     assert not names & {"static_friction_n", "dynamic_friction_n", "viscous_friction_n_s_per_m"}
     assert math.isfinite(datasets[0].scales["p1"])
+
+
+def test_bad_static_friction_restarts_are_refused_with_the_field_and_value(tmp_path):
+    from pneumatic_env.params import ConfigError
+    text = Path(load_config().path).read_text(encoding="utf-8")
+    bad = tmp_path / "identification.yaml"
+    bad.write_text(text.replace("value: [0.8, 0.85, 0.92, 1.08]", "value: [0.9, -1.0]"),
+                   encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"fit\.static_friction_restarts = \[0\.9, -1\.0\] is "
+                                          r"not allowed: must be a list of finite numbers > 0"):
+        load_config(bad).positive_numbers("fit", "static_friction_restarts")

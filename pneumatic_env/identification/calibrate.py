@@ -561,20 +561,60 @@ def _statistics(problem: FitProblem, u: np.ndarray, r: np.ndarray, J: np.ndarray
     return out
 
 
+def _least_squares(problem: FitProblem, u0: np.ndarray, max_nfev: int):
+    """SciPy's robust least squares on ``problem`` from ``u0`` (settings under ``fit``)."""
+    cfg = problem.config
+    lo, hi = problem.bounds()
+    return least_squares(problem.residual, u0, jac=problem.jacobian, bounds=(lo, hi),
+                         method="trf", tr_solver=str(cfg.fit("tr_solver")),
+                         loss=str(cfg.fit("loss")),
+                         f_scale=cfg.number("fit", "f_scale", positive=True),
+                         max_nfev=max_nfev, x_scale=1.0)
+
+
+def _friction_restarts(problem: FitProblem, u0: np.ndarray) -> list[np.ndarray]:
+    """Further starts of a fit that frees the piston's static friction: ``u0`` with the
+    static friction times each factor of ``fit.static_friction_restarts`` (within its
+    bounds). A sliding piston's free-run error jumps where the static friction decides
+    whether the rod sticks, so the error has one basin per sequence of stick events and
+    a local fit stays in the basin it starts in; the fit keeps the start whose optimum
+    has the lowest cost on the fitting data."""
+    names = [p.name for p in problem.free]
+    if "static_friction_n" not in names:
+        return []
+    i = names.index("static_friction_n")
+    p = problem.free[i]
+    starts = []
+    for factor in problem.config.positive_numbers("fit", "static_friction_restarts"):
+        u = u0.copy()
+        u[i] = p.to_u(min(max(p.from_u(float(u0[i])) * factor, p.lower), p.upper))
+        starts.append(u)
+    return starts
+
+
 def run_fit(problem: FitProblem, start: Mapping[str, float] | None = None,
-            max_nfev: int | None = None) -> FitResult:
-    """Least-squares fit of ``problem`` from the warm start; statistics at the optimum."""
+            max_nfev: int | None = None, friction_restarts: bool = True) -> FitResult:
+    """Least-squares fit of ``problem`` from the warm start; statistics at the optimum.
+
+    With ``friction_restarts`` a fit that frees the static friction also runs from the
+    starts of ``_friction_restarts`` and keeps the lowest cost.
+    """
     cfg = problem.config
     u0 = problem.initial_u(start)
     max_nfev = int(max_nfev or cfg.number("fit", "max_nfev", positive=True))
     if problem.free:
-        lo, hi = problem.bounds()
-        sol = least_squares(problem.residual, u0, jac=problem.jacobian, bounds=(lo, hi),
-                            method="trf", tr_solver=str(cfg.fit("tr_solver")),
-                            loss=str(cfg.fit("loss")),
-                            f_scale=cfg.number("fit", "f_scale", positive=True),
-                            max_nfev=max_nfev, x_scale=1.0)
-        u, nfev, message = sol.x, int(sol.nfev), str(sol.message)
+        sol = _least_squares(problem, u0, max_nfev)
+        nfev = int(sol.nfev)
+        for u_restart in _friction_restarts(problem, u0) if friction_restarts else []:
+            try:
+                other = _least_squares(problem, u_restart, max_nfev)
+            except (ValueError, FloatingPointError) as exc:  # a start the kernel rejects
+                log.info("%s: a friction restart failed: %s", problem.label, exc)
+                continue
+            nfev += int(other.nfev)
+            if other.cost < sol.cost:
+                sol = other
+        u, message = sol.x, str(sol.message)
     else:
         u, nfev, message = u0, 1, "nothing to fit"
     r = problem.residual(u)

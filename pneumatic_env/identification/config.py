@@ -191,6 +191,14 @@ class IdentificationConfig:
                               f"{minimum!r}")
         return v
 
+    def positive_numbers(self, section: str, name: str) -> list[float]:
+        """A list of finite numbers > 0 (possibly empty), checked."""
+        v = self.value(section, name)
+        if not isinstance(v, list) or not all(_is_number(x) and x > 0 for x in v):
+            raise ConfigError(f"{self.path}: {section}.{name} = {v!r} is not allowed: must be "
+                              "a list of finite numbers > 0")
+        return [float(x) for x in v]
+
     def fit(self, name: str) -> Any:
         return self.value("fit", name)
 

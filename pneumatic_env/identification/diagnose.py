@@ -397,7 +397,8 @@ def diagnose(recordings: Sequence[Recording], params=None, candidates: Sequence[
         polish = FitProblem(split.train, free, fixed=fixed, n_samples=split.train_n, config=cfg,
                             label=f"model with {', '.join(c.name for c in selected)}",
                             scopes=best.fit.scopes)
-        current = run_fit(polish, start=best.fit.all_values())
+        current = run_fit(polish, start=best.fit.all_values(),
+                          friction_restarts=any(c.requires_motion for c in selected))
         current_mean = _mean(split.heldout_nrmse(current)[0])
         log.info("diagnosis: accepted %s (held-out NRMSE %.4g, %.1f %% better)", best.name,
                  best.heldout_mean, 100 * best.relative_improvement)
@@ -455,7 +456,11 @@ def _score(cand: Candidate, rnd: int, current: FitResult, current_mean: float,
     current_free = {p.name for p in current.parameters}
     n_extra = len(cand.parameters) + sum(p.name not in current_free for p in cand.refit_base)
     try:
-        fit = run_fit(problem, start=start, max_nfev=nfev)
+        # a candidate that changes the piston's friction law moves the static friction's
+        # stick-event basins: it gets the restarts the base calibration had; the others
+        # start from the calibrated base's basin
+        fit = run_fit(problem, start=start, max_nfev=nfev,
+                      friction_restarts=cand.requires_motion)
     except (ValueError, FloatingPointError) as exc:  # e.g. a parameter set the kernel rejects
         return CandidateScore(cand, rnd, None, {}, math.inf, -math.inf, math.inf, False, False,
                               False, [f"fit failed: {exc}"])
