@@ -384,6 +384,11 @@ def diagnose(recordings: Sequence[Recording], params=None, candidates: Sequence[
         scores.extend(round_scores)
         accepted = sorted((s for s in round_scores if s.accepted),
                           key=lambda s: -s.relative_improvement)
+        if moving:  # stick-event basins: the effect itself must make the improvement
+            for score in accepted:
+                if not _improvement_is_the_basin(score, current, min_rel, split, cfg):
+                    break
+            accepted = [s for s in accepted if s.accepted]
         if not accepted:
             break
         best = accepted[0]
@@ -437,6 +442,34 @@ def _conflicts(cand: Candidate, selected: Sequence[Candidate]) -> bool:
     the transmission line holds the tube's air, so it excludes a tube storage volume)."""
     return any(set(cand.set) & set(other.parameter_names)
                or set(other.set) & set(cand.parameter_names) for other in selected)
+
+
+def _improvement_is_the_basin(score: CandidateScore, current: FitResult, min_rel: float,
+                              split: _Split, cfg: IdentificationConfig) -> bool:
+    """True (and ``score`` refused) when the current model at the candidate's fitted values,
+    the candidate's effect switched off, is within ``min_rel`` of the candidate's held-out
+    error: then the improvement came from where the candidate's refit moved the base
+    parameters (for a sliding piston, which stick events it makes), not from the effect."""
+    values = score.fit.all_values()
+    fixed = {**current.fixed, **{p.name: values[p.name] for p in current.parameters}}
+    problem = FitProblem(split.train, [], fixed=fixed, n_samples=split.train_n, config=cfg,
+                         label=f"the fit with {score.name}, the effect off",
+                         scopes=current.scopes)
+    try:
+        off = run_fit(problem)
+    except (ValueError, FloatingPointError):
+        return False
+    off_mean = _mean(split.heldout_nrmse(off)[0])
+    rel = (off_mean - score.heldout_mean) / off_mean if off_mean > 0 else 0.0
+    if rel >= min_rel:
+        return False
+    score.accepted = False
+    score.reasons.append(
+        f"with {score.name} switched off at its fitted values the held-out NRMSE is "
+        f"{off_mean:.4g} (with it {score.heldout_mean:.4g}, {100 * rel:.1f} % better < "
+        f"{100 * min_rel:.0f} %): the improvement is where the refit moved the base "
+        "parameters, not the effect")
+    return True
 
 
 def _score(cand: Candidate, rnd: int, current: FitResult, current_mean: float,
