@@ -35,6 +35,7 @@ from numba import njit, types
 
 from .convergence import TOLERANCE_PERCENT
 from .physics import layout as L
+from .physics.kernel import N_RK, OUTPUT_STATE_ROWS
 
 ENV_ID = "pneumatic_env/ForceTrack-Numatics-2m-v0"
 YARDSTICK_ID = "Pendulum-v1"
@@ -100,7 +101,7 @@ VECTOR_LOOPS = {"_begin_substeps": (1, 0), "_base_substeps_vectorised": (1, 0),
                 "_fast_commands": (0, 1), "_fast_output_forces": (0, 1),
                 # 3 history channels per substep; per period the RK4 state rows, the two
                 # coil rows and the outputs that are state rows
-                "_copy_fast_lanes": (3, 9 + 2 + 6)}
+                "_copy_fast_lanes": (3, N_RK + 2 + len(OUTPUT_STATE_ROWS))}
 
 
 # --------------------------------------------------------------------------- options
