@@ -53,7 +53,7 @@ def test_identification_excitation_has_every_segment_in_both_blocks():
 def test_strength_zero_is_the_plant_without_the_effect():
     base = run_rig("none", seed=7, duration_s=0.3)
     for effect in ("leakage", "valve_null_leak", "pressure_sensor_lag", "coil_lag",
-                   "load_cell_compliance"):
+                   "load_cell_compliance", "stribeck", "heat_transfer", "supply_droop"):
         zero = run_rig(effect, strength=0.0, seed=7, duration_s=0.3)
         for ch in base.channels:
             assert np.array_equal(zero.channels[ch], base.channels[ch]), (effect, ch)
@@ -120,6 +120,76 @@ def test_laminar_leak_equalises_the_sealed_chambers():
     step = cfg.number("virtual_rig", "quantisation", "p1")
     assert d1.mean() < -5 * step and d2.mean() > 5 * step
     assert d1[-10:].mean() < d1[:10].mean() and d2[-10:].mean() > d2[:10].mean()
+
+
+def test_rig_lugre_friction_slides_on_the_stribeck_curve_and_sticks_as_a_spring():
+    """The rig's LuGre friction (``_lugre_step``): sliding steadily it is the candidate's
+    Stribeck curve (``effects.stribeck_friction``); from rest a small displacement loads
+    the bristles like a spring of stiffness sigma0 (pre-sliding), which the candidate lacks."""
+    from pneumatic_env.identification.virtual_rig import _lugre_step
+    from pneumatic_env.physics.effects import stribeck_friction
+    f_s, f_c, v_s, k, c, h = 3.8, 0.5, 0.01, 1e5, 316.0, 1e-5
+    for v in (-0.05, -0.004, 0.001, 0.01, 0.2):
+        z = 0.0
+        for _ in range(2000):  # 2 s at a constant velocity (exact for any step)
+            z, force = _lugre_step(z, v, 1e-3, f_s, f_c, v_s, k, c)
+        assert force == pytest.approx(math.copysign(stribeck_friction(v, f_c, f_s, v_s), v),
+                                      rel=1e-9)
+    z, v = 0.0, 1e-4  # 1 um in 10 ms: far below the pre-sliding range f_c / sigma0 = 5 um
+    for _ in range(1000):
+        z, force = _lugre_step(z, v, h, f_s, f_c, v_s, k, c)
+    assert z == pytest.approx(v * 1000 * h, rel=0.03)  # the bristles follow the rod
+    assert force == pytest.approx(k * z + c * v, rel=0.01)
+    assert force < 0.05 * stribeck_friction(v, f_c, f_s, v_s)  # the candidate slides at F_s
+
+
+def test_rig_wall_heat_exchange_conserves_the_gas_and_relaxes_to_the_wall():
+    """``_wall_heat_exchange``: at constant volume the gas's mass (p / T) stays, and T
+    relaxes to the wall's with the time constant m c_v / hA, hA scaled by the density."""
+    from pneumatic_env.identification.virtual_rig import _wall_heat_exchange
+    r, kappa, wall, volume, h = 287.0, 1.4, 293.15, 5e-5, 1e-4
+    for p, t in ((6e5, 380.0), (2e5, 250.0)):
+        density = p / (r * t)
+        for density_ref, exponent in ((density, 0.6667), (0.5 * density, 0.6667), (1.0, 0.0)):
+            p1, t1 = _wall_heat_exchange(p, t, volume, h, 0.05, density_ref, exponent, wall,
+                                         r, kappa)
+            assert p1 / t1 == pytest.approx(p / t, rel=1e-12)
+            conductance = 0.05 * (density / density_ref) ** exponent
+            tau = density * volume * r / (kappa - 1.0) / conductance
+            assert t1 - wall == pytest.approx((t - wall) * math.exp(-h / tau), rel=1e-12)
+            assert abs(t1 - wall) < abs(t - wall)
+
+
+def test_rig_lugre_plant_keeps_the_truth_and_differs_from_the_kernels_friction():
+    karnopp = run_rig("stribeck", seed=4, duration_s=0.4, piston="spring")
+    lugre = run_rig("stribeck", seed=4, duration_s=0.4, piston="spring", friction_model="lugre")
+    assert lugre.truth["friction_model"] == "lugre"
+    assert lugre.truth["parameters"] == karnopp.truth["parameters"]  # F_sf, F_df, v_s kept
+    noise = load_config().number("virtual_rig", "noise", "x")
+    assert np.abs(lugre.channels["x"] - karnopp.channels["x"]).max() > 5 * noise
+    with pytest.raises(ValueError, match=r"friction_model = 'lugre' needs effect 'stribeck' "
+                                         r"and a moving piston .*got effect 'none', piston "
+                                         r"'spring'"):
+        run_rig("none", piston="spring", friction_model="lugre")
+    with pytest.raises(ValueError, match=r"friction_model = 'stick' is not allowed: must be "
+                                         r"one of \['karnopp', 'lugre'\]"):
+        run_rig("stribeck", piston="spring", friction_model="stick")
+
+
+def test_rig_supply_line_droops_like_the_resistance_after_its_lag():
+    """``_supply_line_step``: under a steady draw the line settles at the candidate's
+    droop p_set - R draw (``supply_resistance_pa_s_per_kg``), but only after the line's
+    time constant, where the candidate droops at once."""
+    from pneumatic_env.identification.virtual_rig import _supply_line_step
+    p_set, resistance, tau, draw = 6.5e5, 1e7, 0.02, 5e-3
+    steady = p_set - resistance * draw
+    p = _supply_line_step(p_set, p_set, resistance, tau, draw, tau)
+    assert p == pytest.approx(steady + (p_set - steady) * math.exp(-1.0), rel=1e-12)
+    p = p_set
+    for _ in range(2000):  # 0.2 s in 0.1 ms steps: ten time constants
+        p = _supply_line_step(p, p_set, resistance, tau, draw, 1e-4)
+    assert p == pytest.approx(steady, abs=1e-4 * resistance * draw)
+    assert _supply_line_step(p_set, p_set, resistance, tau, 0.0, 1e-4) == p_set  # no draw
 
 
 def test_two_cascaded_lags_keep_the_total_time_constant():

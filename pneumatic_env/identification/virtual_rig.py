@@ -38,10 +38,19 @@ How the plant differs from the fitting model:
                                     1.3 x the Coulomb band and then slides at it (a play of
                                     the Coulomb band, ``spool_coulomb_friction_n``)
   supply_ripple                     not in the catalog: 3 Hz supply-pressure oscillation
+  stribeck with friction_model      LuGre friction (bristle states, pre-sliding, frictional lag;
+  = "lugre"                         steady state F_c + (F_s - F_c) exp(-(v/v_s)^2)), applied
+                                    as a load force every plant substep (Karnopp + Stribeck)
+  supply_droop                      a supply line of volume V fed through the regulator's
+                                    resistance R (a lag of R V / (R_gas T), 20 ms at S = 1),
+                                    drained by the valve (R alone: the droop is immediate)
+  heat_transfer                     wall exchange per chamber with hA proportional to the gas
+                                    density to the 2/3 (natural convection), applied between
+                                    plant steps on the full energy equation (one constant hA)
   valve_null_leak, tube_volume,     **same form** as the candidate (the kernel's parameter):
   exhaust_discharge, iso_flow_law,  an inverse crime, softened only by the finer step, the
-  supply_droop, heat_transfer,      perturbed base and the noise
-  stribeck, tube_waves
+  tube_waves,                       perturbed base and the noise
+  stribeck (default friction_model)
   ================================  ==========================================================
 """
 from __future__ import annotations
@@ -58,14 +67,15 @@ from pneumatic_env.params import load_parameters, parameter_array
 from pneumatic_env.physics import layout as L
 from pneumatic_env.physics.chamber import chamber_volumes
 from pneumatic_env.physics.flow import flow_constants, orifice_mass_flow, subsonic_reduced_flow
+from pneumatic_env.physics.valve import orifice_area
 from pneumatic_env.recording import PISTON_MODES, canonical_cylinder, write_recording
 from pneumatic_env.references import ChirpReference, MultisineReference
 from pneumatic_env.simulator import BatchSimulator
 
 from .config import IdentificationConfig, load_config
 
-__all__ = ["KERNEL_EFFECTS", "RIG_EFFECTS", "RigResult", "excitation", "make_recording",
-           "run_rig", "add_arguments", "run"]
+__all__ = ["KERNEL_EFFECTS", "RIG_EFFECTS", "SPLIT_EFFECTS", "FRICTION_MODELS", "RigResult",
+           "excitation", "make_recording", "run_rig", "add_arguments", "run"]
 
 #: Rig effects realised by a kernel parameter (same form as the candidate): name ->
 #: (kernel parameter, value at strength S given the strength-1 reference r).
@@ -74,8 +84,6 @@ KERNEL_EFFECTS = {
     "tube_volume": ("tube_volume_fraction", lambda s, r: min(1.0, s * r)),
     "exhaust_discharge": ("exhaust_discharge_ratio", lambda s, r: 1.0 - s * (1.0 - r)),
     "iso_flow_law": ("iso_critical_ratio_b", lambda s, r: 0.528 - s * (0.528 - r)),
-    "supply_droop": ("supply_resistance_pa_s_per_kg", lambda s, r: s * r),
-    "heat_transfer": ("wall_heat_transfer_w_per_k", lambda s, r: s * r),
     "stribeck": ("stribeck_velocity_m_per_s", lambda s, r: s * r),
     "tube_waves": ("tube_waves", lambda s, r: r if s > 0.0 else 0.0),  # a switch
 }
@@ -83,7 +91,12 @@ KERNEL_EFFECTS = {
 RIG_EFFECTS = ("none", "leakage", "rod_seal_leak", "coil_lag", "spool_friction",
                "pressure_sensor_offset",
                "pressure_sensor_lag", "channel_time_skew", "load_cell_compliance",
-               "supply_ripple", *KERNEL_EFFECTS)
+               "supply_ripple", "heat_transfer", "supply_droop", *KERNEL_EFFECTS)
+#: Rig effects applied by operator splitting between steps of the kernel.
+SPLIT_EFFECTS = ("leakage", "rod_seal_leak", "supply_ripple", "heat_transfer", "supply_droop")
+#: The rig's piston friction: the kernel's Karnopp friction (with the Stribeck curve of
+#: ``--effect stribeck``), or LuGre friction (``--effect stribeck`` only).
+FRICTION_MODELS = ("karnopp", "lugre")
 EXCITATIONS = ("identification", "steps", "prbs", "multisine", "chirp", "triangle")
 _SEGMENTS = ("rest", "step_pos", "step_neg", "prbs", "multisine", "chirp", "triangle")
 
@@ -217,18 +230,74 @@ def _stick_slip_play(current_a: np.ndarray, band_a: float, breakaway_a: float) -
     return out
 
 
+def _orifice_flow(p: dict, area_m2: float, p_from_pa: float, p_to_pa: float) -> float:
+    """Signed mass flow (kg/s) of the paper's orifice (Eq. 39, C_f of ``p``) at the gas
+    temperature of ``p``."""
+    c1, c2, pcr = flow_constants(p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"])
+    lin = p["flow_linear_ratio"]
+    slope = subsonic_reduced_flow(lin, p["heat_capacity_ratio"], c2) / (1.0 - lin)
+    return orifice_mass_flow(area_m2, p["discharge_coefficient"], p_from_pa, p_to_pa,
+                             1.0 / math.sqrt(p["temperature_k"]), p["heat_capacity_ratio"],
+                             c1, c2, pcr, lin, slope)
+
+
 def _laminar_conductance(p: dict, area_m2: float) -> float:
     """Laminar leak conductance (kg/s/Pa) passing the same flow as an orifice of
     ``area_m2`` (Eq. 39, C_f) from supply pressure to half the supply span below it."""
-    c1, c2, pcr = flow_constants(p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"])
     ps, pa = p["supply_pressure_pa"], p["ambient_pressure_pa"]
     dp = 0.5 * (ps - pa)
-    lin = p["flow_linear_ratio"]
-    slope = subsonic_reduced_flow(lin, p["heat_capacity_ratio"], c2) / (1.0 - lin)
-    mdot = orifice_mass_flow(area_m2, p["discharge_coefficient"], ps, ps - dp,
-                             1.0 / math.sqrt(p["temperature_k"]), p["heat_capacity_ratio"],
-                             c1, c2, pcr, lin, slope)
-    return mdot / dp
+    return _orifice_flow(p, area_m2, ps, ps - dp) / dp
+
+
+def _supply_line_step(line_pa: float, regulator_pa: float, resistance_pa_s_per_kg: float,
+                      time_constant_s: float, draw_kg_per_s: float, h_s: float) -> float:
+    """The supply line's pressure after h_s: a volume V fed through the regulator's linear
+    resistance R from its set pressure, drained by the valve's draw (held over the step):
+    dp/dt = (R T / V) ((p_set - p) / R - draw), exact for the held draw; the time constant
+    is R V / (R_gas T). In steady flow it droops by R draw, as the candidate's resistance
+    does at once."""
+    steady = regulator_pa - resistance_pa_s_per_kg * draw_kg_per_s
+    return steady + (line_pa - steady) * math.exp(-h_s / time_constant_s)
+
+
+def _lugre_step(bristle_m: float, velocity_m_per_s: float, h_s: float, static_n: float,
+                coulomb_n: float, stribeck_velocity_m_per_s: float, stiffness_n_per_m: float,
+                damping_n_s_per_m: float) -> tuple[float, float]:
+    """One step of LuGre friction (Canudas de Wit et al. 1995) at a velocity held over h_s.
+
+    The bristles deflect as dz/dt = v - sigma0 |v| z / g(v), g(v) = F_c + (F_s - F_c)
+    exp(-(v/v_s)^2), integrated exactly for the held v; returns the new deflection and the
+    friction force sigma0 z + sigma1 dz/dt (positive resists extension; the viscous part
+    sigma2 v is the kernel's). Sliding steadily, the force is g(v) sgn(v): the Stribeck
+    curve of the candidate, which lacks the pre-sliding spring and the frictional lag.
+    """
+    g = coulomb_n + (static_n - coulomb_n) * math.exp(
+        -(velocity_m_per_s / stribeck_velocity_m_per_s) ** 2)
+    rate = stiffness_n_per_m * abs(velocity_m_per_s) / g
+    if rate * h_s > 1e-12:
+        steady = velocity_m_per_s / rate
+        new = steady + (bristle_m - steady) * math.exp(-rate * h_s)
+    else:
+        new = bristle_m + velocity_m_per_s * h_s
+    return new, stiffness_n_per_m * new + damping_n_s_per_m * (new - bristle_m) / h_s
+
+
+def _wall_heat_exchange(p_pa: float, t_k: float, volume_m3: float, h_s: float,
+                        conductance_ref_w_per_k: float, density_ref_kg_m3: float,
+                        density_exponent: float, wall_t_k: float, gas_constant: float,
+                        heat_capacity_ratio: float) -> tuple[float, float]:
+    """A chamber's gas after exchanging heat with its wall for h_s at constant volume and mass.
+
+    hA = hA_ref (rho / rho_ref)^n (natural convection: Nu ~ Ra^(1/3), Ra ~ rho^2, so
+    n = 2/3), held over the step; the gas temperature relaxes exactly towards the wall's
+    with the time constant m c_v / hA, m c_v = p V / ((k - 1) T), and p/T stays (the mass).
+    Returns (p, T).
+    """
+    density = p_pa / (gas_constant * t_k)
+    conductance = conductance_ref_w_per_k * (density / density_ref_kg_m3) ** density_exponent
+    heat_capacity = p_pa * volume_m3 / ((heat_capacity_ratio - 1.0) * t_k)
+    t_new = wall_t_k + (t_k - wall_t_k) * math.exp(-conductance * h_s / heat_capacity)
+    return p_pa * t_new / t_k, t_new
 
 
 def _perturbed(cylinder: str, base: dict, rng: np.random.Generator,
@@ -245,7 +314,8 @@ def _perturbed(cylinder: str, base: dict, rng: np.random.Generator,
 def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
             duration_s: float | None = None, cylinder: str = "numatics",
             tube_length_m: float = 0.5, piston: str = "fixed", excitation_kind: str = "identification",
-            perturb: bool = True, config: IdentificationConfig | None = None) -> RigResult:
+            perturb: bool = True, friction_model: str = "karnopp",
+            config: IdentificationConfig | None = None) -> RigResult:
     """Simulate the virtual rig; returns the recording's samples, sidecar and truth."""
     cfg = config or load_config()
     if effect not in RIG_EFFECTS:
@@ -258,6 +328,12 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
     if effect == "load_cell_compliance" and piston != "fixed":
         raise ValueError(f"effect 'load_cell_compliance' needs piston = 'fixed' (a clamped rod "
                          f"held through a load cell); got piston = {piston!r}")
+    if friction_model not in FRICTION_MODELS:
+        raise ValueError(f"friction_model = {friction_model!r} is not allowed: must be one of "
+                         f"{list(FRICTION_MODELS)}")
+    if friction_model == "lugre" and (effect != "stribeck" or piston == "fixed"):
+        raise ValueError(f"friction_model = 'lugre' needs effect 'stribeck' and a moving piston "
+                         f"('spring' or 'free'); got effect {effect!r}, piston {piston!r}")
     if effect in KERNEL_EFFECTS and KERNEL_EFFECTS[effect][0] not in L.PARAMETER_NAMES:
         raise ValueError(f"effect {effect!r} needs the kernel parameter "
                          f"{KERNEL_EFFECTS[effect][0]!r}, which this kernel does not have")
@@ -323,38 +399,86 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         band = s * ref / true["coil_force_n_per_a"]
         breakaway = cfg.number("virtual_rig", "spool_breakaway_ratio", minimum=1.0)
         fine = _stick_slip_play(fine, band, breakaway * band)
-    sim = BatchSimulator(parameter_array([true]), plant_dt,
-                         int(cfg.number("virtual_rig", "plant_substeps", positive=True)))
+    plant_substeps = int(cfg.number("virtual_rig", "plant_substeps", positive=True))
+    lugre = friction_model == "lugre" and s > 0.0
+    split = (effect in SPLIT_EFFECTS and s > 0.0) or lugre
+    if lugre:  # the kernel's Karnopp + Stribeck friction off: LuGre replaces it, as a load force
+        true.update(static_friction_n=0.0, dynamic_friction_n=0.0, stribeck_velocity_m_per_s=0.0)
+    if split and effect == "heat_transfer":
+        truth_parameters["wall_heat_transfer_w_per_k"] = s * ref
+        # the kernel's full energy equation on (any hA > 0) with a negligible wall exchange
+        # of its own: the rig's exchange is applied between the steps
+        true["wall_heat_transfer_w_per_k"] = 1e-12
+    if split and effect == "supply_droop":  # the kernel's resistance stays 0
+        truth_parameters["supply_resistance_pa_s_per_kg"] = s * ref
+    # LuGre's bristles are updated every plant substep (stiff: pre-sliding rings at ~130 Hz)
+    steps_per_plant_step = plant_substeps if lugre else 1
+    sim = BatchSimulator(parameter_array([load_parameters(cylinder, params=true)]),
+                         plant_dt / steps_per_plant_step,
+                         plant_substeps // steps_per_plant_step)
     first = sim.outputs[:, 0].copy()
-    split_effect = effect in ("leakage", "rod_seal_leak", "supply_ripple")
-    if not split_effect or s == 0.0:
+    if not split:
         rows = sim.rollout(fine[:, None])[:, :, 0]
     else:
         rows = np.empty((fine.size, L.N_OUTPUT))
+        h = plant_dt / steps_per_plant_step
         a1 = 0.25 * math.pi * true["bore_diameter_m"] ** 2
         a2 = a1 - 0.25 * math.pi * true["rod_diameter_m"] ** 2
         rt = true["gas_constant_j_per_kg_k"] * true["temperature_k"]
-        conductance = _laminar_conductance(true, s * ref) if effect != "supply_ripple" else 0.0
+        conductance = (_laminar_conductance(true, s * ref)
+                       if effect in ("leakage", "rod_seal_leak") else 0.0)
+        bristles = {name: cfg.number("virtual_rig", name, positive=True)
+                    for name in ("lugre_stiffness_n_per_m", "lugre_damping_n_s_per_m")}
+        density_exponent = cfg.number("virtual_rig", "heat_transfer_density_exponent",
+                                      minimum=0.0)
+        density_ref = 0.5 * (true["supply_pressure_pa"] + true["ambient_pressure_pa"]) / rt
+        bristle = 0.0
+        line_pa = true["supply_pressure_pa"]
+        line_tau = (s * ref * cfg.number("virtual_rig", "supply_line_volume_m3", positive=True)
+                    / rt if effect == "supply_droop" else 0.0)
         state = sim.state
         for k in range(fine.size):
             if effect == "supply_ripple":
                 sim.params[L.P_SUPPLY_PRESSURE_PA, 0] = true["supply_pressure_pa"] * (
                     1.0 + s * ref * math.sin(2.0 * math.pi * 3.0 * k * plant_dt))
-            if conductance > 0.0:  # operator splitting: the laminar leak over this step first
+            if effect in ("leakage", "rod_seal_leak", "heat_transfer"):
+                # operator splitting: the effect over this step first
                 v1, v2 = chamber_volumes(state[L.S_X, 0], 0.5 * true["stroke_m"], a1, a2,
                                          true["dead_volume_cap_m3"], true["dead_volume_rod_m3"])
                 p1, p2 = state[L.S_P1, 0], state[L.S_P2, 0]
-                if effect == "leakage":
-                    mdot = conductance * (p1 - p2)  # chamber 1 -> chamber 2
-                    a_1 = true["alpha_out"] if mdot > 0 else true["alpha_in"]
-                    a_2 = true["alpha_in"] if mdot > 0 else true["alpha_out"]
-                    state[L.S_P1, 0] = p1 - a_1 * rt / v1 * mdot * plant_dt
-                    state[L.S_P2, 0] = p2 + a_2 * rt / v2 * mdot * plant_dt
-                else:
-                    mdot = conductance * (p2 - true["ambient_pressure_pa"])  # chamber 2 -> air
-                    a_2 = true["alpha_out"] if mdot > 0 else true["alpha_in"]
-                    state[L.S_P2, 0] = p2 - a_2 * rt / v2 * mdot * plant_dt
-            rows[k] = sim.step(fine[k:k + 1])[:, 0]
+            if effect == "leakage":
+                mdot = conductance * (p1 - p2)  # chamber 1 -> chamber 2
+                a_1 = true["alpha_out"] if mdot > 0 else true["alpha_in"]
+                a_2 = true["alpha_in"] if mdot > 0 else true["alpha_out"]
+                state[L.S_P1, 0] = p1 - a_1 * rt / v1 * mdot * plant_dt
+                state[L.S_P2, 0] = p2 + a_2 * rt / v2 * mdot * plant_dt
+            elif effect == "rod_seal_leak":
+                mdot = conductance * (p2 - true["ambient_pressure_pa"])  # chamber 2 -> air
+                a_2 = true["alpha_out"] if mdot > 0 else true["alpha_in"]
+                state[L.S_P2, 0] = p2 - a_2 * rt / v2 * mdot * plant_dt
+            elif effect == "heat_transfer":
+                for p_row, t_row, volume in ((L.S_P1, L.S_T1, v1), (L.S_P2, L.S_T2, v2)):
+                    state[p_row, 0], state[t_row, 0] = _wall_heat_exchange(
+                        state[p_row, 0], state[t_row, 0], volume, plant_dt, s * ref, density_ref,
+                        density_exponent, true["temperature_k"], true["gas_constant_j_per_kg_k"],
+                        true["heat_capacity_ratio"])
+            elif effect == "supply_droop":  # the valve draws on the line at its spool's opening
+                spool = state[L.S_X_S, 0]
+                area = orifice_area(abs(spool), true["hole_radius_m"], true["spool_half_width_m"],
+                                    true["holes_per_path"])
+                draw = _orifice_flow(true, area, line_pa,
+                                     state[L.S_P1, 0] if spool > 0.0 else state[L.S_P2, 0])
+                line_pa = _supply_line_step(line_pa, true["supply_pressure_pa"], s * ref,
+                                            line_tau, draw, plant_dt)
+                sim.params[L.P_SUPPLY_PRESSURE_PA, 0] = line_pa
+            for _ in range(steps_per_plant_step):
+                if lugre:
+                    bristle, friction = _lugre_step(
+                        bristle, state[L.S_V, 0], h, truth_parameters["static_friction_n"],
+                        truth_parameters["dynamic_friction_n"], s * ref,
+                        bristles["lugre_stiffness_n_per_m"], bristles["lugre_damping_n_s_per_m"])
+                    sim.params[L.P_LOAD_FORCE_N, 0] = true["load_force_n"] + friction
+                rows[k] = sim.step(fine[k:k + 1])[:, 0]
     rows = np.vstack([first[None, :], rows])  # rows[j] = state at j * plant_dt
 
     names = {"p1": L.O_P1, "p2": L.O_P2, "f": L.O_F, "x": L.O_X}
@@ -385,7 +509,7 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
                     "pneumatic_env.identification.virtual_rig"}
     truth = {"effect": effect, "strength": s, "seed": int(seed), "excitation": excitation_kind,
              "duration_s": duration, "perturbed": bool(perturb),
-             "effect_reference": ref,
+             "effect_reference": ref, "friction_model": friction_model,
              "parameters": {k: float(v) for k, v in truth_parameters.items()}}
     return RigResult(t=t, channels=channels, rig=rig, truth=truth)
 
@@ -423,6 +547,9 @@ def add_arguments(p) -> None:
     p.add_argument("--tube-length", type=float, default=0.5, metavar="M")
     p.add_argument("--piston", default="fixed", choices=tuple(PISTON_MODES))
     p.add_argument("--excitation", default="identification", choices=EXCITATIONS)
+    p.add_argument("--friction-model", default="karnopp", choices=FRICTION_MODELS,
+                   help="the piston's friction in the plant; lugre only with --effect stribeck "
+                        "and a moving piston (default: karnopp, the kernel's)")
     p.add_argument("--no-perturb", action="store_true",
                    help="use the configs' default base parameters exactly")
     p.add_argument("--overwrite", action="store_true")
@@ -436,7 +563,8 @@ def run(args) -> int:
                               effect=args.effect, strength=args.strength, seed=args.seed,
                               duration_s=args.duration, cylinder=args.cylinder,
                               tube_length_m=args.tube_length, piston=args.piston,
-                              excitation_kind=args.excitation, perturb=not args.no_perturb)
+                              excitation_kind=args.excitation, perturb=not args.no_perturb,
+                              friction_model=args.friction_model)
     except (FileExistsError, ValueError) as exc:
         print(f"pneumatic-env rig: {exc}", file=sys.stderr)
         return 2
