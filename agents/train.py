@@ -133,6 +133,7 @@ def train(algo: str, env_id: str, config: str | Path | dict, timesteps: int | No
     t0 = time.perf_counter()
     model.learn(total_timesteps=timesteps, progress_bar=progress_bar)
     wall = time.perf_counter() - t0
+    model.logger.close()  # flushes and closes progress.csv and the TensorBoard writer
     model.save(out / "model.zip")
     core = base.venv.unwrapped.core
     policy_env = {"env_id": env_id, "preview_steps": int(core.options.preview_steps),

@@ -6,6 +6,7 @@ seeding, action and keyword validation, parameter overrides, rendering, reward b
 """
 from __future__ import annotations
 
+import gc
 import warnings
 
 import gymnasium as gym
@@ -46,6 +47,7 @@ def _actions(n_steps, shape, seed=0, low=-2.5, high=2.5):
 @pytest.mark.parametrize("env_id", pneumatic_env.registered_ids())
 def test_check_env_passes(env_id):
     env = gym.make(env_id)
+    gc.collect()  # another test's garbage (e.g. an unclosed file) must not warn in here
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         check_env(env.unwrapped)
