@@ -150,6 +150,31 @@ def test_leakage_diagnosis_is_stable_across_noise_seeds(leak_diagnoses, rig_dir)
     assert abs(ratios[0] - ratios[1]) < 0.25 * max(ratios)
 
 
+def test_ablation_refuses_a_candidate_whose_effect_does_not_carry_the_improvement(
+        leak_diagnoses):
+    """``diagnose._improvement_is_the_basin`` (the moving-piston acceptance rule) keeps a
+    candidate whose effect, switched off at its fitted values, costs the held-out error,
+    and refuses one whose effect is too weak to matter, with a reason naming both errors."""
+    from dataclasses import replace
+
+    from pneumatic_env.identification.diagnose import _improvement_is_the_basin, _mean, _Split
+    cfg = load_config()
+    diag = leak_diagnoses[1]
+    split = _Split(diag.datasets, "time", cfg)
+    score = next(s for s in diag.scores if s.name == "leakage")
+    assert score.accepted
+    real = replace(score, reasons=list(score.reasons))
+    assert not _improvement_is_the_basin(real, diag.base, 0.10, split, cfg)
+    assert real.accepted and real.reasons == score.reasons
+    # the same fitted base with a leak far too small to matter
+    fit = replace(score.fit, values={**score.fit.values, "leakage_area_m2": 1e-14})
+    weak = replace(score, fit=fit, heldout_mean=_mean(split.heldout_nrmse(fit)[0]), reasons=[])
+    assert _improvement_is_the_basin(weak, diag.base, 0.10, split, cfg)
+    assert not weak.accepted
+    assert weak.reasons[0].startswith("with leakage switched off at its fitted values the "
+                                      "held-out NRMSE is ")
+
+
 def test_sensor_lag_is_diagnosed(rig_dir):
     csv = _rig(rig_dir, "pressure_sensor_lag", 3)
     diag = diagnose([read_checked(csv)], candidates=["pressure_sensor_lag", "channel_time_skew",

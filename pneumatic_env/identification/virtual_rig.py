@@ -44,12 +44,16 @@ How the plant differs from the fitting model:
   supply_droop                      a supply line of volume V fed through the regulator's
                                     resistance R (a lag of R V / (R_gas T), 20 ms at S = 1),
                                     drained by the valve (R alone: the droop is immediate)
+  exhaust_discharge with            an exhaust muffler: a volume vented through an orifice of
+  exhaust_model = "muffler"         about the valve's opening at the excitation's steps / S;
+                                    the valve exhausts into it, so the back-pressure grows
+                                    with the flow (a constant C_f ratio on the exhaust path)
   heat_transfer                     wall exchange per chamber with hA proportional to the gas
                                     density to the 2/3 (natural convection), applied between
                                     plant steps on the full energy equation (one constant hA)
   valve_null_leak, tube_volume,     **same form** as the candidate (the kernel's parameter):
-  exhaust_discharge, iso_flow_law,  an inverse crime, softened only by the finer step, the
-  tube_waves,                       perturbed base and the noise
+  iso_flow_law, tube_waves,         an inverse crime, softened only by the finer step, the
+  exhaust_discharge (orifice)       perturbed base and the noise
   stribeck (default friction_model)
   ================================  ==========================================================
 """
@@ -67,14 +71,15 @@ from pneumatic_env.params import load_parameters, parameter_array
 from pneumatic_env.physics import layout as L
 from pneumatic_env.physics.chamber import chamber_volumes
 from pneumatic_env.physics.flow import flow_constants, orifice_mass_flow, subsonic_reduced_flow
-from pneumatic_env.physics.valve import orifice_area
+from pneumatic_env.physics.valve import orifice_area, steady_spool_position
 from pneumatic_env.recording import PISTON_MODES, canonical_cylinder, write_recording
 from pneumatic_env.references import ChirpReference, MultisineReference
 from pneumatic_env.simulator import BatchSimulator
 
 from .config import IdentificationConfig, load_config
 
-__all__ = ["KERNEL_EFFECTS", "RIG_EFFECTS", "SPLIT_EFFECTS", "FRICTION_MODELS", "RigResult",
+__all__ = ["KERNEL_EFFECTS", "RIG_EFFECTS", "SPLIT_EFFECTS", "FRICTION_MODELS", "EXHAUST_MODELS",
+           "RigResult",
            "excitation", "make_recording", "run_rig", "add_arguments", "run"]
 
 #: Rig effects realised by a kernel parameter (same form as the candidate): name ->
@@ -82,9 +87,9 @@ __all__ = ["KERNEL_EFFECTS", "RIG_EFFECTS", "SPLIT_EFFECTS", "FRICTION_MODELS", 
 KERNEL_EFFECTS = {
     "valve_null_leak": ("valve_null_leak_area_m2", lambda s, r: s * r),
     "tube_volume": ("tube_volume_fraction", lambda s, r: min(1.0, s * r)),
-    "exhaust_discharge": ("exhaust_discharge_ratio", lambda s, r: 1.0 - s * (1.0 - r)),
     "iso_flow_law": ("iso_critical_ratio_b", lambda s, r: 0.528 - s * (0.528 - r)),
     "stribeck": ("stribeck_velocity_m_per_s", lambda s, r: s * r),
+    "exhaust_discharge": ("exhaust_discharge_ratio", lambda s, r: 1.0 - s * (1.0 - r)),
     "tube_waves": ("tube_waves", lambda s, r: r if s > 0.0 else 0.0),  # a switch
 }
 #: Every effect the rig can add.
@@ -97,6 +102,9 @@ SPLIT_EFFECTS = ("leakage", "rod_seal_leak", "supply_ripple", "heat_transfer", "
 #: The rig's piston friction: the kernel's Karnopp friction (with the Stribeck curve of
 #: ``--effect stribeck``), or LuGre friction (``--effect stribeck`` only).
 FRICTION_MODELS = ("karnopp", "lugre")
+#: The rig's exhaust: the kernel's orifice to the atmosphere (with the C_f ratio of
+#: ``--effect exhaust_discharge``), or a muffler (``--effect exhaust_discharge`` only).
+EXHAUST_MODELS = ("orifice", "muffler")
 EXCITATIONS = ("identification", "steps", "prbs", "multisine", "chirp", "triangle")
 _SEGMENTS = ("rest", "step_pos", "step_neg", "prbs", "multisine", "chirp", "triangle")
 
@@ -230,13 +238,15 @@ def _stick_slip_play(current_a: np.ndarray, band_a: float, breakaway_a: float) -
     return out
 
 
-def _orifice_flow(p: dict, area_m2: float, p_from_pa: float, p_to_pa: float) -> float:
-    """Signed mass flow (kg/s) of the paper's orifice (Eq. 39, C_f of ``p``) at the gas
-    temperature of ``p``."""
+def _orifice_flow(p: dict, area_m2: float, p_from_pa: float, p_to_pa: float,
+                  discharge: float | None = None) -> float:
+    """Signed mass flow (kg/s) of the paper's orifice (Eq. 39; C_f of ``p`` unless
+    ``discharge`` is given) at the gas temperature of ``p``."""
     c1, c2, pcr = flow_constants(p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"])
     lin = p["flow_linear_ratio"]
     slope = subsonic_reduced_flow(lin, p["heat_capacity_ratio"], c2) / (1.0 - lin)
-    return orifice_mass_flow(area_m2, p["discharge_coefficient"], p_from_pa, p_to_pa,
+    cd = p["discharge_coefficient"] if discharge is None else discharge
+    return orifice_mass_flow(area_m2, cd, p_from_pa, p_to_pa,
                              1.0 / math.sqrt(p["temperature_k"]), p["heat_capacity_ratio"],
                              c1, c2, pcr, lin, slope)
 
@@ -247,6 +257,14 @@ def _laminar_conductance(p: dict, area_m2: float) -> float:
     ps, pa = p["supply_pressure_pa"], p["ambient_pressure_pa"]
     dp = 0.5 * (ps - pa)
     return _orifice_flow(p, area_m2, ps, ps - dp) / dp
+
+
+def _muffler_step(muffler_pa: float, inflow_kg_per_s: float, vent_kg_per_s: float,
+                  volume_m3: float, gas_rt: float, h_s: float) -> float:
+    """The exhaust muffler's pressure after h_s (explicit Euler, isothermal): a volume
+    filled by the valve's exhaust flow and vented to the atmosphere through its porous
+    element, dp/dt = R T / V (inflow - vent); never below zero."""
+    return max(muffler_pa + gas_rt / volume_m3 * (inflow_kg_per_s - vent_kg_per_s) * h_s, 0.0)
 
 
 def _supply_line_step(line_pa: float, regulator_pa: float, resistance_pa_s_per_kg: float,
@@ -314,7 +332,7 @@ def _perturbed(cylinder: str, base: dict, rng: np.random.Generator,
 def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
             duration_s: float | None = None, cylinder: str = "numatics",
             tube_length_m: float = 0.5, piston: str = "fixed", excitation_kind: str = "identification",
-            perturb: bool = True, friction_model: str = "karnopp",
+            perturb: bool = True, friction_model: str = "karnopp", exhaust_model: str = "orifice",
             config: IdentificationConfig | None = None) -> RigResult:
     """Simulate the virtual rig; returns the recording's samples, sidecar and truth."""
     cfg = config or load_config()
@@ -334,6 +352,12 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
     if friction_model == "lugre" and (effect != "stribeck" or piston == "fixed"):
         raise ValueError(f"friction_model = 'lugre' needs effect 'stribeck' and a moving piston "
                          f"('spring' or 'free'); got effect {effect!r}, piston {piston!r}")
+    if exhaust_model not in EXHAUST_MODELS:
+        raise ValueError(f"exhaust_model = {exhaust_model!r} is not allowed: must be one of "
+                         f"{list(EXHAUST_MODELS)}")
+    if exhaust_model == "muffler" and effect != "exhaust_discharge":
+        raise ValueError(f"exhaust_model = 'muffler' needs effect 'exhaust_discharge'; got "
+                         f"effect {effect!r}")
     if effect in KERNEL_EFFECTS and KERNEL_EFFECTS[effect][0] not in L.PARAMETER_NAMES:
         raise ValueError(f"effect {effect!r} needs the kernel parameter "
                          f"{KERNEL_EFFECTS[effect][0]!r}, which this kernel does not have")
@@ -401,7 +425,10 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         fine = _stick_slip_play(fine, band, breakaway * band)
     plant_substeps = int(cfg.number("virtual_rig", "plant_substeps", positive=True))
     lugre = friction_model == "lugre" and s > 0.0
-    split = (effect in SPLIT_EFFECTS and s > 0.0) or lugre
+    muffler = exhaust_model == "muffler" and s > 0.0
+    split = (effect in SPLIT_EFFECTS and s > 0.0) or lugre or muffler
+    if muffler:  # the kernel's C_f ratio off: the muffler replaces it
+        true["exhaust_discharge_ratio"] = 1.0
     if lugre:  # the kernel's Karnopp + Stribeck friction off: LuGre replaces it, as a load force
         true.update(static_friction_n=0.0, dynamic_friction_n=0.0, stribeck_velocity_m_per_s=0.0)
     if split and effect == "heat_transfer":
@@ -411,8 +438,24 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         true["wall_heat_transfer_w_per_k"] = 1e-12
     if split and effect == "supply_droop":  # the kernel's resistance stays 0
         truth_parameters["supply_resistance_pa_s_per_kg"] = s * ref
-    # LuGre's bristles are updated every plant substep (stiff: pre-sliding rings at ~130 Hz)
-    steps_per_plant_step = plant_substeps if lugre else 1
+    if muffler:  # the vent's effective area (C_f 1) and the muffler's volume
+        vent_area = cfg.number("virtual_rig", "exhaust_muffler_area_m2", positive=True) / s
+        muffler_volume = cfg.number("virtual_rig", "exhaust_muffler_volume_m3", positive=True)
+        step_opening = steady_spool_position(
+            float(cfg.value("virtual_rig", "excitation", "step_a")),
+            true["spool_spring_n_per_m"], true["coil_force_n_per_a"])
+        valve_area = true["discharge_coefficient"] * orifice_area(
+            step_opening, true["hole_radius_m"], true["spool_half_width_m"],
+            true["holes_per_path"])
+        # the nearest kernel value: two orifices in series at the opening of the
+        # excitation's steps (incompressible)
+        truth_parameters["exhaust_discharge_ratio"] = 1.0 / math.sqrt(
+            1.0 + (valve_area / vent_area) ** 2)
+        truth_parameters.update(exhaust_muffler_area_m2=vent_area,
+                                exhaust_muffler_volume_m3=muffler_volume)
+    # LuGre's bristles and the muffler are updated every plant substep (stiff: pre-sliding
+    # rings at ~130 Hz; the muffler relaxes at up to ~4000 /s)
+    steps_per_plant_step = plant_substeps if lugre or muffler else 1
     sim = BatchSimulator(parameter_array([load_parameters(cylinder, params=true)]),
                          plant_dt / steps_per_plant_step,
                          plant_substeps // steps_per_plant_step)
@@ -434,6 +477,8 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         density_ref = 0.5 * (true["supply_pressure_pa"] + true["ambient_pressure_pa"]) / rt
         bristle = 0.0
         line_pa = true["supply_pressure_pa"]
+        ambient_pa = true["ambient_pressure_pa"]
+        muffler_pa = ambient_pa
         line_tau = (s * ref * cfg.number("virtual_rig", "supply_line_volume_m3", positive=True)
                     / rt if effect == "supply_droop" else 0.0)
         state = sim.state
@@ -472,6 +517,19 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
                                             line_tau, draw, plant_dt)
                 sim.params[L.P_SUPPLY_PRESSURE_PA, 0] = line_pa
             for _ in range(steps_per_plant_step):
+                if muffler:  # the kernel's exhaust node is the muffler
+                    spool = state[L.S_X_S, 0]
+                    area = orifice_area(abs(spool), true["hole_radius_m"],
+                                        true["spool_half_width_m"], true["holes_per_path"])
+                    exhausting = state[L.S_P2, 0] if spool > 0.0 else state[L.S_P1, 0]
+                    muffler_pa = _muffler_step(
+                        muffler_pa, _orifice_flow(true, area, exhausting, muffler_pa),
+                        _orifice_flow(true, vent_area, muffler_pa, ambient_pa, discharge=1.0),
+                        muffler_volume, rt, h)
+                    sim.params[L.P_AMBIENT_PRESSURE_PA, 0] = muffler_pa
+                    # the atmosphere, not the muffler, pushes on the rod
+                    sim.params[L.P_LOAD_FORCE_N, 0] = true["load_force_n"] - (
+                        muffler_pa - ambient_pa) * (a1 - a2)
                 if lugre:
                     bristle, friction = _lugre_step(
                         bristle, state[L.S_V, 0], h, truth_parameters["static_friction_n"],
@@ -479,6 +537,8 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
                         bristles["lugre_stiffness_n_per_m"], bristles["lugre_damping_n_s_per_m"])
                     sim.params[L.P_LOAD_FORCE_N, 0] = true["load_force_n"] + friction
                 rows[k] = sim.step(fine[k:k + 1])[:, 0]
+            if muffler and piston != "spring":  # the force channel is F_p (Eq. 1)
+                rows[k, L.O_F] += (muffler_pa - ambient_pa) * (a1 - a2)
     rows = np.vstack([first[None, :], rows])  # rows[j] = state at j * plant_dt
 
     names = {"p1": L.O_P1, "p2": L.O_P2, "f": L.O_F, "x": L.O_X}
@@ -510,6 +570,7 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
     truth = {"effect": effect, "strength": s, "seed": int(seed), "excitation": excitation_kind,
              "duration_s": duration, "perturbed": bool(perturb),
              "effect_reference": ref, "friction_model": friction_model,
+             "exhaust_model": exhaust_model,
              "parameters": {k: float(v) for k, v in truth_parameters.items()}}
     return RigResult(t=t, channels=channels, rig=rig, truth=truth)
 
@@ -550,6 +611,9 @@ def add_arguments(p) -> None:
     p.add_argument("--friction-model", default="karnopp", choices=FRICTION_MODELS,
                    help="the piston's friction in the plant; lugre only with --effect stribeck "
                         "and a moving piston (default: karnopp, the kernel's)")
+    p.add_argument("--exhaust-model", default="orifice", choices=EXHAUST_MODELS,
+                   help="the valve's exhaust in the plant; muffler only with --effect "
+                        "exhaust_discharge (default: orifice, the kernel's)")
     p.add_argument("--no-perturb", action="store_true",
                    help="use the configs' default base parameters exactly")
     p.add_argument("--overwrite", action="store_true")
@@ -564,7 +628,8 @@ def run(args) -> int:
                               duration_s=args.duration, cylinder=args.cylinder,
                               tube_length_m=args.tube_length, piston=args.piston,
                               excitation_kind=args.excitation, perturb=not args.no_perturb,
-                              friction_model=args.friction_model)
+                              friction_model=args.friction_model,
+                              exhaust_model=args.exhaust_model)
     except (FileExistsError, ValueError) as exc:
         print(f"pneumatic-env rig: {exc}", file=sys.stderr)
         return 2
