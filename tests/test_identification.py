@@ -1,7 +1,7 @@
 """Identification: calibration, diagnosis, report, bad-data checks (pneumatic_env.identification).
 
-The recordings come from the virtual rig (synthetic, never measured): short (1.5 s at
-1 kHz), few candidates per diagnosis, so the whole file stays within about two minutes.
+The recordings come from the virtual rig (synthetic, never measured): short (1 s at 1 kHz;
+1.5 s for the sliding rod's Stribeck friction), few candidates per diagnosis.
 """
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from pneumatic_env.params import load_parameters
 from pneumatic_env.physics.layout import PARAMETER_NAMES
 from pneumatic_env.recording import RecordingError, read_recording, write_recording
 
-DURATION_S = 1.5
+DURATION_S = 1.0
 # A few candidates that cover a plant effect and the three sensor-side effects.
 CANDIDATES = ["leakage", "pressure_sensor_offset", "pressure_sensor_lag", "channel_time_skew"]
 
@@ -36,11 +36,12 @@ def rig_dir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("rig")
 
 
-def _rig(rig_dir: Path, effect: str, seed: int, **kw) -> Path:
-    name = "_".join([effect, str(seed)] + [f"{k}{v}" for k, v in sorted(kw.items())])
+def _rig(rig_dir: Path, effect: str, seed: int, duration_s: float = DURATION_S, **kw) -> Path:
+    name = "_".join([effect, str(seed), f"{duration_s:g}s"]
+                    + [f"{k}{v}" for k, v in sorted(kw.items())])
     csv = rig_dir / f"{name}.csv"
     if not csv.exists():
-        make_recording(rig_dir, name=name, effect=effect, seed=seed, duration_s=DURATION_S, **kw)
+        make_recording(rig_dir, name=name, effect=effect, seed=seed, duration_s=duration_s, **kw)
     return csv
 
 
@@ -66,7 +67,9 @@ def leak_diagnoses(rig_dir):
 # --------------------------------------------------------------------------- calibration
 
 def test_calibration_recovers_perturbed_parameters_within_their_confidence_intervals(rig_dir):
-    csv = _rig(rig_dir, "none", 1)
+    # 1.5 s, as in the evaluation: at 1 s the rod side's dead volume lands 0.1 % outside
+    # its very narrow confidence interval (a small bias of the coarser fitting model)
+    csv = _rig(rig_dir, "none", 1, duration_s=1.5)
     truth = _truth(csv)["parameters"]
     defaults = load_parameters()
     cal = calibrate([read_checked(csv)])
@@ -225,6 +228,10 @@ EFFECT_RIVALS = {
     "coil_lag": "channel_time_skew",
     "tube_waves": "tube_volume",
 }
+# Effects whose test recording is 1.5 s, as in the evaluation (the others: DURATION_S). The
+# rig's supply line lags its droop by 20 ms, which a resistance fits less well: at 1 s the
+# held-out error fell by 12.5 %, short of the 15 % asked here.
+EFFECT_DURATIONS_S = {"supply_droop": 1.5}
 
 
 @pytest.fixture(scope="module")
@@ -234,7 +241,7 @@ def effect_diagnoses(rig_dir):
 
     def get(effect):
         if effect not in cache:
-            csv = _rig(rig_dir, effect, 1)
+            csv = _rig(rig_dir, effect, 1, EFFECT_DURATIONS_S.get(effect, DURATION_S))
             cache[effect] = csv, diagnose([read_checked(csv)],
                                           candidates=[effect, EFFECT_RIVALS[effect]],
                                           max_effects=1)
@@ -257,7 +264,7 @@ def test_stribeck_friction_is_diagnosed_on_a_moving_rod(rig_dir):
     # friction of the base model sits in the wrong stick-event basin for this recording
     # (5.0 N against the rig's 4.3 N); without the fit's static-friction restarts
     # (fit.static_friction_restarts) the candidate stays there and is refused
-    csv = _rig(rig_dir, "stribeck", 1, piston="spring")
+    csv = _rig(rig_dir, "stribeck", 1, duration_s=1.5, piston="spring")
     diag = diagnose([read_checked(csv)], candidates=["stribeck"], max_effects=1)
     assert diag.selected == ["stribeck"], [(s.name, s.relative_improvement, s.reasons)
                                            for s in diag.scores]
