@@ -318,6 +318,211 @@ def _wall_heat_exchange(p_pa: float, t_k: float, volume_m3: float, h_s: float,
     return p_pa * t_new / t_k, t_new
 
 
+class _PlantForm:
+    """An effect the rig applies around the kernel's steps (operator splitting): on the
+    state or the parameters of ``sim`` (one environment) before each step, and on the
+    outputs after each plant step. ``every_substep``: the kernel steps one plant substep
+    at a time (stiff forms); otherwise one plant step."""
+
+    every_substep = False
+
+    def __init__(self, true: dict):
+        self.true = true
+        self.cap_area = 0.25 * math.pi * true["bore_diameter_m"] ** 2
+        self.rod_side_area = self.cap_area - 0.25 * math.pi * true["rod_diameter_m"] ** 2
+        self.gas_rt = true["gas_constant_j_per_kg_k"] * true["temperature_k"]
+
+    def volumes(self, state: np.ndarray) -> tuple[float, float]:
+        t = self.true
+        return chamber_volumes(state[L.S_X, 0], 0.5 * t["stroke_m"], self.cap_area,
+                               self.rod_side_area, t["dead_volume_cap_m3"],
+                               t["dead_volume_rod_m3"])
+
+    def before_step(self, sim: BatchSimulator, plant_step: int, h_s: float) -> None:
+        raise NotImplementedError
+
+    def correct_output(self, row: np.ndarray) -> None:
+        """The recorded outputs of a plant step (default: as the kernel gave them)."""
+
+
+class _LaminarLeak(_PlantForm):
+    """``leakage`` (chamber 1 -> 2) or ``rod_seal_leak`` (chamber 2 -> air): a laminar leak,
+    flow proportional to the pressure difference, over each plant step."""
+
+    def __init__(self, true: dict, conductance_kg_per_s_pa: float, across_piston: bool):
+        super().__init__(true)
+        self.conductance = conductance_kg_per_s_pa
+        self.across_piston = across_piston
+
+    def before_step(self, sim, plant_step, h_s):
+        t, state = self.true, sim.state
+        v1, v2 = self.volumes(state)
+        p1, p2 = state[L.S_P1, 0], state[L.S_P2, 0]
+        if self.across_piston:
+            mdot = self.conductance * (p1 - p2)  # chamber 1 -> chamber 2
+            a_1 = t["alpha_out"] if mdot > 0 else t["alpha_in"]
+            a_2 = t["alpha_in"] if mdot > 0 else t["alpha_out"]
+            state[L.S_P1, 0] = p1 - a_1 * self.gas_rt / v1 * mdot * h_s
+            state[L.S_P2, 0] = p2 + a_2 * self.gas_rt / v2 * mdot * h_s
+        else:
+            mdot = self.conductance * (p2 - t["ambient_pressure_pa"])  # chamber 2 -> air
+            a_2 = t["alpha_out"] if mdot > 0 else t["alpha_in"]
+            state[L.S_P2, 0] = p2 - a_2 * self.gas_rt / v2 * mdot * h_s
+
+
+class _SupplyRipple(_PlantForm):
+    """``supply_ripple``: the supply pressure oscillates by ``amplitude`` (relative) at 3 Hz."""
+
+    def __init__(self, true: dict, amplitude: float):
+        super().__init__(true)
+        self.amplitude = amplitude
+
+    def before_step(self, sim, plant_step, h_s):
+        sim.params[L.P_SUPPLY_PRESSURE_PA, 0] = self.true["supply_pressure_pa"] * (
+            1.0 + self.amplitude * math.sin(2.0 * math.pi * 3.0 * plant_step * h_s))
+
+
+class _WallExchange(_PlantForm):
+    """``heat_transfer``: ``_wall_heat_exchange`` in each chamber over each plant step."""
+
+    def __init__(self, true: dict, conductance_ref_w_per_k: float, density_exponent: float):
+        super().__init__(true)
+        self.conductance_ref = conductance_ref_w_per_k
+        self.density_exponent = density_exponent
+        self.density_ref = 0.5 * (true["supply_pressure_pa"]
+                                  + true["ambient_pressure_pa"]) / self.gas_rt
+
+    def before_step(self, sim, plant_step, h_s):
+        t, state = self.true, sim.state
+        v1, v2 = self.volumes(state)
+        for p_row, t_row, volume in ((L.S_P1, L.S_T1, v1), (L.S_P2, L.S_T2, v2)):
+            state[p_row, 0], state[t_row, 0] = _wall_heat_exchange(
+                state[p_row, 0], state[t_row, 0], volume, h_s, self.conductance_ref,
+                self.density_ref, self.density_exponent, t["temperature_k"],
+                t["gas_constant_j_per_kg_k"], t["heat_capacity_ratio"])
+
+
+def _valve_path(true: dict, state: np.ndarray) -> tuple[float, float, float]:
+    """The valve's open area (m^2) at its spool's position now, and the pressures of the
+    chamber it feeds and of the one it exhausts (Eqs. 44, 45)."""
+    spool = state[L.S_X_S, 0]
+    area = orifice_area(abs(spool), true["hole_radius_m"], true["spool_half_width_m"],
+                        true["holes_per_path"])
+    p1, p2 = state[L.S_P1, 0], state[L.S_P2, 0]
+    return (area, p1, p2) if spool > 0.0 else (area, p2, p1)
+
+
+class _SupplyLine(_PlantForm):
+    """``supply_droop``: the valve draws on a supply line (``_supply_line_step``)."""
+
+    def __init__(self, true: dict, resistance_pa_s_per_kg: float, line_volume_m3: float):
+        super().__init__(true)
+        self.resistance = resistance_pa_s_per_kg
+        self.time_constant = resistance_pa_s_per_kg * line_volume_m3 / self.gas_rt
+        self.line_pa = true["supply_pressure_pa"]
+
+    def before_step(self, sim, plant_step, h_s):
+        area, fed_pa, _ = _valve_path(self.true, sim.state)
+        draw = _orifice_flow(self.true, area, self.line_pa, fed_pa)
+        self.line_pa = _supply_line_step(self.line_pa, self.true["supply_pressure_pa"],
+                                         self.resistance, self.time_constant, draw, h_s)
+        sim.params[L.P_SUPPLY_PRESSURE_PA, 0] = self.line_pa
+
+
+class _Muffler(_PlantForm):
+    """``exhaust_discharge`` with a muffler: the kernel's exhaust node is the muffler
+    (``_muffler_step``); the atmosphere, not the muffler, pushes on the rod."""
+
+    every_substep = True
+
+    def __init__(self, true: dict, vent_area_m2: float, volume_m3: float, piston: str):
+        super().__init__(true)
+        self.vent_area = vent_area_m2
+        self.volume = volume_m3
+        self.force_is_f_p = piston != "spring"  # the force channel is F_p (Eq. 1)
+        self.muffler_pa = true["ambient_pressure_pa"]
+
+    def before_step(self, sim, plant_step, h_s):
+        t = self.true
+        area, _, exhausting_pa = _valve_path(t, sim.state)
+        self.muffler_pa = _muffler_step(
+            self.muffler_pa, _orifice_flow(t, area, exhausting_pa, self.muffler_pa),
+            _orifice_flow(t, self.vent_area, self.muffler_pa, t["ambient_pressure_pa"],
+                          discharge=1.0),
+            self.volume, self.gas_rt, h_s)
+        sim.params[L.P_AMBIENT_PRESSURE_PA, 0] = self.muffler_pa
+        sim.params[L.P_LOAD_FORCE_N, 0] = t["load_force_n"] - self._rod_force_error()
+
+    def _rod_force_error(self) -> float:
+        return (self.muffler_pa - self.true["ambient_pressure_pa"]) * (
+            self.cap_area - self.rod_side_area)
+
+    def correct_output(self, row):
+        if self.force_is_f_p:
+            row[L.O_F] += self._rod_force_error()
+
+
+class _LuGre(_PlantForm):
+    """``stribeck`` with LuGre friction (``_lugre_step``) as the load force."""
+
+    every_substep = True
+
+    def __init__(self, true: dict, static_n: float, coulomb_n: float,
+                 stribeck_velocity_m_per_s: float, stiffness_n_per_m: float,
+                 damping_n_s_per_m: float):
+        super().__init__(true)
+        self.friction = (static_n, coulomb_n, stribeck_velocity_m_per_s, stiffness_n_per_m,
+                         damping_n_s_per_m)
+        self.bristle_m = 0.0
+
+    def before_step(self, sim, plant_step, h_s):
+        self.bristle_m, friction = _lugre_step(self.bristle_m, sim.state[L.S_V, 0], h_s,
+                                               *self.friction)
+        sim.params[L.P_LOAD_FORCE_N, 0] = self.true["load_force_n"] + friction
+
+
+def _plant_form(effect: str, strength: float, reference: float, true: dict, truth: dict,
+                cfg: IdentificationConfig, piston: str) -> _PlantForm:
+    """The rig's form of ``effect`` at ``strength`` (``reference`` at strength 1):
+    switches the kernel's own form off in ``true`` and states the truth in ``truth``."""
+    rig = lambda name, **kw: cfg.number("virtual_rig", name, **kw)  # noqa: E731
+    value = strength * reference
+    if effect in ("leakage", "rod_seal_leak"):
+        return _LaminarLeak(true, _laminar_conductance(true, value), effect == "leakage")
+    if effect == "supply_ripple":
+        return _SupplyRipple(true, value)
+    if effect == "heat_transfer":
+        truth["wall_heat_transfer_w_per_k"] = value
+        # the kernel's full energy equation on (any hA > 0) with a negligible wall
+        # exchange of its own: the rig's exchange is applied between the steps
+        true["wall_heat_transfer_w_per_k"] = 1e-12
+        return _WallExchange(true, value, rig("heat_transfer_density_exponent", minimum=0.0))
+    if effect == "supply_droop":  # the kernel's resistance stays 0
+        truth["supply_resistance_pa_s_per_kg"] = value
+        return _SupplyLine(true, value, rig("supply_line_volume_m3", positive=True))
+    if effect == "stribeck":  # LuGre replaces the kernel's Karnopp + Stribeck friction
+        true.update(static_friction_n=0.0, dynamic_friction_n=0.0, stribeck_velocity_m_per_s=0.0)
+        return _LuGre(true, truth["static_friction_n"], truth["dynamic_friction_n"], value,
+                      rig("lugre_stiffness_n_per_m", positive=True),
+                      rig("lugre_damping_n_s_per_m", positive=True))
+    if effect == "exhaust_discharge":  # the muffler replaces the kernel's C_f ratio
+        true["exhaust_discharge_ratio"] = 1.0
+        vent_area = rig("exhaust_muffler_area_m2", positive=True) / strength
+        volume = rig("exhaust_muffler_volume_m3", positive=True)
+        step_opening = steady_spool_position(
+            float(cfg.value("virtual_rig", "excitation", "step_a")),
+            true["spool_spring_n_per_m"], true["coil_force_n_per_a"])
+        valve_area = true["discharge_coefficient"] * orifice_area(
+            step_opening, true["hole_radius_m"], true["spool_half_width_m"],
+            true["holes_per_path"])
+        # the nearest kernel value: two orifices in series at the opening of the
+        # excitation's steps (incompressible)
+        truth["exhaust_discharge_ratio"] = 1.0 / math.sqrt(1.0 + (valve_area / vent_area) ** 2)
+        truth.update(exhaust_muffler_area_m2=vent_area, exhaust_muffler_volume_m3=volume)
+        return _Muffler(true, vent_area, volume, piston)
+    raise ValueError(f"effect {effect!r} has no plant form of the rig's own")
+
+
 def _perturbed(cylinder: str, base: dict, rng: np.random.Generator,
                cfg: IdentificationConfig) -> dict:
     """``base`` with each parameter under ``virtual_rig.perturbation`` multiplied by
@@ -424,121 +629,26 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         breakaway = cfg.number("virtual_rig", "spool_breakaway_ratio", minimum=1.0)
         fine = _stick_slip_play(fine, band, breakaway * band)
     plant_substeps = int(cfg.number("virtual_rig", "plant_substeps", positive=True))
-    lugre = friction_model == "lugre" and s > 0.0
-    muffler = exhaust_model == "muffler" and s > 0.0
-    split = (effect in SPLIT_EFFECTS and s > 0.0) or lugre or muffler
-    if muffler:  # the kernel's C_f ratio off: the muffler replaces it
-        true["exhaust_discharge_ratio"] = 1.0
-    if lugre:  # the kernel's Karnopp + Stribeck friction off: LuGre replaces it, as a load force
-        true.update(static_friction_n=0.0, dynamic_friction_n=0.0, stribeck_velocity_m_per_s=0.0)
-    if split and effect == "heat_transfer":
-        truth_parameters["wall_heat_transfer_w_per_k"] = s * ref
-        # the kernel's full energy equation on (any hA > 0) with a negligible wall exchange
-        # of its own: the rig's exchange is applied between the steps
-        true["wall_heat_transfer_w_per_k"] = 1e-12
-    if split and effect == "supply_droop":  # the kernel's resistance stays 0
-        truth_parameters["supply_resistance_pa_s_per_kg"] = s * ref
-    if muffler:  # the vent's effective area (C_f 1) and the muffler's volume
-        vent_area = cfg.number("virtual_rig", "exhaust_muffler_area_m2", positive=True) / s
-        muffler_volume = cfg.number("virtual_rig", "exhaust_muffler_volume_m3", positive=True)
-        step_opening = steady_spool_position(
-            float(cfg.value("virtual_rig", "excitation", "step_a")),
-            true["spool_spring_n_per_m"], true["coil_force_n_per_a"])
-        valve_area = true["discharge_coefficient"] * orifice_area(
-            step_opening, true["hole_radius_m"], true["spool_half_width_m"],
-            true["holes_per_path"])
-        # the nearest kernel value: two orifices in series at the opening of the
-        # excitation's steps (incompressible)
-        truth_parameters["exhaust_discharge_ratio"] = 1.0 / math.sqrt(
-            1.0 + (valve_area / vent_area) ** 2)
-        truth_parameters.update(exhaust_muffler_area_m2=vent_area,
-                                exhaust_muffler_volume_m3=muffler_volume)
-    # LuGre's bristles and the muffler are updated every plant substep (stiff: pre-sliding
-    # rings at ~130 Hz; the muffler relaxes at up to ~4000 /s)
-    steps_per_plant_step = plant_substeps if lugre or muffler else 1
+    form = None
+    if s > 0.0 and (effect in SPLIT_EFFECTS or friction_model == "lugre"
+                    or exhaust_model == "muffler"):
+        form = _plant_form(effect, s, ref, true, truth_parameters, cfg, piston)
+    # a stiff form acts before every plant substep (the kernel steps one substep at a time)
+    steps_per_plant_step = plant_substeps if form is not None and form.every_substep else 1
     sim = BatchSimulator(parameter_array([load_parameters(cylinder, params=true)]),
                          plant_dt / steps_per_plant_step,
                          plant_substeps // steps_per_plant_step)
     first = sim.outputs[:, 0].copy()
-    if not split:
+    if form is None:
         rows = sim.rollout(fine[:, None])[:, :, 0]
     else:
         rows = np.empty((fine.size, L.N_OUTPUT))
         h = plant_dt / steps_per_plant_step
-        a1 = 0.25 * math.pi * true["bore_diameter_m"] ** 2
-        a2 = a1 - 0.25 * math.pi * true["rod_diameter_m"] ** 2
-        rt = true["gas_constant_j_per_kg_k"] * true["temperature_k"]
-        conductance = (_laminar_conductance(true, s * ref)
-                       if effect in ("leakage", "rod_seal_leak") else 0.0)
-        bristles = {name: cfg.number("virtual_rig", name, positive=True)
-                    for name in ("lugre_stiffness_n_per_m", "lugre_damping_n_s_per_m")}
-        density_exponent = cfg.number("virtual_rig", "heat_transfer_density_exponent",
-                                      minimum=0.0)
-        density_ref = 0.5 * (true["supply_pressure_pa"] + true["ambient_pressure_pa"]) / rt
-        bristle = 0.0
-        line_pa = true["supply_pressure_pa"]
-        ambient_pa = true["ambient_pressure_pa"]
-        muffler_pa = ambient_pa
-        line_tau = (s * ref * cfg.number("virtual_rig", "supply_line_volume_m3", positive=True)
-                    / rt if effect == "supply_droop" else 0.0)
-        state = sim.state
         for k in range(fine.size):
-            if effect == "supply_ripple":
-                sim.params[L.P_SUPPLY_PRESSURE_PA, 0] = true["supply_pressure_pa"] * (
-                    1.0 + s * ref * math.sin(2.0 * math.pi * 3.0 * k * plant_dt))
-            if effect in ("leakage", "rod_seal_leak", "heat_transfer"):
-                # operator splitting: the effect over this step first
-                v1, v2 = chamber_volumes(state[L.S_X, 0], 0.5 * true["stroke_m"], a1, a2,
-                                         true["dead_volume_cap_m3"], true["dead_volume_rod_m3"])
-                p1, p2 = state[L.S_P1, 0], state[L.S_P2, 0]
-            if effect == "leakage":
-                mdot = conductance * (p1 - p2)  # chamber 1 -> chamber 2
-                a_1 = true["alpha_out"] if mdot > 0 else true["alpha_in"]
-                a_2 = true["alpha_in"] if mdot > 0 else true["alpha_out"]
-                state[L.S_P1, 0] = p1 - a_1 * rt / v1 * mdot * plant_dt
-                state[L.S_P2, 0] = p2 + a_2 * rt / v2 * mdot * plant_dt
-            elif effect == "rod_seal_leak":
-                mdot = conductance * (p2 - true["ambient_pressure_pa"])  # chamber 2 -> air
-                a_2 = true["alpha_out"] if mdot > 0 else true["alpha_in"]
-                state[L.S_P2, 0] = p2 - a_2 * rt / v2 * mdot * plant_dt
-            elif effect == "heat_transfer":
-                for p_row, t_row, volume in ((L.S_P1, L.S_T1, v1), (L.S_P2, L.S_T2, v2)):
-                    state[p_row, 0], state[t_row, 0] = _wall_heat_exchange(
-                        state[p_row, 0], state[t_row, 0], volume, plant_dt, s * ref, density_ref,
-                        density_exponent, true["temperature_k"], true["gas_constant_j_per_kg_k"],
-                        true["heat_capacity_ratio"])
-            elif effect == "supply_droop":  # the valve draws on the line at its spool's opening
-                spool = state[L.S_X_S, 0]
-                area = orifice_area(abs(spool), true["hole_radius_m"], true["spool_half_width_m"],
-                                    true["holes_per_path"])
-                draw = _orifice_flow(true, area, line_pa,
-                                     state[L.S_P1, 0] if spool > 0.0 else state[L.S_P2, 0])
-                line_pa = _supply_line_step(line_pa, true["supply_pressure_pa"], s * ref,
-                                            line_tau, draw, plant_dt)
-                sim.params[L.P_SUPPLY_PRESSURE_PA, 0] = line_pa
             for _ in range(steps_per_plant_step):
-                if muffler:  # the kernel's exhaust node is the muffler
-                    spool = state[L.S_X_S, 0]
-                    area = orifice_area(abs(spool), true["hole_radius_m"],
-                                        true["spool_half_width_m"], true["holes_per_path"])
-                    exhausting = state[L.S_P2, 0] if spool > 0.0 else state[L.S_P1, 0]
-                    muffler_pa = _muffler_step(
-                        muffler_pa, _orifice_flow(true, area, exhausting, muffler_pa),
-                        _orifice_flow(true, vent_area, muffler_pa, ambient_pa, discharge=1.0),
-                        muffler_volume, rt, h)
-                    sim.params[L.P_AMBIENT_PRESSURE_PA, 0] = muffler_pa
-                    # the atmosphere, not the muffler, pushes on the rod
-                    sim.params[L.P_LOAD_FORCE_N, 0] = true["load_force_n"] - (
-                        muffler_pa - ambient_pa) * (a1 - a2)
-                if lugre:
-                    bristle, friction = _lugre_step(
-                        bristle, state[L.S_V, 0], h, truth_parameters["static_friction_n"],
-                        truth_parameters["dynamic_friction_n"], s * ref,
-                        bristles["lugre_stiffness_n_per_m"], bristles["lugre_damping_n_s_per_m"])
-                    sim.params[L.P_LOAD_FORCE_N, 0] = true["load_force_n"] + friction
+                form.before_step(sim, k, h)
                 rows[k] = sim.step(fine[k:k + 1])[:, 0]
-            if muffler and piston != "spring":  # the force channel is F_p (Eq. 1)
-                rows[k, L.O_F] += (muffler_pa - ambient_pa) * (a1 - a2)
+            form.correct_output(rows[k])
     rows = np.vstack([first[None, :], rows])  # rows[j] = state at j * plant_dt
 
     names = {"p1": L.O_P1, "p2": L.O_P2, "f": L.O_F, "x": L.O_X}
