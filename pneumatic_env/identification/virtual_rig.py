@@ -79,8 +79,7 @@ from pneumatic_env.simulator import BatchSimulator
 from .config import IdentificationConfig, load_config
 
 __all__ = ["KERNEL_EFFECTS", "RIG_EFFECTS", "SPLIT_EFFECTS", "FRICTION_MODELS", "EXHAUST_MODELS",
-           "RigResult",
-           "excitation", "make_recording", "run_rig", "add_arguments", "run"]
+           "RigResult", "excitation", "make_recording", "run_rig", "add_arguments", "run"]
 
 #: Rig effects realised by a kernel parameter (same form as the candidate): name ->
 #: (kernel parameter, value at strength S given the strength-1 reference r).
@@ -238,17 +237,20 @@ def _stick_slip_play(current_a: np.ndarray, band_a: float, breakaway_a: float) -
     return out
 
 
-def _orifice_flow(p: dict, area_m2: float, p_from_pa: float, p_to_pa: float,
-                  discharge: float | None = None) -> float:
-    """Signed mass flow (kg/s) of the paper's orifice (Eq. 39; C_f of ``p`` unless
-    ``discharge`` is given) at the gas temperature of ``p``."""
+def _orifice_gas(p: dict) -> tuple:
+    """The gas's arguments of ``orifice_mass_flow`` (Eqs. 39, 40, 52) for parameters ``p``,
+    computed once: 1/sqrt(T), k, C1, C2, P_cr, the linear ratio and its slope."""
     c1, c2, pcr = flow_constants(p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"])
     lin = p["flow_linear_ratio"]
     slope = subsonic_reduced_flow(lin, p["heat_capacity_ratio"], c2) / (1.0 - lin)
-    cd = p["discharge_coefficient"] if discharge is None else discharge
-    return orifice_mass_flow(area_m2, cd, p_from_pa, p_to_pa,
-                             1.0 / math.sqrt(p["temperature_k"]), p["heat_capacity_ratio"],
-                             c1, c2, pcr, lin, slope)
+    return (1.0 / math.sqrt(p["temperature_k"]), p["heat_capacity_ratio"], c1, c2, pcr, lin,
+            slope)
+
+
+def _orifice_flow(gas: tuple, area_m2: float, discharge: float, p_from_pa: float,
+                  p_to_pa: float) -> float:
+    """Signed mass flow (kg/s) of the paper's orifice (Eq. 39) for ``_orifice_gas``'s gas."""
+    return orifice_mass_flow(area_m2, discharge, p_from_pa, p_to_pa, *gas)
 
 
 def _laminar_conductance(p: dict, area_m2: float) -> float:
@@ -256,7 +258,7 @@ def _laminar_conductance(p: dict, area_m2: float) -> float:
     ``area_m2`` (Eq. 39, C_f) from supply pressure to half the supply span below it."""
     ps, pa = p["supply_pressure_pa"], p["ambient_pressure_pa"]
     dp = 0.5 * (ps - pa)
-    return _orifice_flow(p, area_m2, ps, ps - dp) / dp
+    return _orifice_flow(_orifice_gas(p), area_m2, p["discharge_coefficient"], ps, ps - dp) / dp
 
 
 def _muffler_step(muffler_pa: float, inflow_kg_per_s: float, vent_kg_per_s: float,
@@ -331,6 +333,7 @@ class _PlantForm:
         self.cap_area = 0.25 * math.pi * true["bore_diameter_m"] ** 2
         self.rod_side_area = self.cap_area - 0.25 * math.pi * true["rod_diameter_m"] ** 2
         self.gas_rt = true["gas_constant_j_per_kg_k"] * true["temperature_k"]
+        self.gas = _orifice_gas(true)
 
     def volumes(self, state: np.ndarray) -> tuple[float, float]:
         t = self.true
@@ -423,7 +426,8 @@ class _SupplyLine(_PlantForm):
 
     def before_step(self, sim, plant_step, h_s):
         area, fed_pa, _ = _valve_path(self.true, sim.state)
-        draw = _orifice_flow(self.true, area, self.line_pa, fed_pa)
+        draw = _orifice_flow(self.gas, area, self.true["discharge_coefficient"], self.line_pa,
+                             fed_pa)
         self.line_pa = _supply_line_step(self.line_pa, self.true["supply_pressure_pa"],
                                          self.resistance, self.time_constant, draw, h_s)
         sim.params[L.P_SUPPLY_PRESSURE_PA, 0] = self.line_pa
@@ -446,9 +450,11 @@ class _Muffler(_PlantForm):
         t = self.true
         area, _, exhausting_pa = _valve_path(t, sim.state)
         self.muffler_pa = _muffler_step(
-            self.muffler_pa, _orifice_flow(t, area, exhausting_pa, self.muffler_pa),
-            _orifice_flow(t, self.vent_area, self.muffler_pa, t["ambient_pressure_pa"],
-                          discharge=1.0),
+            self.muffler_pa,
+            _orifice_flow(self.gas, area, t["discharge_coefficient"], exhausting_pa,
+                          self.muffler_pa),
+            _orifice_flow(self.gas, self.vent_area, 1.0, self.muffler_pa,
+                          t["ambient_pressure_pa"]),
             self.volume, self.gas_rt, h_s)
         sim.params[L.P_AMBIENT_PRESSURE_PA, 0] = self.muffler_pa
         sim.params[L.P_LOAD_FORCE_N, 0] = t["load_force_n"] - self._rod_force_error()
