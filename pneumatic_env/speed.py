@@ -72,6 +72,8 @@ VECTOR_OPS = ("vdiv", "vsqrt", "vother")  # SIMD instructions of the vectorised 
 # The batch path (kernel.advance_chunk) advances an environment in two parts.
 # 1. The vectorised loops (VECTOR_LOOPS, every branch computed and selected): per
 #    substep, kernel._begin_substeps (start state, piston direction, stiffness test),
+#    kernel._interpolate_row (the delayed spool position at the substep's start, middle
+#    and end, from the ring buffer's rows: the benchmark's lanes share one tube delay),
 #    kernel._base_substeps_vectorised (one RK4 substep of kernel.base_derivatives for every
 #    lane), kernel._end_substeps (event test, end stops) and kernel._copy_fast_lanes (the
 #    delay history, once per channel); per control period, kernel._accumulate_differing_bits
@@ -84,22 +86,21 @@ VECTOR_OPS = ("vdiv", "vsqrt", "vother")  # SIMD instructions of the vectorised 
 #    the rod clamped (no piston events) and no stiff substep. "flop" is an add, subtract,
 #    multiply, compare, select, min, max, abs, floor or conversion; "div" a floating-point
 #    division; "imod" an integer modulo; pow (``**``) counts as one exp and one log.
-#    Expressions of the per-environment constants alone are not counted. Update this
-#    table when advance_chunk changes.
+#    Expressions of the per-environment constants alone, and the work done once per chunk
+#    (e.g. kernel._delay_slots for lanes that share their delay), are not counted. Update
+#    this table when advance_chunk changes.
 KERNEL_WORK = {
-    # per lane and substep: kernel._delayed_spool_rows (LLVM does not vectorise its
-    # gathers from the ring buffer), per stage: the query, floor, weight, conversion to an
-    # integer, the slot and its wrap (add, compare, select), the next slot and its wrap,
-    # the interpolation (3) and the test of a query at head + 1 (compare, select): 15;
-    # then advance_chunk's two tests of the lane's path (general path or redone)
-    "lane_substep:fixed": {"flop": 3 * 15 + 2},
+    # per lane and substep: advance_chunk's two tests of the lane's path (general path or
+    # redone)
+    "lane_substep:fixed": {"flop": 2},
     # per lane and control period: kernel.refresh_constants testing the key (its
-    # differing bits and the substep; kernel.env_constants runs only when they changed)
-    # and advance_chunk's test of the lane's path
-    "control_step:cache": {"flop": 3},
+    # differing bits and the substep; kernel.env_constants runs only when they changed),
+    # kernel._same_delay's compare and advance_chunk's test of the lane's path
+    "control_step:cache": {"flop": 4},
 }
 # the vectorised loops in kernel: calls per substep and per control period
-VECTOR_LOOPS = {"_begin_substeps": (1, 0), "_base_substeps_vectorised": (1, 0),
+VECTOR_LOOPS = {"_begin_substeps": (1, 0), "_interpolate_row": (3, 0),
+                "_base_substeps_vectorised": (1, 0),
                 "_end_substeps": (1, 0), "_accumulate_differing_bits": (0, L.N_PARAMS),
                 "_fast_commands": (0, 1), "_fast_output_forces": (0, 1),
                 # 3 history channels per substep; per period the RK4 state rows, the two
@@ -636,6 +637,8 @@ SIMD_REGISTERS = (("%zmm", 8), ("%ymm", 4), ("%xmm", 2))  # register name, float
 # the Numba type of each argument of the VECTOR_LOOPS, by name
 _ROW = types.float64[::1]
 _LOOP_ARGUMENT_TYPES = {"constants": _ROW, "work": _ROW, "target_row": _ROW,
+                        "lower_row": _ROW, "upper_row": _ROW, "row": types.int64,
+                        "weight": types.float64, "at_start": types.boolean,
                         "force_row": _ROW, "command_row": _ROW, "play_row": _ROW,
                         "values": _ROW, "key_values": _ROW, "differing_bits": types.int64[::1],
                         "n_lanes": types.int64, "work_row": types.int64,

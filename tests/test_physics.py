@@ -598,23 +598,27 @@ def test_vectorised_delay_reads_equal_delayed_value_bit_for_bit():
     """The batch path's branch-free ring-buffer reads (``kernel._delayed_spool_rows``)
     against ``kernel.delayed_value``, at every head slot (wrapping ends included) and for
     delays from exactly one substep (the read at head + 1 is the start's own value) to
-    the longest the ring holds."""
+    the longest the ring holds: lanes with delays of their own (gathers), and lanes that
+    share one delay (contiguous rows), which ``_same_delay`` tells apart."""
     rng = np.random.default_rng(5)
     n_slots, n = 9, kernel.CHUNK_ENVS
     history = rng.normal(size=(n_slots, L.N_HISTORY, n))
-    delays = np.concatenate([[1.0, 2.0, 3.0, 1.5, float(n_slots - 2)],
-                             rng.uniform(1.0, n_slots - 2, n - 5)])
-    constants = np.zeros(kernel.N_CACHED_CONSTANTS * n)
-    constants[kernel.C_DELAY_SUBSTEPS * n:(kernel.C_DELAY_SUBSTEPS + 1) * n] = delays
-    work = np.zeros(kernel.N_WORK * n)
-    work[kernel.W_START * n:(kernel.W_START + 1) * n] = start = rng.normal(size=n)
-    for head in range(n_slots):
-        kernel._delayed_spool_rows(constants, work, history, 0, n, head)
-        for stage in range(3):
-            got = work[(kernel.W_SPOOL_DELAYED + stage) * n:(kernel.W_SPOOL_DELAYED + stage + 1) * n]
-            want = [kernel.delayed_value(history, j, L.H_X_S, head, 0.5 * stage, delays[j],
-                                         start[j], start[j]) for j in range(n)]
-            np.testing.assert_array_equal(got, want)
+    mixed = np.concatenate([[1.0, 2.0, 3.0, 1.5, float(n_slots - 2)],
+                            rng.uniform(1.0, n_slots - 2, n - 5)])
+    cases = [(mixed, False)] + [(np.full(n, d), True) for d in (1.0, 2.0, 1.5, 3.7, n_slots - 2.0)]
+    for delays, same in cases:
+        constants = np.zeros(kernel.N_CACHED_CONSTANTS * n)
+        constants[kernel.C_DELAY_SUBSTEPS * n:(kernel.C_DELAY_SUBSTEPS + 1) * n] = delays
+        assert kernel._same_delay(constants, n) == same
+        work = np.zeros(kernel.N_WORK * n)
+        work[kernel.W_START * n:(kernel.W_START + 1) * n] = start = rng.normal(size=n)
+        for head in range(n_slots):
+            kernel._delayed_spool_rows(constants, work, history, 0, n, head, same)
+            for stage in range(3):
+                row = kernel.W_SPOOL_DELAYED + stage
+                want = [kernel.delayed_value(history, j, L.H_X_S, head, 0.5 * stage, delays[j],
+                                             start[j], start[j]) for j in range(n)]
+                np.testing.assert_array_equal(work[row * n:(row + 1) * n], want)
 
 
 def test_a_longer_tube_grows_the_delay_buffer_without_disturbing_the_others():

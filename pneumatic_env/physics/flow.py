@@ -22,7 +22,14 @@ def flow_constants(heat_capacity_ratio, gas_constant):
 @njit(cache=True, forceinline=True, error_model="numpy")
 def subsonic_reduced_flow(pressure_ratio, heat_capacity_ratio, c2):
     """The unchoked branch of Eq. 52: C2 r^(1/k) sqrt(1 - r^((k-1)/k))."""
-    r_pow = exp_(log_(pressure_ratio) / heat_capacity_ratio)  # r^(1/k)
+    return subsonic_reduced_flow_inv_k(pressure_ratio, 1.0 / heat_capacity_ratio, c2)
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def subsonic_reduced_flow_inv_k(pressure_ratio, inverse_heat_capacity_ratio, c2):
+    """``subsonic_reduced_flow`` given 1/k, which the kernel caches per environment: a
+    multiplication where a division by k would take a divider's latency per evaluation."""
+    r_pow = exp_(log_(pressure_ratio) * inverse_heat_capacity_ratio)  # r^(1/k)
     return c2 * r_pow * math.sqrt(max(1.0 - pressure_ratio / r_pow, 0.0))
 
 
@@ -50,8 +57,16 @@ def reduced_flow(pressure_ratio, heat_capacity_ratio, c1, c2, critical_ratio,
     With ``flow_law = FLOW_LAW_ISO`` the subsonic branch is ISO 6358's ellipse and
     ``critical_ratio`` is its b (docs/effects.md); the linearisation is the same.
     """
+    return reduced_flow_inv_k(pressure_ratio, 1.0 / heat_capacity_ratio, c1, c2, critical_ratio,
+                              linear_ratio, linear_slope, flow_law)
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def reduced_flow_inv_k(pressure_ratio, inverse_heat_capacity_ratio, c1, c2, critical_ratio,
+                       linear_ratio, linear_slope, flow_law=FLOW_LAW_PAPER):
+    """``reduced_flow`` given 1/k (``subsonic_reduced_flow_inv_k``)."""
     iso = iso_subsonic_reduced_flow(pressure_ratio, c1, critical_ratio)
-    paper = subsonic_reduced_flow(pressure_ratio, heat_capacity_ratio, c2)
+    paper = subsonic_reduced_flow_inv_k(pressure_ratio, inverse_heat_capacity_ratio, c2)
     subsonic = iso if flow_law == FLOW_LAW_ISO else paper
     unchoked = subsonic if pressure_ratio < linear_ratio else linear_slope * (1.0 - pressure_ratio)
     return c1 if pressure_ratio <= critical_ratio else unchoked
@@ -68,9 +83,19 @@ def orifice_mass_flow(area_m2, discharge_coefficient, p_from_pa, p_to_pa, inv_sq
     (:func:`reduced_flow`). Equal pressures give m_r(1) = 0 and a closed orifice a zero
     area, so neither needs a branch.
     """
+    return orifice_mass_flow_inv_k(area_m2, discharge_coefficient, p_from_pa, p_to_pa,
+                                   inv_sqrt_temperature, 1.0 / heat_capacity_ratio, c1, c2,
+                                   critical_ratio, linear_ratio, linear_slope, flow_law)
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def orifice_mass_flow_inv_k(area_m2, discharge_coefficient, p_from_pa, p_to_pa,
+                            inv_sqrt_temperature, inverse_heat_capacity_ratio, c1, c2,
+                            critical_ratio, linear_ratio, linear_slope, flow_law=FLOW_LAW_PAPER):
+    """``orifice_mass_flow`` given 1/k (``subsonic_reduced_flow_inv_k``)."""
     upstream = max(p_from_pa, p_to_pa)
     downstream = min(p_from_pa, p_to_pa)
     sign = 1.0 if p_from_pa > p_to_pa else -1.0
-    m_r = reduced_flow(downstream / upstream, heat_capacity_ratio, c1, c2, critical_ratio,
-                       linear_ratio, linear_slope, flow_law)
+    m_r = reduced_flow_inv_k(downstream / upstream, inverse_heat_capacity_ratio, c1, c2,
+                             critical_ratio, linear_ratio, linear_slope, flow_law)
     return sign * discharge_coefficient * area_m2 * upstream * inv_sqrt_temperature * m_r

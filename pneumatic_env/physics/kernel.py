@@ -34,14 +34,14 @@ from .effects import (chamber_energy_rates, coil_decay, coil_force_gain, coil_ti
                       lagged_coil_force_current, spool_play_band,
                       spool_play_current, stribeck_friction)
 from .flow import (FLOW_LAW_ISO, FLOW_LAW_PAPER, flow_constants, iso_subsonic_reduced_flow,
-                   orifice_mass_flow,
+                   orifice_mass_flow_inv_k,
                    subsonic_reduced_flow)
 from .piston import (MODE_FIXED, apply_event, end_of_substep, event_fraction,
                      external_force, motion_direction,
                      output_force, piston_acceleration, pneumatic_force)
 from .tube import (line_chamber_flow, line_end_wave, line_resistance, sound_speed,
-                   tube_attenuation)
-from .valve import orifice_area, spool_acceleration
+                   reynolds_per_mass_flow, tube_attenuation_scaled, viscous_scale)
+from .valve import orifice_area_inv_radius, spool_acceleration
 from .vecmath import _float_to_bits
 
 # advance_env integrates the state rows 0 .. S_T2 with RK4 and sets S_COIL, S_PLAY,
@@ -66,6 +66,11 @@ Constants = namedtuple("Constants", (
     # numerical guards (docs/convergence.md): pressures and gas temperatures stay positive
     "pressure_floor", "temperature_floor",
     "stiffness_volume",  # lambda_max * V (m^3/s): see refinement()
+    # reciprocals and products of the fields above that the right-hand side would otherwise
+    # divide by per evaluation (a division takes a divider's latency; a product does not):
+    # 1/k, 1/R_h, 1/M_s, 1/(M_p + M_L), R T tau / 2, Re per kg/s, mu / D^2
+    "inv_k", "inv_hole_radius", "inv_spool_mass", "inv_moving_mass", "half_rt_delay",
+    "reynolds_per_flow", "viscous_scale",
 ))
 
 
@@ -152,6 +157,10 @@ def env_constants(params, env, substep_s):
            + p[L.P_VALVE_NULL_LEAK_AREA_M2] + p[L.P_LEAKAGE_AREA_M2] + p[L.P_ROD_SEAL_LEAK_AREA_M2])
         * (linear_slope + c1) / math.sqrt(temperature)
         + waves_flag * gas * temperature * max(p[L.P_ALPHA_IN], k) / line_impedance,
+        1.0 / k, 1.0 / p[L.P_HOLE_RADIUS_M], 1.0 / p[L.P_SPOOL_MASS_KG],
+        1.0 / (p[L.P_PISTON_MASS_KG] + p[L.P_LOAD_MASS_KG]), 0.5 * gas * temperature * delay_s,
+        reynolds_per_mass_flow(tube_diameter, p[L.P_AIR_VISCOSITY_PA_S]),
+        viscous_scale(tube_diameter, p[L.P_AIR_VISCOSITY_PA_S]),
     )
 
 
@@ -165,7 +174,7 @@ def _flow(c, discharge, area, p_from, p_to, inv_sqrt_t_from, inv_sqrt_t_to, flow
     if area <= 0.0:
         return 0.0
     inv_sqrt_t = inv_sqrt_t_from if p_from >= p_to else inv_sqrt_t_to
-    return orifice_mass_flow(area, discharge, p_from, p_to, inv_sqrt_t, c.k, c.c1, c.c2,
+    return orifice_mass_flow_inv_k(area, discharge, p_from, p_to, inv_sqrt_t, c.inv_k, c.c1, c.c2,
                              c.critical_ratio, c.linear_ratio, c.linear_slope, flow_law)
 
 
@@ -174,8 +183,9 @@ def _tube(c, mass_flow, chamber_pa):
     """The flow delivered at the chamber end of the tube (Eq. 30); none in, none out."""
     if mass_flow == 0.0:
         return 0.0
-    return mass_flow * tube_attenuation(mass_flow, chamber_pa, c.gas_rt, c.delay_s,
-                                        c.tube_diameter, c.viscosity, c.reynolds_turbulent)
+    return mass_flow * tube_attenuation_scaled(mass_flow, chamber_pa, c.half_rt_delay,
+                                               c.reynolds_per_flow, c.viscous_scale,
+                                               c.reynolds_turbulent)
 
 
 SUPPLY_DROOP_RTOL = 1e-10  # solver accuracy of the supply droop, relative to P_s (not physics)
@@ -249,7 +259,8 @@ def _scalar_area(c, spool_m):
     """``orifice_area`` on the general (scalar) path, returning at once for a closed hole."""
     if spool_m <= c.half_width - c.hole_radius:
         return 0.0
-    return orifice_area(spool_m, c.hole_radius, c.half_width, c.holes)
+    return orifice_area_inv_radius(spool_m, c.hole_radius, c.inv_hole_radius, c.half_width,
+                                   c.holes)
 
 
 @njit(cache=True)
@@ -379,8 +390,8 @@ def _motion_and_spool(c, coil_current_a, x_s, v_s, p1, p2, x, velocity, directio
     applied = (pneumatic_force(p1, p2, c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
                - external_force(c.mode, x, c.load_force, c.spring_k, c.spring_rest))
     accel = piston_acceleration(applied, velocity, direction, friction_n, c.viscous,
-                                c.moving_mass)
-    a_s = spool_acceleration(x_s, v_s, coil_current_a, c.spool_mass, c.spool_damping,
+                                c.inv_moving_mass)
+    a_s = spool_acceleration(x_s, v_s, coil_current_a, c.inv_spool_mass, c.spool_damping,
                              c.spool_spring, c.coil_force)
     return accel, a_s
 
@@ -486,7 +497,8 @@ def base_derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, direction, spool
     6, and compiles to SIMD code.
     """
     to_chamber_1 = spool_delayed > 0.0
-    area = orifice_area(abs(spool_delayed), c.hole_radius, c.half_width, c.holes)
+    area = orifice_area_inv_radius(abs(spool_delayed), c.hole_radius, c.inv_hole_radius,
+                                   c.half_width, c.holes)
     node_1 = c.supply_pa if to_chamber_1 else c.ambient_pa
     node_2 = c.ambient_pa if to_chamber_1 else c.supply_pa
     discharge_1 = c.discharge if to_chamber_1 else c.discharge_ex
@@ -844,7 +856,9 @@ def load_constants(constants, lane):
         constants[52 * k + lane], constants[53 * k + lane], constants[54 * k + lane], constants[55 * k + lane],
         constants[56 * k + lane], constants[57 * k + lane], constants[58 * k + lane], constants[59 * k + lane],
         constants[60 * k + lane], constants[61 * k + lane], constants[62 * k + lane], constants[63 * k + lane],
-        constants[64 * k + lane], constants[65 * k + lane], constants[66 * k + lane])
+        constants[64 * k + lane], constants[65 * k + lane], constants[66 * k + lane], constants[67 * k + lane],
+        constants[68 * k + lane], constants[69 * k + lane], constants[70 * k + lane], constants[71 * k + lane],
+        constants[72 * k + lane], constants[73 * k + lane])
 
 
 # Rows of the batch path's work array, a flat array of N_WORK rows of CHUNK_ENVS lanes: the
@@ -982,25 +996,68 @@ def _end_substeps(constants, work, n_lanes):
         work[L.S_X * k + j], work[L.S_V * k + j] = end_of_substep(x, v, c.half_stroke)
 
 
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _delay_slots(head_sub, stage, delay_substeps, n_slots):
+    """Where the batch path reads x_s(t - tau) at substep fraction ``stage / 2`` (0, 1/2,
+    1; at or before head + 1): (query, lower slot, upper slot, weight of the upper)."""
+    query = 0.5 * stage - delay_substeps
+    base = math.floor(query)
+    lower_slot = head_sub + int(base)  # in [-n_slots, n_slots)
+    lower_slot = lower_slot + n_slots if lower_slot < 0 else lower_slot
+    upper_slot = lower_slot + 1
+    upper_slot = 0 if upper_slot == n_slots else upper_slot
+    return query, lower_slot, upper_slot, query - base
+
+
 @njit(cache=True, error_model="numpy")
-def _delayed_spool_rows(constants, work, history, first, n_lanes, head_sub):
+def _same_delay(constants, n_lanes):
+    """Whether every lane of a chunk has the same tube delay (one tube length: the usual
+    case), so that its delayed reads share their ring slots."""
+    k = CHUNK_ENVS
+    delay = constants[C_DELAY_SUBSTEPS * k]
+    same = True
+    for j in range(1, n_lanes):
+        same &= constants[C_DELAY_SUBSTEPS * k + j] == delay
+    return same
+
+
+@njit(cache=True, error_model="numpy")
+def _interpolate_row(work, lower_row, upper_row, n_lanes, row, weight, at_start):
+    """Work row ``row`` of every lane from two rows of the ring buffer, ``lower_row +
+    weight * (upper_row - lower_row)``, or the substep's start (``at_start``: a delay of
+    exactly one substep). A loop LLVM vectorises."""
+    k = CHUNK_ENVS
+    for j in range(n_lanes):
+        lower = lower_row[j]
+        interpolated = lower + weight * (upper_row[j] - lower)
+        work[row * k + j] = work[W_START * k + j] if at_start else interpolated
+
+
+@njit(cache=True, error_model="numpy")
+def _delayed_spool_rows(constants, work, history, first, n_lanes, head_sub, same_delay):
     """For every lane of a chunk, the delayed spool position x_s(t - tau) at the substep's
     start, middle and end (``delayed_value`` with a delay of at least one substep, as
-    ``base_model_only`` requires). Branch-free, so no lane waits on a mispredicted
-    branch; the ring buffer's reads are gathers, which LLVM keeps scalar."""
+    ``base_model_only`` requires). With ``same_delay`` (``_same_delay``) the lanes read the
+    same ring slots, contiguous rows (``_interpolate_row``); otherwise each lane its own
+    (branch-free, so no lane waits on a mispredicted branch; gathers, which LLVM keeps
+    scalar)."""
     n_slots = history.shape[0]
     k = CHUNK_ENVS
+    stop = first + n_lanes
+    if same_delay:
+        for stage in range(3):
+            query, lower_slot, upper_slot, weight = _delay_slots(
+                head_sub, stage, constants[C_DELAY_SUBSTEPS * k], n_slots)
+            _interpolate_row(work, history[lower_slot, L.H_X_S, first:stop],
+                             history[upper_slot, L.H_X_S, first:stop], n_lanes,
+                             W_SPOOL_DELAYED + stage, weight, query >= 0.0)
+        return
     for j in range(n_lanes):
         delay_substeps = constants[C_DELAY_SUBSTEPS * k + j]
         x_s = work[W_START * k + j]
-        for stage in range(3):  # substep fractions 0, 1/2, 1 (at or before head + 1)
-            query = 0.5 * stage - delay_substeps
-            base = math.floor(query)
-            weight = query - base
-            lower_slot = head_sub + int(base)  # in [-n_slots, n_slots)
-            lower_slot = lower_slot + n_slots if lower_slot < 0 else lower_slot
-            upper_slot = lower_slot + 1
-            upper_slot = 0 if upper_slot == n_slots else upper_slot
+        for stage in range(3):
+            query, lower_slot, upper_slot, weight = _delay_slots(head_sub, stage,
+                                                                 delay_substeps, n_slots)
             lower = history[lower_slot, L.H_X_S, first + j]
             upper = history[upper_slot, L.H_X_S, first + j]
             interpolated = lower + weight * (upper - lower)
@@ -1063,7 +1120,7 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
     ``constants_cache``. Environments where ``base_model_only`` holds advance together:
     per substep, one vectorised loop keeps the start state and finds the piston's
     direction and the stiff lanes (``_begin_substeps``), the delayed spool positions are
-    read per lane, one vectorised RK4 substep (``_base_substeps_vectorised``) advances
+    read (``_delayed_spool_rows``), one vectorised RK4 substep (``_base_substeps_vectorised``) advances
     every lane, and one vectorised loop finds the lanes whose piston met an event and
     applies the stops (``_end_substeps``). A lane whose substep needs splitting (stiff
     flow, ``refinement``) or crosses a piston event is redone from the substep's start by
@@ -1087,10 +1144,11 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
     # lanes advance_env advanced are computed below too, and ignored
     for row in range(N_RK):
         work[row * CHUNK_ENVS:row * CHUNK_ENVS + n] = state[row, first:stop]
+    same_delay = _same_delay(chunk_constants, n)
     for sub in range(n_substeps):
         head_sub = ring_slot(head + sub, n_slots)
         _begin_substeps(chunk_constants, work, n, h)
-        _delayed_spool_rows(chunk_constants, work, history, first, n, head_sub)
+        _delayed_spool_rows(chunk_constants, work, history, first, n, head_sub, same_delay)
         _base_substeps_vectorised(chunk_constants, work, n, h)
         _end_substeps(chunk_constants, work, n)
         slot = ring_slot(head_sub + 1, n_slots)

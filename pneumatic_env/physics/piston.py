@@ -55,12 +55,14 @@ def motion_direction(piston_position_m, piston_velocity_m_per_s, applied_force_n
 
 @njit(cache=True, forceinline=True, error_model="numpy")
 def piston_acceleration(applied_force_n, piston_velocity_m_per_s, direction,
-                        dynamic_friction_n, viscous_friction_n_s_per_m, moving_mass_kg):
-    """Eq. 1 while sliding: (F_p - F_L - beta v - F_df dir) / (M_p + M_L); zero while held."""
+                        dynamic_friction_n, viscous_friction_n_s_per_m,
+                        inverse_moving_mass_per_kg):
+    """Eq. 1 while sliding: (F_p - F_L - beta v - F_df dir) / (M_p + M_L), given
+    1 / (M_p + M_L); zero while held."""
     if direction == 0.0:
         return 0.0
     return (applied_force_n - viscous_friction_n_s_per_m * piston_velocity_m_per_s
-            - dynamic_friction_n * direction) / moving_mass_kg
+            - dynamic_friction_n * direction) * inverse_moving_mass_per_kg
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")

@@ -12,13 +12,33 @@ TURBULENT_RESISTANCE_FACTOR = 0.158  # Eq. 35: R_t = 0.158 mu Re^(3/4) / D^2 (Bl
 @njit(cache=True, forceinline=True, error_model="numpy")
 def reynolds_number(mass_flow_kg_per_s, tube_inner_diameter_m, air_viscosity_pa_s):
     """Re = 4 |mdot| / (pi D mu) of the flow through a tube."""
-    return 4.0 * abs(mass_flow_kg_per_s) / (math.pi * tube_inner_diameter_m * air_viscosity_pa_s)
+    return abs(mass_flow_kg_per_s) * reynolds_per_mass_flow(tube_inner_diameter_m,
+                                                            air_viscosity_pa_s)
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def reynolds_per_mass_flow(tube_inner_diameter_m, air_viscosity_pa_s):
+    """Re / |mdot| = 4 / (pi D mu) (s/kg)."""
+    return 4.0 / (math.pi * tube_inner_diameter_m * air_viscosity_pa_s)
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def viscous_scale(tube_inner_diameter_m, air_viscosity_pa_s):
+    """mu / D^2 (Pa s / m^2), the factor common to Eqs. 33 and 35."""
+    return air_viscosity_pa_s / (tube_inner_diameter_m * tube_inner_diameter_m)
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
 def tube_resistance(reynolds, tube_inner_diameter_m, air_viscosity_pa_s, reynolds_turbulent):
     """Tube resistance R_t (Pa s / m^2): laminar Eq. 33 below ``reynolds_turbulent``, else Eq. 35."""
-    base = air_viscosity_pa_s / (tube_inner_diameter_m * tube_inner_diameter_m)
+    return scaled_tube_resistance(reynolds, viscous_scale(tube_inner_diameter_m,
+                                                          air_viscosity_pa_s), reynolds_turbulent)
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def scaled_tube_resistance(reynolds, viscous_scale_pa_s_per_m2, reynolds_turbulent):
+    """``tube_resistance`` given mu / D^2 (``viscous_scale``)."""
+    base = viscous_scale_pa_s_per_m2
     turbulent = TURBULENT_RESISTANCE_FACTOR * base * math.sqrt(reynolds * math.sqrt(reynolds))
     return LAMINAR_RESISTANCE_FACTOR * base if reynolds < reynolds_turbulent else turbulent
 
@@ -30,10 +50,21 @@ def tube_attenuation(mass_flow_kg_per_s, end_pressure_pa, gas_rt, delay_s, tube_
 
     Branch-free (a zero delay gives phi = 1), so a loop over environments vectorises.
     """
-    reynolds = reynolds_number(mass_flow_kg_per_s, tube_inner_diameter_m, air_viscosity_pa_s)
-    resistance = tube_resistance(reynolds, tube_inner_diameter_m, air_viscosity_pa_s,
-                                 reynolds_turbulent)
-    return exp_(-resistance * gas_rt * delay_s / (2.0 * end_pressure_pa))
+    return tube_attenuation_scaled(
+        mass_flow_kg_per_s, end_pressure_pa, 0.5 * gas_rt * delay_s,
+        reynolds_per_mass_flow(tube_inner_diameter_m, air_viscosity_pa_s),
+        viscous_scale(tube_inner_diameter_m, air_viscosity_pa_s), reynolds_turbulent)
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def tube_attenuation_scaled(mass_flow_kg_per_s, end_pressure_pa, half_rt_delay,
+                            reynolds_per_flow, viscous_scale_pa_s_per_m2, reynolds_turbulent):
+    """``tube_attenuation`` given R T tau / 2, ``reynolds_per_mass_flow`` and
+    ``viscous_scale``, which the kernel caches per environment (multiplications where
+    divisions by constants would take a divider's latency per evaluation)."""
+    reynolds = abs(mass_flow_kg_per_s) * reynolds_per_flow
+    resistance = scaled_tube_resistance(reynolds, viscous_scale_pa_s_per_m2, reynolds_turbulent)
+    return exp_(-resistance * half_rt_delay / end_pressure_pa)
 
 
 @njit(cache=True)
