@@ -14,6 +14,11 @@ def chamber_volumes(piston_position_m, half_stroke_m, area_cap_m2, area_rod_m2,
 @njit(cache=True, forceinline=True, error_model="numpy")
 def pressure_rate(pressure_pa, volume_m3, volume_rate_m3_per_s, mass_in_kg_per_s,
                   mass_out_kg_per_s, gas_rt, alpha_in, alpha_out, alpha_motion):
-    """Eq. 14: dP/dt = RT/V (alpha_in mdot_in - alpha_out mdot_out) - alpha P Vdot / V."""
+    """Eq. 14: dP/dt = RT/V (alpha_in mdot_in - alpha_out mdot_out) - alpha P Vdot / V.
+
+    1/V (known from the state at once) times the bracket, rather than the bracket over V:
+    the divider's latency then overlaps the flows' computation instead of following it.
+    """
+    inverse_volume = 1.0 / volume_m3
     return (gas_rt * (alpha_in * mass_in_kg_per_s - alpha_out * mass_out_kg_per_s)
-            - alpha_motion * pressure_pa * volume_rate_m3_per_s) / volume_m3
+            - alpha_motion * pressure_pa * volume_rate_m3_per_s) * inverse_volume

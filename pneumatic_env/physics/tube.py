@@ -64,7 +64,9 @@ def tube_attenuation_scaled(mass_flow_kg_per_s, end_pressure_pa, half_rt_delay,
     divisions by constants would take a divider's latency per evaluation)."""
     reynolds = abs(mass_flow_kg_per_s) * reynolds_per_flow
     resistance = scaled_tube_resistance(reynolds, viscous_scale_pa_s_per_m2, reynolds_turbulent)
-    return exp_(-resistance * half_rt_delay / end_pressure_pa)
+    # R T tau / (2 P) first: it needs only the end pressure, so the divider works while the
+    # flow is computed
+    return exp_(-resistance * (half_rt_delay / end_pressure_pa))
 
 
 @njit(cache=True)
