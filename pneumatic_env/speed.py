@@ -14,8 +14,9 @@ One run measures, on the same machine and in the same process:
 6. a ceiling for the kernel: the SIMD instructions of the compiled vectorised loops (read
    from their assembly, ``vector_loop_instructions``) and the scalar work per lane counted
    in ``KERNEL_WORK``, each at its throughput measured in a Numba loop on this machine;
-   the measured / ceiling ratio is the median over pairs of a kernel timing and the
-   operation costs measured right after it (both halves see the same load);
+   the measured / ceiling ratio is the median over pairs, each the fastest of a few short
+   kernel timings and the fastest of as many operation-cost samples, interleaved (both
+   halves see the same window of load from other processes);
 
 and prints a table of ratios against the targets. Medians over ``--repeats``;
 measurements of different configurations are interleaved so that load from other
@@ -27,6 +28,7 @@ import argparse
 import math
 import os
 import platform
+import re
 import subprocess
 import sys
 import time
@@ -62,6 +64,10 @@ TARGET_MEASURED_OVER_CEILING = 1.5
 
 RK4_STAGES = 4
 CEILING_PAIRS = 7  # kernel / operation-cost pairs behind the measured / ceiling ratio
+# each pair interleaves this many kernel timings (of vector_s / PAIR_BURSTS each) with as
+# many operation-cost samples and keeps the fastest of each: a shared machine slows a
+# window at random (other processes), and the ceiling is a rate without that load
+PAIR_BURSTS = 5
 # Batches are timed after this many control steps with random currents, so the delayed
 # spool has left its initial position (2 m tube: 5.8 ms) and the pressures have moved off
 # ambient: the regime of an episode, not of its first milliseconds.
@@ -314,12 +320,8 @@ def measure_vector(plan: Plan, log) -> dict:
                                 "substeps": n_substeps})
         if n == regime_n:
             _set_threads(1)
-            # the ceiling's operation costs are timed right after the kernel, in pairs, so
-            # that both halves of each ratio see the same load from other processes
-            pairs = []
-            for _ in range(max(plan.repeats, CEILING_PAIRS)):
-                rate = _kernel_rate(sims["serial"], currents, plan.vector_s, plan.min_steps)
-                pairs.append((1e9 / (rate * n_substeps), op_cost_sample(plan)))
+            pairs = [_ceiling_pair(plan, sims["serial"], currents)
+                     for _ in range(max(plan.repeats, CEILING_PAIRS))]
             regimes = _sample_regimes(sims["serial"], currents)
         log(f"vector N={n}: " + ", ".join(
             f"{t} thread(s) {_median(rates[t]):.0f}" for t in plan.threads) + " env-steps/s")
@@ -327,6 +329,18 @@ def measure_vector(plan: Plan, log) -> dict:
     _set_threads(plan.threads[-1])
     return {"env": env_rows, "kernel": kernel_rows, "regimes": regimes, "regime_n": regime_n,
             "mismatch": mismatch, "ceiling_pairs": pairs}
+
+
+def _ceiling_pair(plan: Plan, sim, currents: np.ndarray) -> tuple:
+    """One (kernel ns per env-substep, operation costs) pair of the measured / ceiling
+    ratio: ``PAIR_BURSTS`` short kernel timings interleaved with as many operation-cost
+    samples (``op_cost_sample``), the fastest of each (per operation)."""
+    kernel_ns, samples = [], []
+    for _ in range(PAIR_BURSTS):
+        rate = _kernel_rate(sim, currents, plan.vector_s / PAIR_BURSTS, plan.min_steps)
+        kernel_ns.append(1e9 / (rate * sim.n_substeps))
+        samples.append(op_cost_sample(plan))
+    return min(kernel_ns), {op: min(s[op] for s in samples) for op in samples[0]}
 
 
 def _copy_batch(source, target) -> None:
@@ -645,39 +659,75 @@ _LOOP_ARGUMENT_TYPES = {"constants": _ROW, "work": _ROW, "target_row": _ROW,
                         "keep_redone": types.boolean, "h": types.float64}
 
 
+_ASM_LABEL = re.compile(r"^(\.LBB\d+_\d+):")
+_ASM_JUMP = re.compile(r"^\tj\w+\t(\.LBB\d+_\d+)$")
+_ASM_INDEX_STEP = re.compile(r"^\taddq?\t\$(\d+), (%r\w+)$")
+
+
+def _vector_body(asm: str, register: str) -> tuple[list, int]:
+    """The SIMD instructions (on ``register``) of a function's vector loop body and the
+    float64 elements one pass of it serves.
+
+    The body is the single-block loop (a label, then a jump back to it with no other label
+    between) with the most such instructions; the elements per pass are its index step
+    (``add $K, %reg`` with ``%reg`` scaling a SIMD operand's address by 8). LLVM interleaves
+    small loops, so one pass may serve several vectors; prologue, remainder loop and the
+    Python wrapper are not counted.
+    """
+    lines = asm.splitlines()
+    best, label = ([], []), None
+    for i, line in enumerate(lines):
+        found = _ASM_LABEL.match(line)
+        if found:
+            label = (found.group(1), i)
+            continue
+        found = _ASM_JUMP.match(line)
+        if found and label and found.group(1) == label[0]:
+            body = lines[label[1] + 1:i]
+            simd = [b for b in body if register in b]
+            if len(simd) > len(best[1]):
+                best = (body, simd)
+    body, simd = best
+    steps = {int(m.group(1)) for m in map(_ASM_INDEX_STEP.match, body)
+             if m and any(f",{m.group(2)},8)" in line for line in simd)}
+    return simd, (steps.pop() if len(steps) == 1 else 0)
+
+
 def vector_loop_instructions() -> dict:
     """SIMD instructions of the batch path's vectorised loops, by class (from their assembly).
 
     The functions of ``VECTOR_LOOPS`` in ``kernel`` are compiled afresh (Numba does not
-    show the assembly of cached code) with the argument types the kernel passes. Every
-    instruction on the widest vector registers present counts; on x86 with AVX2 that is
-    one iteration of each vector body (4 lanes) plus its few loop-invariant broadcasts.
-    Returns the counts per class of each loop, the lanes per iteration and whether every
-    loop was vectorised.
+    show the assembly of cached code) with the argument types the kernel passes. The
+    instructions of each one's vector loop body (``_vector_body``) on the widest vector
+    registers present count, scaled to one vector of lanes (on x86 with AVX2, 4 lanes: a
+    body LLVM interleaved to serve 16 elements counts a quarter). Returns the counts per
+    class of each loop, the lanes per vector and whether every loop was vectorised.
     """
     from .physics import kernel
     loops = {}
     found = []
     for name in VECTOR_LOOPS:
-        counts = loops[name] = dict.fromkeys(VECTOR_OPS, 0)
+        counts = loops[name] = dict.fromkeys(VECTOR_OPS, 0.0)
         py_func = getattr(kernel, name).py_func
         fn = njit(error_model="numpy")(py_func)
         arguments = py_func.__code__.co_varnames[:py_func.__code__.co_argcount]
         signature = tuple(_LOOP_ARGUMENT_TYPES[a] for a in arguments)
         fn.compile(signature)
-        lines = [line.split() for line in fn.inspect_asm(signature).splitlines()
-                 if line.startswith("\t") and not line.startswith("\t.")]
-        for register, lanes in SIMD_REGISTERS:
-            body = [parts for parts in lines if any(register in p for p in parts[1:])]
+        asm = fn.inspect_asm(signature)
+        lanes, body, elements = 1, [], 0
+        for register, register_lanes in SIMD_REGISTERS:
+            body, elements = _vector_body(asm, register)
             if register == "%xmm":  # 128-bit: only the packed double instructions are SIMD
-                body = [parts for parts in body if parts[0].endswith("pd")]
-            if body:
+                body = [line for line in body if line.split()[0].endswith("pd")]
+            if body and elements:
+                lanes = register_lanes
                 break
-        found.append(lanes if body else 1)
-        for parts in body:
-            op = parts[0]
+        found.append(lanes)
+        for line in body if lanes > 1 else []:
+            op = line.split()[0]
             counts["vdiv" if op.startswith("vdivp") or op == "divpd" else
-                   "vsqrt" if op.startswith("vsqrtp") or op == "sqrtpd" else "vother"] += 1
+                   "vsqrt" if op.startswith("vsqrtp") or op == "sqrtpd" else
+                   "vother"] += lanes / elements
     return {"loops": loops, "lanes": min(found), "vectorised": min(found) > 1}
 
 
@@ -888,14 +938,16 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
 
     c = res.get("ceiling")
     if c:
-        how = (f"one iteration serves {c['lanes']} environments" if c["vectorised"] else
+        how = (f"one vector serves {c['lanes']} environments" if c["vectorised"] else
                "**a loop was not vectorised on this machine**")
         lines += ["", f"## Kernel ceiling (N={res['vector']['regime_n']}, 1 thread, serial kernel)",
                   "", "Work per environment and substep: the SIMD instructions of the compiled "
-                  "vectorised loops (" + ", ".join(
+                  "vectorised loops' bodies (" + ", ".join(
                       f"`kernel.{f}`" for f in VECTOR_LOOPS) + ", each times its calls per "
-                  "substep in `VECTOR_LOOPS`"
-                  + f"; {how}), divided by their lanes, and the scalar work per lane counted "
+                  "substep in `VECTOR_LOOPS`; per vector of lanes, a body LLVM interleaved to "
+                  "serve several vectors counting its share; prologues, remainder loops and "
+                  f"wrappers not counted; {how}), divided by their lanes, and the scalar work "
+                  "per lane counted "
                   "in `KERNEL_WORK` "
                   "(`pneumatic_env/speed.py`); each at its throughput measured in a Numba loop "
                   "on this machine (a SIMD instruction: the cost per element of a vectorised "
@@ -909,11 +961,14 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
         lines += _table(("operation", "ns each", "per substep and env", "ns per substep"),
                         rows)
         ratios = c["pair_ratios"]
-        lines += ["", f"The ratio in the first table is the median over {len(ratios)} pairs, "
-                  "each the kernel timed and then the operation costs measured right after it "
-                  "(so that both see the same load from other processes): "
-                  + ", ".join(f"{r:.2f}" for r in sorted(ratios)) + ". The table above uses "
-                  "the medians of every operation sample and of the kernel's time over the pairs."]
+        lines += ["", f"The ratio in the first table is the median over {len(ratios)} pairs: "
+                  + ", ".join(f"{r:.2f}" for r in sorted(ratios)) + f". Each pair is the fastest "
+                  f"of {PAIR_BURSTS} kernel timings ({plan.vector_s / PAIR_BURSTS:g} s each) "
+                  f"over the fastest of {PAIR_BURSTS} samples of each operation cost, "
+                  "interleaved, so that both halves see the same window of load from other "
+                  "processes and neither carries a burst of it (the ceiling is a rate without "
+                  "such load). The table above uses the medians over the pairs (and further "
+                  "operation samples)."]
         lines += ["", f"Parts per substep (`kernel.refinement`, sampled): {c['parts']:.2f}; "
                   f"substeps the general path redid: {c['redone']:.1%}."]
     lines += ["", "## How it is measured", "",
