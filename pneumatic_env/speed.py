@@ -38,6 +38,7 @@ import numpy as np
 from numba import njit, types
 
 from .convergence import TOLERANCE_PERCENT
+from .physics import kernel as K
 from .physics import layout as L
 from .physics.kernel import N_RK, OUTPUT_STATE_ROWS
 
@@ -332,15 +333,57 @@ def measure_vector(plan: Plan, log) -> dict:
 
 
 def _ceiling_pair(plan: Plan, sim, currents: np.ndarray) -> tuple:
-    """One (kernel ns per env-substep, operation costs) pair of the measured / ceiling
-    ratio: ``PAIR_BURSTS`` short kernel timings interleaved with as many operation-cost
-    samples (``op_cost_sample``), the fastest of each (per operation)."""
-    kernel_ns, samples = [], []
+    """One (kernel ns per env-substep, operation costs, RK4 loop ns per env-substep) triple
+    behind the measured / ceiling ratio: ``PAIR_BURSTS`` short kernel timings interleaved
+    with as many operation-cost samples (``op_cost_sample``) and timings of the RK4 loop
+    alone (``_rk4_loop_ns``), the fastest of each (per operation)."""
+    kernel_ns, samples, rk4_ns = [], [], []
     for _ in range(PAIR_BURSTS):
         rate = _kernel_rate(sim, currents, plan.vector_s / PAIR_BURSTS, plan.min_steps)
         kernel_ns.append(1e9 / (rate * sim.n_substeps))
         samples.append(op_cost_sample(plan))
-    return min(kernel_ns), {op: min(s[op] for s in samples) for op in samples[0]}
+        rk4_ns.append(_rk4_loop_ns(sim, currents[0], plan.vector_s / PAIR_BURSTS))
+    return (min(kernel_ns), {op: min(s[op] for s in samples) for op in samples[0]},
+            min(rk4_ns))
+
+
+@njit(cache=True)
+def _repeat_rk4_loop(constants, work, start, n_lanes, h, reps, run_loop):
+    """``reps`` times: restore the work array from ``start``, then (with ``run_loop``) one
+    call of the batch path's RK4 loop."""
+    for _ in range(reps):
+        work[:] = start
+        if run_loop:
+            K._base_substeps_vectorised(constants, work, n_lanes, h)
+
+
+def _rk4_loop_ns(sim, currents: np.ndarray, seconds: float) -> float:
+    """ns per env-substep of the RK4 loop alone (``kernel._base_substeps_vectorised``) on
+    the batch's first chunk, its inputs set up as ``kernel.advance_chunk`` does (start
+    state, direction, delayed spool positions), minus the time of restoring them."""
+    n = min(K.CHUNK_ENVS, sim.n_envs)
+    h = sim.control_dt_s / sim.n_substeps
+    constants = sim.constants[0]
+    work = np.zeros(K.N_WORK * K.CHUNK_ENVS)
+    for row in range(N_RK):
+        work[row * K.CHUNK_ENVS:row * K.CHUNK_ENVS + n] = sim.state[row, :n]
+    work[K.W_CURRENT * K.CHUNK_ENVS:K.W_CURRENT * K.CHUNK_ENVS + n] = currents[:n]
+    K._begin_substeps(constants, work, n, h)
+    K._delayed_spool_rows(constants, work, sim.history, 0, n, sim.head,
+                          K._same_delay(constants, n))
+    start = work.copy()
+    reps = 16
+    while True:  # calls that take about ``seconds``
+        t0 = time.perf_counter()
+        _repeat_rk4_loop(constants, work, start, n, h, reps, True)
+        loop_s = time.perf_counter() - t0
+        if loop_s >= seconds or reps >= 1 << 24:
+            break
+        reps *= 2
+    t0 = time.perf_counter()
+    _repeat_rk4_loop(constants, work, start, n, h, reps, False)
+    restore_s = time.perf_counter() - t0
+    return max(loop_s - restore_s, 0.0) / (reps * n) * 1e9
 
 
 def _copy_batch(source, target) -> None:
@@ -968,7 +1011,15 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
                   "interleaved, so that both halves see the same window of load from other "
                   "processes and neither carries a burst of it (the ceiling is a rate without "
                   "such load). The table above uses the medians over the pairs (and further "
-                  "operation samples)."]
+                  "operation samples).", "",
+                  f"Where the gap is: the RK4 loop alone (`kernel._base_substeps_vectorised` "
+                  f"on the batch's first chunk, its inputs as `advance_chunk` sets them up, "
+                  f"timed in the same pairs) takes {_fmt(c['rk4_ns'])} ns per env-substep "
+                  f"against its own ceiling of {_fmt(c['rk4_ceiling_ns'])} ns (median ratio "
+                  f"{_median(c['rk4_ratios']):.2f}); the rest of the kernel (the loops around "
+                  f"it, the delay reads, the constants cache, the calls per chunk) takes "
+                  f"{_fmt(c['measured_ns'] - c['rk4_ns'])} ns against "
+                  f"{_fmt(c['total_ns'] - c['rk4_ceiling_ns'])} ns."]
         lines += ["", f"Parts per substep (`kernel.refinement`, sampled): {c['parts']:.2f}; "
                   f"substeps the general path redid: {c['redone']:.1%}."]
     lines += ["", "## How it is measured", "",
@@ -1023,21 +1074,27 @@ def run(args) -> int:
         res["sync"] = measure_sync(plan, log)
         res["scipy"] = measure_scipy(plan, log)
         pairs = res["vector"]["ceiling_pairs"]
-        op_ns = measure_op_costs(plan, [ops for _, ops in pairs])
+        op_ns = measure_op_costs(plan, [ops for _, ops, _ in pairs])
         regimes = res["vector"]["regimes"]
         n_ref = res["vector"]["regime_n"]
         serial = [r for r in res["vector"]["kernel"]
                   if r["n"] == n_ref and r["kernel"] == "serial"][0]
         instructions = vector_loop_instructions()
         ceiling = kernel_ceiling(instructions, op_ns, serial["substeps"])
-        # measured / ceiling of each pair (kernel, then the operation costs, timed
-        # back to back); the ratio reported is their median
+        # measured / ceiling of each pair (kernel, operation costs and the RK4 loop alone,
+        # timed interleaved); the ratios reported are their medians
         ratios = [ns / kernel_ceiling(instructions, ops, serial["substeps"])["total_ns"]
-                  for ns, ops in pairs]
+                  for ns, ops, _ in pairs]
+        rk4 = instructions["loops"]["_base_substeps_vectorised"]
+        rk4_ceilings = [sum(count * ops[op] for op, count in rk4.items())
+                        for _, ops, _ in pairs]
         ceiling.update(op_ns=op_ns, lanes=instructions["lanes"],
                        vectorised=instructions["vectorised"], parts=regimes["parts"],
                        redone=regimes["redone"], pair_ratios=ratios,
-                       measured_ns=_median([ns for ns, _ in pairs]))
+                       measured_ns=_median([ns for ns, _, _ in pairs]),
+                       rk4_ns=_median([ns for _, _, ns in pairs]),
+                       rk4_ceiling_ns=sum(count * op_ns[op] for op, count in rk4.items()),
+                       rk4_ratios=[ns / c for (_, _, ns), c in zip(pairs, rk4_ceilings)])
         res["ceiling"] = ceiling
     finally:
         numba.set_num_threads(threads_before)

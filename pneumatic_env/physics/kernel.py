@@ -894,7 +894,7 @@ def constants_cache(n_envs):
             np.zeros((n_chunks, N_CACHED_CONSTANTS * CHUNK_ENVS)))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")  # no call per parameter row
 def _accumulate_differing_bits(values, key_values, differing_bits):
     """OR the bits in which ``values`` and ``key_values`` differ into ``differing_bits``
     (zero where every value so far equals its key bit for bit). A loop LLVM vectorises."""
@@ -1065,6 +1065,16 @@ def _delayed_spool_rows(constants, work, history, first, n_lanes, head_sub, same
             work[(W_SPOOL_DELAYED + stage) * k + j] = x_s if query >= 0.0 else interpolated
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _any_lane_set(work, row, n_lanes):
+    """Whether any lane of work row ``row`` (0.0 or 1.0 flags) is set: an OR of their bits,
+    a reduction LLVM vectorises, so the lanes are scanned one by one only when one is."""
+    bits = 0
+    for j in range(n_lanes):
+        bits |= _float_to_bits(work[row * CHUNK_ENVS + j])
+    return bits != 0
+
+
 @njit(cache=True, error_model="numpy")
 def _copy_fast_lanes(constants, work, n_lanes, work_row, target_row, keep_redone):
     """Copy row ``work_row`` of a chunk's lanes into ``target_row`` (one row of the chunk's
@@ -1155,7 +1165,7 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
         for row, channel in ((L.S_X_S, L.H_X_S), (L.S_P1, L.H_P1), (L.S_P2, L.H_P2)):
             _copy_fast_lanes(chunk_constants, work, n, row, history[slot, channel, first:stop],
                              True)
-        for j in range(n):
+        for j in range(n if _any_lane_set(work, W_REDO, n) else 0):
             if fast[j] != 0.0 and work[W_REDO * CHUNK_ENVS + j] != 0.0:
                 env = first + j
                 c = load_constants(chunk_constants, j)
