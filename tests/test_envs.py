@@ -102,6 +102,24 @@ def test_vector_env_equals_single_envs(env_id, extra):
     venv.close()
 
 
+def test_parallel_task_kernel_equals_the_serial_one():
+    """The threaded task step and observation (chosen for N >= simulator.PARALLEL_MIN_ENVS)
+    give the serial ones' observations, rewards and infos bit for bit, through a truncation."""
+    n, seed = 6, 3
+    serial = gym.make_vec(FORCE_ID, num_envs=n, **SHORT, **RANDOMIZED)
+    threaded = gym.make_vec(FORCE_ID, num_envs=n, **SHORT, **RANDOMIZED)
+    threaded.unwrapped.core.sim.parallel = True
+    assert not serial.unwrapped.core.sim.parallel
+    assert np.array_equal(serial.reset(seed=seed)[0], threaded.reset(seed=seed)[0])
+    for action in _actions(EPISODE + 5, (n, 1)):
+        one, many = serial.step(action), threaded.step(action)
+        for a, b in zip(one[:4], many[:4]):
+            assert np.array_equal(a, b)
+        assert np.array_equal(one[4]["tracking_error"], many[4]["tracking_error"])
+    serial.close()
+    threaded.close()
+
+
 def test_vector_env_equals_single_envs_given_only_max_episode_steps():
     venv = gym.make_vec(FORCE_ID, num_envs=2, max_episode_steps=EPISODE)
     envs = [gym.make(FORCE_ID, max_episode_steps=EPISODE) for _ in range(2)]

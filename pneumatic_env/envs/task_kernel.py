@@ -67,25 +67,42 @@ def task_step_parallel(params, state, history, head, action, control_dt_s, n_sub
                     constants)
 
 
-@njit(cache=True)
-def fill_observation(measured, references, step_count, normalize, ambient_pa, supply_pa,
-                     half_stroke_m, force_scale_n, reference_scale, obs):
+@njit(cache=True, inline="always")
+def _fill_observation_row(env, measured, references, step_count, normalize, ambient_pa,
+                          supply_pa, half_stroke_m, force_scale_n, reference_scale, obs):
     """obs[env] = [p1, p2, x, f, ref(k), ..., ref(k+H)] in SI units or normalised.
 
     Normalised: pressures (p - P_a)/(P_s - P_a), x/(L/2), f/force_scale, ref/reference_scale.
     """
     n_ref = references.shape[1]
     n_channels = measured.shape[1]
+    if normalize:
+        span = supply_pa - ambient_pa
+        obs[env, 0] = (measured[env, 0] - ambient_pa) / span
+        obs[env, 1] = (measured[env, 1] - ambient_pa) / span
+        obs[env, 2] = measured[env, 2] / half_stroke_m
+        obs[env, 3] = measured[env, 3] / force_scale_n
+    else:
+        for ch in range(n_channels):
+            obs[env, ch] = measured[env, ch]
+    for j in range(obs.shape[1] - n_channels):
+        value = references[env, min(step_count[env] + j, n_ref - 1)]
+        obs[env, n_channels + j] = value / reference_scale if normalize else value
+
+
+@njit(cache=True)
+def fill_observation(measured, references, step_count, normalize, ambient_pa, supply_pa,
+                     half_stroke_m, force_scale_n, reference_scale, obs):
+    """Every env's observation row (``_fill_observation_row``), on one thread."""
     for env in range(obs.shape[0]):
-        if normalize:
-            span = supply_pa - ambient_pa
-            obs[env, 0] = (measured[env, 0] - ambient_pa) / span
-            obs[env, 1] = (measured[env, 1] - ambient_pa) / span
-            obs[env, 2] = measured[env, 2] / half_stroke_m
-            obs[env, 3] = measured[env, 3] / force_scale_n
-        else:
-            for ch in range(n_channels):
-                obs[env, ch] = measured[env, ch]
-        for j in range(obs.shape[1] - n_channels):
-            value = references[env, min(step_count[env] + j, n_ref - 1)]
-            obs[env, n_channels + j] = value / reference_scale if normalize else value
+        _fill_observation_row(env, measured, references, step_count, normalize, ambient_pa,
+                              supply_pa, half_stroke_m, force_scale_n, reference_scale, obs)
+
+
+@njit(cache=True, parallel=True)
+def fill_observation_parallel(measured, references, step_count, normalize, ambient_pa,
+                              supply_pa, half_stroke_m, force_scale_n, reference_scale, obs):
+    """Every env's observation row (``_fill_observation_row``), envs spread over threads."""
+    for env in prange(obs.shape[0]):
+        _fill_observation_row(env, measured, references, step_count, normalize, ambient_pa,
+                              supply_pa, half_stroke_m, force_scale_n, reference_scale, obs)

@@ -315,9 +315,10 @@ class TaskCore:
     def observation(self) -> np.ndarray:
         """[p1, p2, x, f, ref(k), ref(k+1..k+H)] per env, float32 (SI or normalised)."""
         obs = np.empty((self.n_envs, self.obs_dim), dtype=np.float32)
-        task_kernel.fill_observation(self.measured, self.references, self.step_count,
-                                     self.options.normalize_observation, self.pa, self.ps,
-                                     self.half_stroke, self.force_scale, self.scale, obs)
+        fill = (task_kernel.fill_observation_parallel if self.sim.parallel
+                else task_kernel.fill_observation)
+        fill(self.measured, self.references, self.step_count, self.options.normalize_observation,
+             self.pa, self.ps, self.half_stroke, self.force_scale, self.scale, obs)
         return obs
 
     def observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
