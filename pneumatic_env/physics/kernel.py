@@ -52,10 +52,10 @@ assert (L.S_T1, L.S_T2, L.S_COIL, L.S_PLAY, L.S_COIL_FORCE, L.N_STATE) == (7, 8,
 Constants = namedtuple("Constants", (
     "gas_rt", "inv_sqrt_t", "k", "c1", "c2", "critical_ratio", "linear_ratio", "linear_slope",
     "supply_pa", "ambient_pa", "viscosity", "alpha_in", "alpha_out", "alpha_motion",
-    "spool_mass", "spool_damping", "spool_spring", "coil_force", "discharge", "hole_radius",
+    "inv_spool_mass", "spool_damping", "spool_spring", "coil_force", "discharge", "hole_radius",
     "half_width", "holes", "delay_s", "delay_substeps", "tube_diameter", "reynolds_turbulent",
     "literal", "area_cap", "area_rod", "rod_area", "half_stroke", "dead_cap", "dead_rod",
-    "moving_mass", "dynamic_friction", "stick_threshold", "viscous", "leak_area", "mode",
+    "inv_moving_mass", "dynamic_friction", "stick_threshold", "viscous", "leak_area", "mode",
     "load_force", "spring_k", "spring_rest",
     # effects (docs/effects.md)
     "discharge_ex", "null_leak", "seal_leak", "flow_law", "supply_resistance", "coil_lag",
@@ -66,11 +66,11 @@ Constants = namedtuple("Constants", (
     # numerical guards (docs/convergence.md): pressures and gas temperatures stay positive
     "pressure_floor", "temperature_floor",
     "stiffness_volume",  # lambda_max * V (m^3/s): see refinement()
-    # reciprocals and products of the fields above that the right-hand side would otherwise
-    # divide by per evaluation (a division takes a divider's latency; a product does not):
-    # 1/k, 1/R_h, 1/M_s, 1/(M_p + M_L), R T tau / 2, Re per kg/s, mu / D^2
-    "inv_k", "inv_hole_radius", "inv_spool_mass", "inv_moving_mass", "half_rt_delay",
-    "reynolds_per_flow", "viscous_scale",
+    # reciprocals and products the right-hand side would otherwise divide by per evaluation
+    # (a division takes a divider's latency; a product does not), as inv_spool_mass (1/M_s)
+    # and inv_moving_mass (1/(M_p + M_L)) above: 1/k, 1/R_h, R T tau / 2, Re per kg/s,
+    # mu / D^2
+    "inv_k", "inv_hole_radius", "half_rt_delay", "reynolds_per_flow", "viscous_scale",
 ))
 
 
@@ -127,7 +127,7 @@ def env_constants(params, env, substep_s):
         linear_ratio, linear_slope,
         p[L.P_SUPPLY_PRESSURE_PA], p[L.P_AMBIENT_PRESSURE_PA], p[L.P_AIR_VISCOSITY_PA_S],
         p[L.P_ALPHA_IN], p[L.P_ALPHA_OUT], p[L.P_ALPHA_MOTION],
-        p[L.P_SPOOL_MASS_KG], p[L.P_SPOOL_DAMPING_N_S_PER_M], p[L.P_SPOOL_SPRING_N_PER_M],
+        1.0 / p[L.P_SPOOL_MASS_KG], p[L.P_SPOOL_DAMPING_N_S_PER_M], p[L.P_SPOOL_SPRING_N_PER_M],
         p[L.P_COIL_FORCE_N_PER_A], p[L.P_DISCHARGE_COEFFICIENT], p[L.P_HOLE_RADIUS_M],
         p[L.P_SPOOL_HALF_WIDTH_M], p[L.P_HOLES_PER_PATH],
         delay_s, delay_s / substep_s, tube_diameter, p[L.P_REYNOLDS_TURBULENT],
@@ -137,7 +137,7 @@ def env_constants(params, env, substep_s):
                               tube_length),
         dead_volume_with_tube(p[L.P_DEAD_VOLUME_ROD_M3], tube_fraction, tube_diameter,
                               tube_length),
-        p[L.P_PISTON_MASS_KG] + p[L.P_LOAD_MASS_KG], p[L.P_DYNAMIC_FRICTION_N],
+        1.0 / (p[L.P_PISTON_MASS_KG] + p[L.P_LOAD_MASS_KG]), p[L.P_DYNAMIC_FRICTION_N],
         max(p[L.P_STATIC_FRICTION_N], p[L.P_DYNAMIC_FRICTION_N]),
         p[L.P_VISCOUS_FRICTION_N_S_PER_M], p[L.P_LEAKAGE_AREA_M2], float(int(p[L.P_PISTON_MODE])),
         p[L.P_LOAD_FORCE_N], p[L.P_SPRING_STIFFNESS_N_PER_M], p[L.P_SPRING_REST_POSITION_M],
@@ -157,8 +157,7 @@ def env_constants(params, env, substep_s):
            + p[L.P_VALVE_NULL_LEAK_AREA_M2] + p[L.P_LEAKAGE_AREA_M2] + p[L.P_ROD_SEAL_LEAK_AREA_M2])
         * (linear_slope + c1) / math.sqrt(temperature)
         + waves_flag * gas * temperature * max(p[L.P_ALPHA_IN], k) / line_impedance,
-        1.0 / k, 1.0 / p[L.P_HOLE_RADIUS_M], 1.0 / p[L.P_SPOOL_MASS_KG],
-        1.0 / (p[L.P_PISTON_MASS_KG] + p[L.P_LOAD_MASS_KG]), 0.5 * gas * temperature * delay_s,
+        1.0 / k, 1.0 / p[L.P_HOLE_RADIUS_M], 0.5 * gas * temperature * delay_s,
         reynolds_per_mass_flow(tube_diameter, p[L.P_AIR_VISCOSITY_PA_S]),
         viscous_scale(tube_diameter, p[L.P_AIR_VISCOSITY_PA_S]),
     )
@@ -174,8 +173,9 @@ def _flow(c, discharge, area, p_from, p_to, inv_sqrt_t_from, inv_sqrt_t_to, flow
     if area <= 0.0:
         return 0.0
     inv_sqrt_t = inv_sqrt_t_from if p_from >= p_to else inv_sqrt_t_to
-    return orifice_mass_flow_inv_k(area, discharge, p_from, p_to, inv_sqrt_t, c.inv_k, c.c1, c.c2,
-                             c.critical_ratio, c.linear_ratio, c.linear_slope, flow_law)
+    return orifice_mass_flow_inv_k(area, discharge, p_from, p_to, inv_sqrt_t, c.inv_k, c.c1,
+                                   c.c2, c.critical_ratio, c.linear_ratio, c.linear_slope,
+                                   flow_law)
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
@@ -857,8 +857,7 @@ def load_constants(constants, lane):
         constants[56 * k + lane], constants[57 * k + lane], constants[58 * k + lane], constants[59 * k + lane],
         constants[60 * k + lane], constants[61 * k + lane], constants[62 * k + lane], constants[63 * k + lane],
         constants[64 * k + lane], constants[65 * k + lane], constants[66 * k + lane], constants[67 * k + lane],
-        constants[68 * k + lane], constants[69 * k + lane], constants[70 * k + lane], constants[71 * k + lane],
-        constants[72 * k + lane], constants[73 * k + lane])
+        constants[68 * k + lane], constants[69 * k + lane], constants[70 * k + lane], constants[71 * k + lane])
 
 
 # Rows of the batch path's work array, a flat array of N_WORK rows of CHUNK_ENVS lanes: the
@@ -1130,9 +1129,9 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
     ``constants_cache``. Environments where ``base_model_only`` holds advance together:
     per substep, one vectorised loop keeps the start state and finds the piston's
     direction and the stiff lanes (``_begin_substeps``), the delayed spool positions are
-    read (``_delayed_spool_rows``), one vectorised RK4 substep (``_base_substeps_vectorised``) advances
-    every lane, and one vectorised loop finds the lanes whose piston met an event and
-    applies the stops (``_end_substeps``). A lane whose substep needs splitting (stiff
+    read (``_delayed_spool_rows``), one vectorised RK4 substep
+    (``_base_substeps_vectorised``) advances every lane, and one vectorised loop finds the
+    lanes whose piston met an event and applies the stops (``_end_substeps``). A lane whose substep needs splitting (stiff
     flow, ``refinement``) or crosses a piston event is redone from the substep's start by
     the general path (``_split_substep``). Other environments take ``advance_env``.
     Either way an environment's result does not depend on the rest of the batch.
