@@ -468,7 +468,9 @@ for _other, _off, _why in (
         ("tube_coupling", 0.0, "command (0): the transmission line couples valve and chamber"),
         ("tube_volume_fraction", 0.0, "0: the transmission line holds the tube's air itself"),
         ("supply_resistance_pa_s_per_kg", 0.0,
-         "0: the supply droop is not implemented with the transmission line")):
+         "0: the supply droop is not implemented with the transmission line"),
+        ("exhaust_vent_area_m2", 0.0,
+         "0: the exhaust back-pressure is not implemented with the transmission line")):
     _RULES.append((
         _other, "tube_waves",
         lambda v, o=_other, off=_off: v["tube_waves"] == 0.0 or v[o] == off,

@@ -147,6 +147,7 @@ class BatchSimulator:
             col[L.S_X_S], col[L.S_P1], col[L.S_P2] = s["x_s"], s["p1"], s["p2"]
             col[L.S_X], col[L.S_V] = s["x"], s["v"]
             col[L.S_T1] = col[L.S_T2] = p[L.P_TEMPERATURE_K]  # gas temperatures (effects)
+            col[L.S_EXHAUST_NODE] = p[L.P_AMBIENT_PRESSURE_PA]  # no exhaust flow yet
             self.history[:, L.H_X_S, int(env)] = s["x_s"]
             self.history[:, L.H_P1, int(env)] = s["p1"]
             self.history[:, L.H_P2, int(env)] = s["p2"]

@@ -364,13 +364,10 @@ def _rk4_loop_ns(sim, currents: np.ndarray, seconds: float) -> float:
     n = min(K.CHUNK_ENVS, sim.n_envs)
     h = sim.control_dt_s / sim.n_substeps
     constants = sim.constants[0]
-    work = np.zeros(K.N_WORK * K.CHUNK_ENVS)
-    for row in range(N_RK):
-        work[row * K.CHUNK_ENVS:row * K.CHUNK_ENVS + n] = sim.state[row, :n]
+    work = K.chunk_work(sim.state, 0, n)
     work[K.W_CURRENT * K.CHUNK_ENVS:K.W_CURRENT * K.CHUNK_ENVS + n] = currents[:n]
-    K._begin_substeps(constants, work, n, h)
-    K._delayed_spool_rows(constants, work, sim.history, 0, n, sim.head,
-                          K._same_delay(constants, n))
+    K.prepare_substep(constants, work, sim.history, 0, n,
+                      K.ring_slot(sim.head, sim.history.shape[0]), K._same_delay(constants, n), h)
     start = work.copy()
     reps = 16
     while True:  # calls that take about ``seconds``

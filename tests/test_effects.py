@@ -5,6 +5,7 @@ import math
 import gymnasium as gym
 import numpy as np
 import pytest
+from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 import pneumatic_env  # noqa: F401  (registers the environments)
@@ -12,7 +13,8 @@ from pneumatic_env.params import ConfigError, load_parameters, parameter_array, 
 from pneumatic_env.physics import effects as E
 from pneumatic_env.physics import kernel
 from pneumatic_env.physics import layout as L
-from pneumatic_env.physics.flow import flow_constants, reduced_flow, subsonic_reduced_flow
+from pneumatic_env.physics.flow import (flow_constants, orifice_mass_flow, reduced_flow,
+                                        subsonic_reduced_flow)
 from pneumatic_env.physics.valve import orifice_area, steady_spool_position
 from pneumatic_env.simulator import BatchSimulator
 
@@ -33,6 +35,8 @@ ON = {
     "stribeck_velocity_m_per_s": {"stribeck_velocity_m_per_s": 0.02},
     "spool_coulomb_friction_n": {"spool_coulomb_friction_n": 0.1},
     "tube_waves": {"tube_waves": "transmission_line"},
+    "exhaust_vent_area_m2": {"exhaust_vent_area_m2": 2e-6},
+    "exhaust_volume_m3": {"exhaust_vent_area_m2": 2e-6, "exhaust_volume_m3": 1e-5},
 }
 T_S = 293.15
 
@@ -195,11 +199,11 @@ def test_iso_flow_law_follows_the_ellipse_between_b_and_the_linear_region():
     for r in (0.2, 0.3, 0.45, 0.6, 0.9, 0.99):
         p1 = r * ps
         flow = kernel.valve_chamber_flows(c, x_s, p1, 1e5, p1, 1e5, c.inv_sqrt_t,
-                                          c.inv_sqrt_t)[0]
+                                          c.inv_sqrt_t, c.ambient_pa)[0]
         expected = full * math.sqrt(1 - (max(r - b, 0.0) / (1 - b)) ** 2)
         assert flow == pytest.approx(expected, rel=1e-12), r
         paper = kernel.valve_chamber_flows(c_paper, x_s, p1, 1e5, p1, 1e5, c.inv_sqrt_t,
-                                           c.inv_sqrt_t)[0]
+                                           c.inv_sqrt_t, c.ambient_pa)[0]
         if r > 0.528:  # the paper's law is subsonic there and differs
             assert abs(paper - flow) > 1e-3 * full
     # above flow_linear_ratio: the straight line to zero at r = 1, continuous at r_lin
@@ -207,7 +211,7 @@ def test_iso_flow_law_follows_the_ellipse_between_b_and_the_linear_region():
     at_lin = full * math.sqrt(1 - ((r_lin - b) / (1 - b)) ** 2)
     r = 0.5 * (r_lin + 1)
     flow = kernel.valve_chamber_flows(c, x_s, r * ps, 1e5, r * ps, 1e5, c.inv_sqrt_t,
-                                      c.inv_sqrt_t)[0]
+                                      c.inv_sqrt_t, c.ambient_pa)[0]
     assert flow == pytest.approx(at_lin * (1 - r) / (1 - r_lin), rel=1e-9)
 
 
@@ -221,7 +225,7 @@ def test_supply_droop_lowers_the_supply_pressure_by_resistance_times_flow():
 
     def flow(consts, p1):
         return kernel.valve_chamber_flows(consts, x_s, p1, 1e5, p1, 1e5, consts.inv_sqrt_t,
-                                          consts.inv_sqrt_t)[0]
+                                          consts.inv_sqrt_t, consts.ambient_pa)[0]
 
     def ideal_flow(supply_pa, p1):  # no resistance, supply at supply_pa
         return flow(_constants(tube_length_m=0.0, supply_pressure_pa=supply_pa), p1)
@@ -238,6 +242,112 @@ def test_supply_droop_lowers_the_supply_pressure_by_resistance_times_flow():
                      load_parameters(supply_resistance_pa_s_per_kg=resistance)], np.full(300, 1.0))
     assert out[10, L.O_P1, 1] < out[10, L.O_P1, 0] - 5e3
     assert out[-1, L.O_P1, 1] == pytest.approx(ps, rel=1e-4)
+
+
+# --------------------------------------------------------------------------- 6b exhaust vent
+
+def test_exhaust_vent_passes_what_the_valve_exhausts():
+    """The exhaust node behind a vent holds no air: at its pressure (an independent root of
+    Eq. 39 flows, valve in and vent out) the valve's exhaust flow equals the vent's."""
+    vent = 2e-6
+    p = load_parameters(tube_length_m=0.0, exhaust_vent_area_m2=vent)
+    c = _constants(tube_length_m=0.0, exhaust_vent_area_m2=vent)
+    k, pa, inv_sqrt_t = p["heat_capacity_ratio"], p["ambient_pressure_pa"], c.inv_sqrt_t
+
+    def eq39(area, discharge, p_from, p_to):
+        return orifice_mass_flow(area, discharge, p_from, p_to, inv_sqrt_t, k, c.c1, c.c2,
+                                 c.critical_ratio, c.linear_ratio, c.linear_slope)
+
+    for x_s in (-1.5e-3, -1.05e-3):  # chamber 1 exhausts through path b: fully, barely open
+        area_b = orifice_area(-x_s, p["hole_radius_m"], p["spool_half_width_m"],
+                              p["holes_per_path"])
+        for p1 in (1.3e5, 2.5e5, 6.0e5):
+            at_node = brentq(lambda q: eq39(area_b, c.discharge_ex, p1, q) - eq39(vent, 1.0, q, pa),
+                             pa, p1, xtol=1e-9)
+            flows = kernel.valve_chamber_flows(c, x_s, p1, 3e5, p1, 3e5, inv_sqrt_t, inv_sqrt_t,
+                                               pa)
+            exhausted = flows[1]
+            assert exhausted == pytest.approx(eq39(vent, 1.0, at_node, pa), rel=1e-8), (x_s, p1)
+            assert exhausted == pytest.approx(eq39(area_b, c.discharge_ex, p1, at_node),
+                                              rel=1e-8), (x_s, p1)
+            assert pa < at_node < p1
+            open_exhaust = _constants(tube_length_m=0.0)
+            assert exhausted < kernel.valve_chamber_flows(
+                open_exhaust, x_s, p1, 3e5, p1, 3e5, inv_sqrt_t, inv_sqrt_t, pa)[1]
+    # no flow, no back-pressure: a vented chamber still empties to the atmosphere, later
+    out = run_batch([load_parameters(), load_parameters(exhaust_vent_area_m2=vent)],
+                    np.full(400, -1.0), initial={"p1": 6e5})
+    assert out[5, L.O_P1, 1] > out[5, L.O_P1, 0] + 5e3
+    assert out[-1, L.O_P1, 1] == pytest.approx(pa, rel=1e-3)
+    with pytest.raises(ConfigError, match=r"^override 'exhaust_vent_area_m2' = 2e-06 is not "
+                                          r"allowed: must be 0: the exhaust back-pressure is "
+                                          r"not implemented with the transmission line "
+                                          r"\(tube_waves = 1\)$"):
+        load_parameters(tube_waves=1, exhaust_vent_area_m2=vent)
+
+
+@pytest.mark.parametrize("volume_m3, tolerance, lagging_step", [(1e-5, 0.005, 19),
+                                                                (1e-6, 0.03, 1)])
+def test_muffler_node_follows_an_independent_solution(volume_m3, tolerance, lagging_step):
+    """A muffler node (``exhaust_volume_m3``), the valve's inputs held: the kernel's
+    backward-Euler steps against solve_ivp of dP_e/dt = (R T / V) (valve in - vent out),
+    Eq. 39 flows; to the tolerance (of the rise to the steady pressure) over 20 ms. With
+    no volume the first step lands on the quasi-static pressure."""
+    vent, x_s, p1, p2, h = 1.5e-6, -1.5e-3, 4e5, 3e5, 5e-5  # chamber 1 exhausts (path b)
+    p = load_parameters(tube_length_m=0.0, exhaust_vent_area_m2=vent,
+                        exhaust_volume_m3=volume_m3)
+    c = _constants(tube_length_m=0.0, exhaust_vent_area_m2=vent, exhaust_volume_m3=volume_m3)
+    k, pa, inv_sqrt_t = p["heat_capacity_ratio"], p["ambient_pressure_pa"], c.inv_sqrt_t
+    area_b = orifice_area(-x_s, p["hole_radius_m"], p["spool_half_width_m"], p["holes_per_path"])
+    storage = volume_m3 / (p["gas_constant_j_per_kg_k"] * p["temperature_k"])
+
+    def rate(_, pe):
+        valve = orifice_mass_flow(area_b, c.discharge_ex, p1, pe[0], inv_sqrt_t, k, c.c1, c.c2,
+                                  c.critical_ratio, c.linear_ratio, c.linear_slope)
+        vented = orifice_mass_flow(vent, 1.0, pe[0], pa, inv_sqrt_t, k, c.c1, c.c2,
+                                   c.critical_ratio, c.linear_ratio, c.linear_slope)
+        return [(valve - vented) / storage]
+
+    steps = 400
+    times = h * np.arange(1, steps + 1)
+    reference = solve_ivp(rate, (0.0, times[-1]), [pa], t_eval=times, method="LSODA",
+                          rtol=1e-10, atol=1e-6).y[0]
+    history = np.zeros((3, L.N_HISTORY, 1))
+    y = (x_s, 0.0, p1, p2, 0.0, 0.0, 0.0, c.temperature, c.temperature)
+    node, ours = pa, []
+    for _ in range(steps):
+        node = kernel.exhaust_node_after_substep(c, history, 0, 0, y, node, h)
+        ours.append(node)
+    rise = reference[-1] - pa
+    assert rise > 2e5  # the steady back-pressure: close to p1, the valve no longer choked
+    assert np.max(np.abs(np.array(ours) - reference)) < tolerance * rise
+    assert reference[lagging_step] < pa + 0.5 * rise  # the volume makes it lag
+    quasi_static = kernel.exhaust_pressure_at_valve(c, 0.0, area_b, p1, p2, inv_sqrt_t,
+                                                    inv_sqrt_t, 0.0, pa)
+    assert quasi_static == pytest.approx(reference[-1], rel=1e-6)
+    no_volume = _constants(tube_length_m=0.0, exhaust_vent_area_m2=vent,
+                           exhaust_volume_m3=1e-12)
+    assert kernel.exhaust_node_after_substep(no_volume, history, 0, 0, y, pa, h) == \
+        pytest.approx(quasi_static, rel=1e-5)
+
+
+def test_muffler_delays_the_back_pressure_and_lets_the_chamber_empty():
+    """A charged chamber vented through a muffler: at first (the muffler still at ambient)
+    it empties as with no vent, later slower than with a vent alone; in the end it reaches
+    ambient, and so does the muffler; the node stays at ambient with the effect off."""
+    vent = 1.5e-6
+    sets = [load_parameters(), load_parameters(exhaust_vent_area_m2=vent),
+            load_parameters(exhaust_vent_area_m2=vent, exhaust_volume_m3=1e-5)]
+    sim = _sim(sets, initial={"p1": 6e5})
+    out = sim.rollout(np.full((400, 3), -1.0))
+    open_vent, quasi_static, muffler = (out[:, L.O_P1, j] for j in range(3))
+    assert abs(muffler[4] - open_vent[4]) < 0.2 * abs(quasi_static[4] - open_vent[4])
+    assert muffler[60] > quasi_static[60] + 1e4
+    assert muffler[-1] == pytest.approx(sets[0]["ambient_pressure_pa"], rel=1e-3)
+    assert sim.state[L.S_EXHAUST_NODE, 2] == pytest.approx(sets[0]["ambient_pressure_pa"],
+                                                           rel=1e-3)
+    np.testing.assert_array_equal(sim.state[L.S_EXHAUST_NODE, :2],
+                                  [sets[0]["ambient_pressure_pa"]] * 2)
 
 
 # --------------------------------------------------------------------------- 7 coil lag
@@ -356,7 +466,7 @@ def test_stribeck_friction_falls_from_static_to_dynamic_with_speed():
     f_sf, f_df = p["static_friction_n"], p["dynamic_friction_n"]
     for v in (1e-4, 0.01, 0.02, 0.2):
         accel = kernel.derivatives(c, 0.0, 0.0, 0.0, p1, p2, 0.0, v, T_S, T_S, 1.0, 0.0,
-                                   p1, p2, (p1, p2, p1, p2))[5]
+                                   p1, p2, (p1, p2, p1, p2), c.ambient_pa)[5]
         friction = f_df + (f_sf - f_df) * math.exp(-(v / v_s) ** 2)
         expected = (applied - p["viscous_friction_n_s_per_m"] * v - friction) / mass
         assert accel == pytest.approx(expected, rel=1e-12), v

@@ -23,7 +23,7 @@ from pneumatic_env.identification.diagnose import diagnose, phase_masks
 from pneumatic_env.identification.report import write_report
 from pneumatic_env.identification.virtual_rig import make_recording
 from pneumatic_env.params import load_parameters
-from pneumatic_env.physics.layout import PARAMETER_NAMES
+from pneumatic_env.physics.layout import EFFECT_NEUTRAL_VALUES, PARAMETER_NAMES
 from pneumatic_env.recording import RecordingError, read_recording, write_recording
 
 DURATION_S = 1.0
@@ -227,6 +227,7 @@ EFFECT_RIVALS = {
     "spool_friction": "coil_lag",
     "coil_lag": "channel_time_skew",
     "tube_waves": "tube_volume",
+    "exhaust_muffler": "exhaust_backpressure",
 }
 # Effects whose test recording is 1.5 s, as in the evaluation (the others: DURATION_S). The
 # rig's supply line lags its droop by 20 ms, which a resistance fits less well: at 1 s the
@@ -275,6 +276,16 @@ def test_stribeck_friction_is_diagnosed_on_a_moving_rod(rig_dir):
     assert 0.5 < diag.final.values["stribeck_velocity_m_per_s"] / truth[
         "stribeck_velocity_m_per_s"] < 2.0
     assert abs(diag.final.values["static_friction_n"] / truth["static_friction_n"] - 1) < 0.1
+
+
+def test_muffler_vent_and_volume_are_recovered(effect_diagnoses):
+    """The rig's muffler (explicit steps at the plant rate) against the kernel's muffler
+    node (backward Euler per substep): the vent area and the volume within 20 %."""
+    csv, diag = effect_diagnoses("exhaust_muffler")
+    assert diag.selected == ["exhaust_muffler"]
+    truth = _truth(csv)["parameters"]
+    for name in ("exhaust_vent_area_m2", "exhaust_volume_m3"):
+        assert abs(diag.final.values[name] / truth[name] - 1.0) < 0.2, name
 
 
 def test_load_cell_stiffness_is_recovered_and_the_rest_position_follows_the_clamp(
@@ -399,10 +410,14 @@ def test_candidate_table_is_consistent_with_the_kernel_and_its_configs():
                     assert p.lower <= load_parameters()[p.name] <= p.upper  # is allowed
                     continue
                 # off only in a limit (a rigid load cell) or by a switch (the transmission
-                # line): the kernel's defaults do not switch on what the candidate `set`s
+                # line): the kernel's defaults do not switch on what the candidate `set`s,
+                # or the kernel's default is its own off value, outside the fitted range
+                # (a vent area of 0: no vent, the limit A -> inf of an open exhaust)
                 defaults = load_parameters()
-                assert any(defaults[k] != v for k, v in cand.set.items()
-                           if not isinstance(v, str))
+                off_by_default = (defaults[p.name] == EFFECT_NEUTRAL_VALUES.get(p.name)
+                                  and not p.lower <= defaults[p.name] <= p.upper)
+                assert off_by_default or any(defaults[k] != v for k, v in cand.set.items()
+                                             if not isinstance(v, str)), cand.name
             elif cand.kind == "plant" and cand.available:
                 # the neutral value is the kernel's default: the effect is off by default
                 assert load_parameters()[p.name] == pytest.approx(p.neutral)

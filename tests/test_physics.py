@@ -568,7 +568,7 @@ def test_base_model_rhs_equals_the_general_rhs():
                                            spool_delayed)
             general = kernel.derivatives(c, coil, x_s, v_s, p1, p2, x, v, c.temperature,
                                          c.temperature, direction, spool_delayed, p1, p2,
-                                         (p1, p2, p1, p2))
+                                         (p1, p2, p1, p2), c.ambient_pa)
             assert base == general
 
 

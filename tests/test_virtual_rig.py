@@ -194,34 +194,32 @@ def test_rig_supply_line_droops_like_the_resistance_after_its_lag():
 
 def test_rig_muffler_fills_with_the_exhaust_and_vents_to_the_atmosphere():
     """``_muffler_step`` conserves the muffler's air (dp/dt = R T / V (in - out)); in the rig
-    (``--exhaust-model muffler``) its back-pressure slows the exhaust, so a charged chamber
-    vented by a step stays above the orifice rig's, and the truth names the nearest C_f
-    ratio."""
+    (``--effect exhaust_muffler``) its back-pressure slows the exhaust, so a charged
+    chamber vented by a step stays above the plain rig's, and the truth names the
+    candidate's vent area and the muffler's volume."""
     from pneumatic_env.identification.virtual_rig import _muffler_step
     rt, volume, h = 287.0 * 293.15, 1e-5, 1e-5
     p = _muffler_step(1.2e5, 2e-3, 5e-4, volume, rt, h)
     assert p == pytest.approx(1.2e5 + rt / volume * 1.5e-3 * h, rel=1e-12)
     assert _muffler_step(1.2e5, 0.0, 0.0, volume, rt, h) == 1.2e5
-    orifice = run_rig("exhaust_discharge", strength=0.0, seed=6, duration_s=DURATION_S)
-    muffler = run_rig("exhaust_discharge", seed=6, duration_s=DURATION_S,
-                      exhaust_model="muffler")
-    assert muffler.truth["exhaust_model"] == "muffler"
-    assert 0.5 < muffler.truth["parameters"]["exhaust_discharge_ratio"] < 0.8
+    plain = run_rig("exhaust_muffler", strength=0.0, seed=6, duration_s=DURATION_S)
+    muffler = run_rig("exhaust_muffler", seed=6, duration_s=DURATION_S)
+    config = load_config()
+    truth = muffler.truth["parameters"]
+    assert truth["exhaust_vent_area_m2"] == config.number(
+        "virtual_rig", "effects", "exhaust_muffler")
+    assert truth["exhaust_volume_m3"] == config.number(
+        "virtual_rig", "exhaust_muffler_volume_m3")
+    assert plain.truth["parameters"]["exhaust_vent_area_m2"] == 0.0  # the paper's exhaust
     # the first negative step exhausts the charged chamber 1: choked at first (the
     # muffler's pressure does not matter), then held up by the back-pressure
     i_c = muffler.channels["i_c"]
     start = int(np.argmax(i_c < 0.0))
     end = start + int(np.argmax(i_c[start:] == 0.0))
     late = slice(end - 10, end)
-    assert np.mean(muffler.channels["p1"][late] - orifice.channels["p1"][late]) > 10e3
+    assert np.mean(muffler.channels["p1"][late] - plain.channels["p1"][late]) > 10e3
     early = slice(start, start + 5)
-    assert np.array_equal(muffler.channels["p1"][early], orifice.channels["p1"][early])
-    with pytest.raises(ValueError, match=r"exhaust_model = 'muffler' needs effect "
-                                         r"'exhaust_discharge'; got effect 'none'"):
-        run_rig("none", exhaust_model="muffler")
-    with pytest.raises(ValueError, match=r"exhaust_model = 'silencer' is not allowed: must be "
-                                         r"one of \['orifice', 'muffler'\]"):
-        run_rig("exhaust_discharge", exhaust_model="silencer")
+    assert np.array_equal(muffler.channels["p1"][early], plain.channels["p1"][early])
 
 
 def test_two_cascaded_lags_keep_the_total_time_constant():

@@ -32,14 +32,12 @@ OUT_OF_CATALOG = ("supply_ripple",)
 #: needs a moving piston, and is also recorded with LuGre friction in the plant (a form
 #: the candidate lacks: pre-sliding and frictional lag); "none" is also recorded on a
 #: spring rod (moving-piston fits, with their static-friction restarts, must not invent
-#: an effect either); the tube volume is also tried with a 2 m tube (16 cm^3 of air); the
-#: exhaust discharge also as an exhaust muffler in the plant.
+#: an effect either); the tube volume is also tried with a 2 m tube (16 cm^3 of air).
 EXTRA_SETUPS = {
     "none": [("", {}), ("spring rod", {"piston": "spring"})],
     "stribeck": [("spring rod", {"piston": "spring"}),
                  ("LuGre spring rod", {"piston": "spring", "friction_model": "lugre"})],
     "tube_volume": [("", {}), ("2 m tube", {"tube_length_m": 2.0})],
-    "exhaust_discharge": [("", {}), ("muffler", {"exhaust_model": "muffler"})],
 }
 
 

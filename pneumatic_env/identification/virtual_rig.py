@@ -44,10 +44,13 @@ How the plant differs from the fitting model:
   supply_droop                      a supply line of volume V fed through the regulator's
                                     resistance R (a lag of R V / (R_gas T), 20 ms at S = 1),
                                     drained by the valve (R alone: the droop is immediate)
-  exhaust_discharge with            an exhaust muffler: a volume vented through an orifice of
-  exhaust_model = "muffler"         about the valve's opening at the excitation's steps / S;
-                                    the valve exhausts into it, so the back-pressure grows
-                                    with the flow (a constant C_f ratio on the exhaust path)
+  exhaust_muffler                   an exhaust muffler: a volume of 10 cm^3 (a state: the
+                                    back-pressure lags the flow) vented through an orifice of
+                                    about the valve's opening at the excitation's steps / S,
+                                    explicit steps at the plant rate fed by the valve's flow
+                                    at the spool's present opening (the kernel's muffler node:
+                                    a backward-Euler step per substep at the delayed opening,
+                                    held over it; close to an inverse crime)
   heat_transfer                     wall exchange per chamber with hA proportional to the gas
                                     density to the 2/3 (natural convection), applied between
                                     plant steps on the full energy equation (one constant hA)
@@ -71,14 +74,14 @@ from pneumatic_env.params import load_parameters, parameter_array
 from pneumatic_env.physics import layout as L
 from pneumatic_env.physics.chamber import chamber_volumes
 from pneumatic_env.physics.flow import flow_constants, orifice_mass_flow, subsonic_reduced_flow
-from pneumatic_env.physics.valve import orifice_area, steady_spool_position
+from pneumatic_env.physics.valve import orifice_area
 from pneumatic_env.recording import PISTON_MODES, canonical_cylinder, write_recording
 from pneumatic_env.references import ChirpReference, MultisineReference
 from pneumatic_env.simulator import BatchSimulator
 
 from .config import IdentificationConfig, load_config
 
-__all__ = ["KERNEL_EFFECTS", "RIG_EFFECTS", "SPLIT_EFFECTS", "FRICTION_MODELS", "EXHAUST_MODELS",
+__all__ = ["KERNEL_EFFECTS", "RIG_EFFECTS", "SPLIT_EFFECTS", "FRICTION_MODELS",
            "RigResult", "excitation", "make_recording", "run_rig", "add_arguments", "run"]
 
 #: Rig effects realised by a kernel parameter (same form as the candidate): name ->
@@ -95,15 +98,14 @@ KERNEL_EFFECTS = {
 RIG_EFFECTS = ("none", "leakage", "rod_seal_leak", "coil_lag", "spool_friction",
                "pressure_sensor_offset",
                "pressure_sensor_lag", "channel_time_skew", "load_cell_compliance",
-               "supply_ripple", "heat_transfer", "supply_droop", *KERNEL_EFFECTS)
+               "supply_ripple", "heat_transfer", "supply_droop", "exhaust_muffler",
+               *KERNEL_EFFECTS)
 #: Rig effects applied by operator splitting between steps of the kernel.
-SPLIT_EFFECTS = ("leakage", "rod_seal_leak", "supply_ripple", "heat_transfer", "supply_droop")
+SPLIT_EFFECTS = ("leakage", "rod_seal_leak", "supply_ripple", "heat_transfer", "supply_droop",
+                 "exhaust_muffler")
 #: The rig's piston friction: the kernel's Karnopp friction (with the Stribeck curve of
 #: ``--effect stribeck``), or LuGre friction (``--effect stribeck`` only).
 FRICTION_MODELS = ("karnopp", "lugre")
-#: The rig's exhaust: the kernel's orifice to the atmosphere (with the C_f ratio of
-#: ``--effect exhaust_discharge``), or a muffler (``--effect exhaust_discharge`` only).
-EXHAUST_MODELS = ("orifice", "muffler")
 EXCITATIONS = ("identification", "steps", "prbs", "multisine", "chirp", "triangle")
 _SEGMENTS = ("rest", "step_pos", "step_neg", "prbs", "multisine", "chirp", "triangle")
 
@@ -434,7 +436,7 @@ class _SupplyLine(_PlantForm):
 
 
 class _Muffler(_PlantForm):
-    """``exhaust_discharge`` with a muffler: the kernel's exhaust node is the muffler
+    """``exhaust_muffler``: the kernel's exhaust node is a muffler
     (``_muffler_step``); the atmosphere, not the muffler, pushes on the rod."""
 
     every_substep = True
@@ -511,20 +513,10 @@ def _plant_form(effect: str, strength: float, reference: float, true: dict, trut
         return _LuGre(true, truth["static_friction_n"], truth["dynamic_friction_n"], value,
                       rig("lugre_stiffness_n_per_m", positive=True),
                       rig("lugre_damping_n_s_per_m", positive=True))
-    if effect == "exhaust_discharge":  # the muffler replaces the kernel's C_f ratio
-        true["exhaust_discharge_ratio"] = 1.0
-        vent_area = rig("exhaust_muffler_area_m2", positive=True) / strength
+    if effect == "exhaust_muffler":  # the kernel's vent stays off: its node is the muffler
+        vent_area = reference / strength  # strength scales the vent's resistance
         volume = rig("exhaust_muffler_volume_m3", positive=True)
-        step_opening = steady_spool_position(
-            float(cfg.value("virtual_rig", "excitation", "step_a")),
-            true["spool_spring_n_per_m"], true["coil_force_n_per_a"])
-        valve_area = true["discharge_coefficient"] * orifice_area(
-            step_opening, true["hole_radius_m"], true["spool_half_width_m"],
-            true["holes_per_path"])
-        # the nearest kernel value: two orifices in series at the opening of the
-        # excitation's steps (incompressible)
-        truth["exhaust_discharge_ratio"] = 1.0 / math.sqrt(1.0 + (valve_area / vent_area) ** 2)
-        truth.update(exhaust_muffler_area_m2=vent_area, exhaust_muffler_volume_m3=volume)
+        truth.update(exhaust_vent_area_m2=vent_area, exhaust_volume_m3=volume)
         return _Muffler(true, vent_area, volume, piston)
     raise ValueError(f"effect {effect!r} has no plant form of the rig's own")
 
@@ -543,7 +535,7 @@ def _perturbed(cylinder: str, base: dict, rng: np.random.Generator,
 def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
             duration_s: float | None = None, cylinder: str = "numatics",
             tube_length_m: float = 0.5, piston: str = "fixed", excitation_kind: str = "identification",
-            perturb: bool = True, friction_model: str = "karnopp", exhaust_model: str = "orifice",
+            perturb: bool = True, friction_model: str = "karnopp",
             config: IdentificationConfig | None = None) -> RigResult:
     """Simulate the virtual rig; returns the recording's samples, sidecar and truth."""
     cfg = config or load_config()
@@ -563,12 +555,6 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
     if friction_model == "lugre" and (effect != "stribeck" or piston == "fixed"):
         raise ValueError(f"friction_model = 'lugre' needs effect 'stribeck' and a moving piston "
                          f"('spring' or 'free'); got effect {effect!r}, piston {piston!r}")
-    if exhaust_model not in EXHAUST_MODELS:
-        raise ValueError(f"exhaust_model = {exhaust_model!r} is not allowed: must be one of "
-                         f"{list(EXHAUST_MODELS)}")
-    if exhaust_model == "muffler" and effect != "exhaust_discharge":
-        raise ValueError(f"exhaust_model = 'muffler' needs effect 'exhaust_discharge'; got "
-                         f"effect {effect!r}")
     if effect in KERNEL_EFFECTS and KERNEL_EFFECTS[effect][0] not in L.PARAMETER_NAMES:
         raise ValueError(f"effect {effect!r} needs the kernel parameter "
                          f"{KERNEL_EFFECTS[effect][0]!r}, which this kernel does not have")
@@ -636,8 +622,7 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         fine = _stick_slip_play(fine, band, breakaway * band)
     plant_substeps = int(cfg.number("virtual_rig", "plant_substeps", positive=True))
     form = None
-    if s > 0.0 and (effect in SPLIT_EFFECTS or friction_model == "lugre"
-                    or exhaust_model == "muffler"):
+    if s > 0.0 and (effect in SPLIT_EFFECTS or friction_model == "lugre"):
         form = _plant_form(effect, s, ref, true, truth_parameters, cfg, piston)
     # a stiff form acts before every plant substep (the kernel steps one substep at a time)
     steps_per_plant_step = plant_substeps if form is not None and form.every_substep else 1
@@ -686,7 +671,6 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
     truth = {"effect": effect, "strength": s, "seed": int(seed), "excitation": excitation_kind,
              "duration_s": duration, "perturbed": bool(perturb),
              "effect_reference": ref, "friction_model": friction_model,
-             "exhaust_model": exhaust_model,
              "parameters": {k: float(v) for k, v in truth_parameters.items()}}
     return RigResult(t=t, channels=channels, rig=rig, truth=truth)
 
@@ -727,9 +711,6 @@ def add_arguments(p) -> None:
     p.add_argument("--friction-model", default="karnopp", choices=FRICTION_MODELS,
                    help="the piston's friction in the plant; lugre only with --effect stribeck "
                         "and a moving piston (default: karnopp, the kernel's)")
-    p.add_argument("--exhaust-model", default="orifice", choices=EXHAUST_MODELS,
-                   help="the valve's exhaust in the plant; muffler only with --effect "
-                        "exhaust_discharge (default: orifice, the kernel's)")
     p.add_argument("--no-perturb", action="store_true",
                    help="use the configs' default base parameters exactly")
     p.add_argument("--overwrite", action="store_true")
@@ -744,8 +725,7 @@ def run(args) -> int:
                               duration_s=args.duration, cylinder=args.cylinder,
                               tube_length_m=args.tube_length, piston=args.piston,
                               excitation_kind=args.excitation, perturb=not args.no_perturb,
-                              friction_model=args.friction_model,
-                              exhaust_model=args.exhaust_model)
+                              friction_model=args.friction_model)
     except (FileExistsError, ValueError) as exc:
         print(f"pneumatic-env rig: {exc}", file=sys.stderr)
         return 2

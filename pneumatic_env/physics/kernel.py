@@ -45,8 +45,9 @@ from .valve import orifice_area_inv_radius, spool_acceleration
 from .vecmath import _float_to_bits
 
 # advance_env integrates the state rows 0 .. S_T2 with RK4 and sets S_COIL, S_PLAY,
-# S_COIL_FORCE exactly.
-assert (L.S_T1, L.S_T2, L.S_COIL, L.S_PLAY, L.S_COIL_FORCE, L.N_STATE) == (7, 8, 9, 10, 11, 12), \
+# S_COIL_FORCE and S_EXHAUST_NODE exactly.
+assert (L.S_T1, L.S_T2, L.S_COIL, L.S_PLAY, L.S_COIL_FORCE, L.S_EXHAUST_NODE,
+        L.N_STATE) == (7, 8, 9, 10, 11, 12, 13), \
     "kernel assumes this state layout"
 
 Constants = namedtuple("Constants", (
@@ -58,8 +59,8 @@ Constants = namedtuple("Constants", (
     "inv_moving_mass", "dynamic_friction", "stick_threshold", "viscous", "leak_area", "mode",
     "load_force", "spring_k", "spring_rest",
     # effects (docs/effects.md)
-    "discharge_ex", "null_leak", "seal_leak", "flow_law", "supply_resistance", "coil_lag",
-    "coil_decay_half", "coil_decay_full", "coil_force_lag", "force_rate", "force_rate_difference",
+    "discharge_ex", "null_leak", "seal_leak", "flow_law", "supply_resistance", "exhaust_vent",
+    "exhaust_capacity", "coil_lag", "coil_decay_half", "coil_decay_full", "coil_force_lag", "force_rate", "force_rate_difference",
     "energy", "gas", "temperature", "heat_conductance",
     "static_friction", "stribeck", "stribeck_v", "spool_play_band",
     "waves", "line_impedance", "line_friction",
@@ -143,7 +144,8 @@ def env_constants(params, env, substep_s):
         p[L.P_LOAD_FORCE_N], p[L.P_SPRING_STIFFNESS_N_PER_M], p[L.P_SPRING_REST_POSITION_M],
         p[L.P_DISCHARGE_COEFFICIENT] * p[L.P_EXHAUST_DISCHARGE_RATIO],
         p[L.P_VALVE_NULL_LEAK_AREA_M2], p[L.P_ROD_SEAL_LEAK_AREA_M2], float(flow_law),
-        p[L.P_SUPPLY_RESISTANCE_PA_S_PER_KG], coil_lag_flag,
+        p[L.P_SUPPLY_RESISTANCE_PA_S_PER_KG], p[L.P_EXHAUST_VENT_AREA_M2],
+        p[L.P_EXHAUST_VOLUME_M3] / (gas * temperature), coil_lag_flag,
         coil_decay(coil_tau, 0.5 * substep_s), coil_decay(coil_tau, substep_s),
         force_lag_flag, force_rate, force_rate_difference,
         energy_flag, gas, temperature, heat_conductance,
@@ -255,6 +257,88 @@ def supply_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sq
 
 
 @njit(cache=True)
+def _exhaust_node_balance(c, exhaust_pa, area_a, area_b, valve_p1_pa, valve_p2_pa,
+                          inv_sqrt_t1, inv_sqrt_t2):
+    """Valve flow into the exhaust node (chamber 1 through path b, chamber 2 through path
+    a, Eq. 39) minus the vent's flow out of it to the atmosphere (Eq. 39 with C_f = 1 on
+    the effective vent area), kg/s; it decreases as ``exhaust_pa`` rises."""
+    into_node = (_flow(c, c.discharge_ex, area_b, valve_p1_pa, exhaust_pa, inv_sqrt_t1,
+                       c.inv_sqrt_t, c.flow_law)
+                 + _flow(c, c.discharge_ex, area_a, valve_p2_pa, exhaust_pa, inv_sqrt_t2,
+                         c.inv_sqrt_t, c.flow_law))
+    vented = _flow(c, 1.0, c.exhaust_vent, exhaust_pa, c.ambient_pa, c.inv_sqrt_t,
+                   c.inv_sqrt_t, c.flow_law)
+    return into_node - vented
+
+
+@njit(cache=True)
+def exhaust_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1,
+                              inv_sqrt_t2, storage_kg_per_pa, previous_pa):
+    """Pressure of the exhaust node behind a vent (exhaust back-pressure, docs/effects.md).
+
+    The root of ``_exhaust_node_balance(P) - storage_kg_per_pa (P - previous_pa)``. With no
+    storage (the node holds no air) what the valve exhausts leaves through the vent at
+    once; with the storage V / (R T h) of a node of volume V, this is the backward-Euler
+    step of dP/dt = (R T / V) balance(P) over h from ``previous_pa``. The function falls
+    as P rises, so the root is unique and bracketed by the lowest and the highest of P_a,
+    P1, P2 (and ``previous_pa``): at the lowest, air can only enter the node; at the
+    highest, only leave it. Illinois regula falsi until a step is below
+    ``SUPPLY_DROOP_RTOL`` P_s. A node with no storage and no open exhaust path is at P_a.
+    """
+    if storage_kg_per_pa == 0.0 and area_a <= 0.0 and area_b <= 0.0:
+        return c.ambient_pa
+    lo = min(c.ambient_pa, valve_p1_pa, valve_p2_pa)
+    hi = max(c.ambient_pa, valve_p1_pa, valve_p2_pa)
+    if storage_kg_per_pa > 0.0:
+        lo = min(lo, previous_pa)
+        hi = max(hi, previous_pa)
+    # regula falsi on the negative of the falling function, which rises
+    lo_f = storage_kg_per_pa * (lo - previous_pa) - _exhaust_node_balance(
+        c, lo, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2)
+    hi_f = storage_kg_per_pa * (hi - previous_pa) - _exhaust_node_balance(
+        c, hi, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2)
+    if lo_f >= 0.0:
+        return lo
+    if hi_f <= 0.0:
+        return hi
+    tolerance = SUPPLY_DROOP_RTOL * c.supply_pa
+    guess = (lo * hi_f - hi * lo_f) / (hi_f - lo_f)
+    side = 0
+    for _ in range(SUPPLY_DROOP_MAX_ITERATIONS):
+        f_guess = storage_kg_per_pa * (guess - previous_pa) - _exhaust_node_balance(
+            c, guess, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2)
+        if f_guess == 0.0:
+            return guess
+        lo, lo_f, hi, hi_f, side = _illinois_update(lo, lo_f, hi, hi_f, guess, f_guess, side)
+        previous_guess = guess
+        guess = (lo * hi_f - hi * lo_f) / (hi_f - lo_f)
+        if abs(guess - previous_guess) <= tolerance:
+            return guess
+    return guess
+
+
+@njit(cache=True)
+def exhaust_node_after_substep(c, history, env, slot, y, exhaust_node_pa, h):
+    """The exhaust node's pressure after a substep of ``h`` s when it has a volume V
+    (``exhaust_volume_m3``; docs/effects.md): one backward-Euler step of
+    dP_e/dt = (R T / V) ``_exhaust_node_balance``(P_e) with the valve's inputs at the
+    boundary ``slot`` (state ``y``), solved by ``exhaust_pressure_at_valve``; stable for
+    any volume, and the quasi-static node as V -> 0."""
+    spool_delayed = delayed_value(history, env, L.H_X_S, slot, 0.0, c.delay_substeps, y[0], y[0])
+    valve_p1, valve_p2 = y[2], y[3]
+    if c.literal:
+        valve_p1 = delayed_value(history, env, L.H_P1, slot, 0.0, c.delay_substeps, y[2], y[2])
+        valve_p2 = delayed_value(history, env, L.H_P2, slot, 0.0, c.delay_substeps, y[3], y[3])
+    inv_sqrt_t1, inv_sqrt_t2 = c.inv_sqrt_t, c.inv_sqrt_t
+    if c.energy:
+        inv_sqrt_t1, inv_sqrt_t2 = 1.0 / math.sqrt(y[7]), 1.0 / math.sqrt(y[8])
+    return exhaust_pressure_at_valve(c, _scalar_area(c, spool_delayed) + c.null_leak,
+                                     _scalar_area(c, -spool_delayed) + c.null_leak, valve_p1,
+                                     valve_p2, inv_sqrt_t1, inv_sqrt_t2,
+                                     c.exhaust_capacity / h, exhaust_node_pa)
+
+
+@njit(cache=True)
 def _scalar_area(c, spool_m):
     """``orifice_area`` on the general (scalar) path, returning at once for a closed hole."""
     if spool_m <= c.half_width - c.hole_radius:
@@ -265,7 +349,7 @@ def _scalar_area(c, spool_m):
 
 @njit(cache=True)
 def valve_chamber_flows(c, spool_delayed_m, valve_p1_pa, valve_p2_pa, p1_pa, p2_pa,
-                        inv_sqrt_t1, inv_sqrt_t2):
+                        inv_sqrt_t1, inv_sqrt_t2, exhaust_node_pa):
     """Mass flows into (+) each chamber through its tube: supply and exhaust paths (Eqs. 50-55).
 
     ``spool_delayed_m`` is x_s(t - tau); ``valve_p*`` are the chamber pressures the valve
@@ -273,7 +357,10 @@ def valve_chamber_flows(c, spool_delayed_m, valve_p1_pa, valve_p2_pa, p1_pa, p2_
     literal Eq. 55); ``p*_pa`` are the current tube-end pressures used by the attenuation;
     ``inv_sqrt_t*`` are 1/sqrt(T) of the chamber air (of ``temperature_k`` unless the
     energy model is on). Effects: null leakage adds to both areas, the exhaust paths use
-    their own discharge coefficient, the supply pressure droops with the supply flow.
+    their own discharge coefficient, the supply pressure droops with the supply flow, the
+    exhaust paths discharge into the node behind a vent: at ``exhaust_node_pa`` (the state
+    row ``exhaust_node_pa``, held over the substep) when the node has a volume, else at
+    its quasi-static pressure (``exhaust_pressure_at_valve``).
     Returns (supply->1, 1->exhaust, supply->2, 2->exhaust) as flows at the chamber end.
     """
     area_a = _scalar_area(c, spool_delayed_m) + c.null_leak
@@ -282,13 +369,19 @@ def valve_chamber_flows(c, spool_delayed_m, valve_p1_pa, valve_p2_pa, p1_pa, p2_
     if c.supply_resistance > 0.0:
         supply_pa = supply_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa,
                                              inv_sqrt_t1, inv_sqrt_t2)
+    exhaust_pa = c.ambient_pa
+    if c.exhaust_vent > 0.0:
+        exhaust_pa = exhaust_node_pa
+        if c.exhaust_capacity == 0.0:
+            exhaust_pa = exhaust_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa,
+                                                   inv_sqrt_t1, inv_sqrt_t2, 0.0, c.ambient_pa)
     supply_1 = _tube(c, _flow(c, c.discharge, area_a, supply_pa, valve_p1_pa, c.inv_sqrt_t,
                               inv_sqrt_t1, c.flow_law), p1_pa)
-    exhaust_1 = _tube(c, _flow(c, c.discharge_ex, area_b, valve_p1_pa, c.ambient_pa, inv_sqrt_t1,
+    exhaust_1 = _tube(c, _flow(c, c.discharge_ex, area_b, valve_p1_pa, exhaust_pa, inv_sqrt_t1,
                                c.inv_sqrt_t, c.flow_law), p1_pa)
     supply_2 = _tube(c, _flow(c, c.discharge, area_b, supply_pa, valve_p2_pa, c.inv_sqrt_t,
                               inv_sqrt_t2, c.flow_law), p2_pa)
-    exhaust_2 = _tube(c, _flow(c, c.discharge_ex, area_a, valve_p2_pa, c.ambient_pa, inv_sqrt_t2,
+    exhaust_2 = _tube(c, _flow(c, c.discharge_ex, area_a, valve_p2_pa, exhaust_pa, inv_sqrt_t2,
                                c.inv_sqrt_t, c.flow_law), p2_pa)
     return supply_1, exhaust_1, supply_2, exhaust_2
 
@@ -406,7 +499,7 @@ def _volumes(c, x):
 
 @njit(cache=True)
 def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, spool_delayed,
-                valve_p1, valve_p2, arriving):
+                valve_p1, valve_p2, arriving, exhaust_node_pa):
     """Right-hand side of the state (x_s, v_s, P1, P2, x, v, exhaust mass, T1, T2).
 
     The general form: all four valve paths, the leakage orifices and every effect.
@@ -429,7 +522,8 @@ def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, sp
         exhaust_2 = 0.0
     else:
         supply_1, exhaust_1, supply_2, exhaust_2 = valve_chamber_flows(
-            c, spool_delayed, valve_p1, valve_p2, p1, p2, inv_sqrt_t1, inv_sqrt_t2)
+            c, spool_delayed, valve_p1, valve_p2, p1, p2, inv_sqrt_t1, inv_sqrt_t2,
+            exhaust_node_pa)
     leak_12 = _flow(c, c.discharge, c.leak_area, p1, p2, inv_sqrt_t1, inv_sqrt_t2, c.flow_law)
     seal_2 = _flow(c, c.discharge, c.seal_leak, p2, c.ambient_pa, inv_sqrt_t2, c.inv_sqrt_t,
                    c.flow_law)
@@ -479,8 +573,8 @@ def base_model_only(c):
     the tube volume, the spool friction, whose play acts before the substeps); the others
     send the environment to the general path.
     """
-    return (c.energy == 0.0 and c.supply_resistance == 0.0 and c.literal == 0.0
-            and c.leak_area == 0.0 and c.seal_leak == 0.0 and c.null_leak == 0.0
+    return (c.energy == 0.0 and c.supply_resistance == 0.0 and c.exhaust_vent == 0.0
+            and c.literal == 0.0 and c.leak_area == 0.0 and c.seal_leak == 0.0 and c.null_leak == 0.0
             and c.coil_lag == 0.0 and c.coil_force_lag == 0.0 and c.stribeck == 0.0
             and c.flow_law == FLOW_LAW_PAPER and c.waves == 0.0
             and c.half_width >= c.hole_radius and c.delay_substeps >= 1.0)
@@ -552,7 +646,7 @@ def delayed_value(history, env, channel, head, stage_substeps, delay_substeps, v
 
 
 @njit(cache=True, inline="always")  # inlined: a call would pass every constant as an argument
-def _stage(c, history, env, head, frac, coil_current_a, y, y0, direction):
+def _stage(c, history, env, head, frac, coil_current_a, y, y0, direction, exhaust_node_pa):
     spool_delayed = delayed_value(history, env, L.H_X_S, head, frac, c.delay_substeps, y0[0], y[0])
     if c.literal:
         valve_p1 = delayed_value(history, env, L.H_P1, head, frac, c.delay_substeps, y0[2], y[2])
@@ -564,7 +658,7 @@ def _stage(c, history, env, head, frac, coil_current_a, y, y0, direction):
     if c.waves:
         arriving = _arriving_waves(c, history, env, head, frac)
     return derivatives(c, coil_current_a, y[0], y[1], y[2], y[3], y[4], y[5], y[7], y[8],
-                       direction, spool_delayed, valve_p1, valve_p2, arriving)
+                       direction, spool_delayed, valve_p1, valve_p2, arriving, exhaust_node_pa)
 
 
 @njit(cache=True)
@@ -610,23 +704,25 @@ def _coil_at(c, command_a, coil_start, frac):
 
 
 @njit(cache=True)
-def _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start, y, y0, direction):
+def _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start, y, y0, direction,
+         exhaust_node_pa):
     """One classical RK4 step over substep fractions [frac0, frac0 + dfrac] (h: substep, s).
 
     ``y0`` is the state at the substep boundary ``head`` (the delay interpolation's anchor);
-    ``coil_start`` the (coil, force) currents there (``_coil_at``).
+    ``coil_start`` the (coil, force) currents there (``_coil_at``); ``exhaust_node_pa``
+    the exhaust node's pressure, held over the substep.
     """
     hh = dfrac * h
     fm = frac0 + 0.5 * dfrac
     fe = frac0 + dfrac
     k1 = _stage(c, history, env, head, frac0, _coil_at(c, command_a, coil_start, frac0)[1], y,
-                y0, direction)
+                y0, direction, exhaust_node_pa)
     k2 = _stage(c, history, env, head, fm, _coil_at(c, command_a, coil_start, fm)[1],
-                _axpy(y, 0.5 * hh, k1), y0, direction)
+                _axpy(y, 0.5 * hh, k1), y0, direction, exhaust_node_pa)
     k3 = _stage(c, history, env, head, fm, _coil_at(c, command_a, coil_start, fm)[1],
-                _axpy(y, 0.5 * hh, k2), y0, direction)
+                _axpy(y, 0.5 * hh, k2), y0, direction, exhaust_node_pa)
     k4 = _stage(c, history, env, head, fe, _coil_at(c, command_a, coil_start, fe)[1],
-                _axpy(y, hh, k3), y0, direction)
+                _axpy(y, hh, k3), y0, direction, exhaust_node_pa)
     return _rk4_combine(c, y, k1, k2, k3, k4, hh, direction)
 
 
@@ -709,7 +805,7 @@ def refinement(c, y, h):
 
 @njit(cache=True)
 def _advance_interval(c, history, env, head, frac_start, frac_end, h, command_a, coil_start,
-                      y, y0):
+                      y, y0, exhaust_node_pa):
     """Integrate substep fractions [frac_start, frac_end], splitting at piston events.
 
     When the sliding piston's attempted step crosses an end stop or its velocity reverses,
@@ -726,7 +822,7 @@ def _advance_interval(c, history, env, head, frac_start, frac_end, h, command_a,
             direction = motion_direction(y[4], y[5], applied, c.stick_threshold, c.half_stroke)
         dfrac = frac_end - frac0
         trial = _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start, y, y0,
-                     direction)
+                     direction, exhaust_node_pa)
         theta = -1.0
         if direction != 0.0:
             theta = event_fraction(y[4], y[5], trial[4], trial[5], direction, c.half_stroke)
@@ -734,23 +830,24 @@ def _advance_interval(c, history, env, head, frac_start, frac_end, h, command_a,
             return trial
         if theta * dfrac > MIN_EVENT_FRACTION:
             y = _rk4(c, history, env, head, frac0, theta * dfrac, h, command_a, coil_start,
-                     y, y0, direction)
+                     y, y0, direction, exhaust_node_pa)
             frac0 += theta * dfrac
         x, v = apply_event(y[4], y[5], direction, c.half_stroke)
         y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
     # out of events: the rest of the interval with the piston held
     return _rk4(c, history, env, head, frac0, frac_end - frac0, h, command_a, coil_start, y,
-                y0, 0.0)
+                y0, 0.0, exhaust_node_pa)
 
 
 @njit(cache=True)
-def _split_substep(c, history, env, head_sub, h, command_a, coil_start, y0, parts):
+def _split_substep(c, history, env, head_sub, h, command_a, coil_start, y0, parts,
+                   exhaust_node_pa):
     """One substep from ``y0`` by the general path, in ``parts`` equal parts
     (``refinement``), each split further at piston events (``_advance_interval``)."""
     y = y0
     for part in range(parts):
         y = _advance_interval(c, history, env, head_sub, part / parts, (part + 1) / parts, h,
-                              command_a, coil_start, y, y0)
+                              command_a, coil_start, y, y0, exhaust_node_pa)
     return y
 
 
@@ -810,14 +907,20 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
          state[L.S_X, env], state[L.S_V, env], state[L.S_EXHAUST, env], state[L.S_T1, env],
          state[L.S_T2, env])
     coil = (state[L.S_COIL, env], state[L.S_COIL_FORCE, env])
+    exhaust_node_pa = state[L.S_EXHAUST_NODE, env]
     for sub in range(n_substeps):
         head_sub = ring_slot(head + sub, n_slots)
         coil_now = coil[0] if c.coil_lag else coil_current_a  # the command without a lag
         coil_start = (coil_now, coil[1] if c.coil_force_lag else coil_now)
         y = _split_substep(c, history, env, head_sub, h, coil_current_a, coil_start, y,
-                           refinement(c, y, h))
+                           refinement(c, y, h), exhaust_node_pa)
         coil = _coil_at(c, coil_current_a, coil_start, 1.0)
-        y = _close_substep(c, history, env, ring_slot(head_sub + 1, n_slots), y)
+        slot = ring_slot(head_sub + 1, n_slots)
+        y = _close_substep(c, history, env, slot, y)
+        if c.exhaust_vent > 0.0 and c.exhaust_capacity > 0.0:
+            exhaust_node_pa = exhaust_node_after_substep(c, history, env, slot, y,
+                                                         exhaust_node_pa, h)
+    state[L.S_EXHAUST_NODE, env] = exhaust_node_pa
     _store_state(c, state, env, y, coil, outputs)
 
 
@@ -857,7 +960,8 @@ def load_constants(constants, lane):
         constants[56 * k + lane], constants[57 * k + lane], constants[58 * k + lane], constants[59 * k + lane],
         constants[60 * k + lane], constants[61 * k + lane], constants[62 * k + lane], constants[63 * k + lane],
         constants[64 * k + lane], constants[65 * k + lane], constants[66 * k + lane], constants[67 * k + lane],
-        constants[68 * k + lane], constants[69 * k + lane], constants[70 * k + lane], constants[71 * k + lane])
+        constants[68 * k + lane], constants[69 * k + lane], constants[70 * k + lane], constants[71 * k + lane],
+        constants[72 * k + lane], constants[73 * k + lane])
 
 
 # Rows of the batch path's work array, a flat array of N_WORK rows of CHUNK_ENVS lanes: the
@@ -1121,6 +1225,25 @@ def _fast_output_forces(constants, work, n_lanes, force_row):
 
 
 @njit(cache=True)
+def chunk_work(state, first, stop):
+    """A new work array for environments ``first .. stop-1`` (one chunk): their RK4 state
+    rows, the other rows zero."""
+    work = np.zeros(N_WORK * CHUNK_ENVS)
+    for row in range(N_RK):
+        work[row * CHUNK_ENVS:row * CHUNK_ENVS + stop - first] = state[row, first:stop]
+    return work
+
+
+@njit(cache=True)
+def prepare_substep(constants, work, history, first, n_lanes, head_sub, same_delay, h):
+    """The inputs of a chunk's RK4 loop for the substep after ring slot ``head_sub``: the
+    start state, direction and stiff lanes (``_begin_substeps``), then the delayed spool
+    positions (``_delayed_spool_rows``)."""
+    _begin_substeps(constants, work, n_lanes, h)
+    _delayed_spool_rows(constants, work, history, first, n_lanes, head_sub, same_delay)
+
+
+@njit(cache=True)
 def advance_chunk(params, state, history, first, stop, head, coil_current_a, control_dt_s,
                   n_substeps, outputs, key, constants):
     """Advance environments ``first .. stop-1`` by one control period; write their outputs.
@@ -1142,22 +1265,19 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
     chunk_constants = constants[first // CHUNK_ENVS]
     refresh_constants(params, first, stop, h, key, chunk_constants)
     fast = chunk_constants[C_BASE_ONLY * CHUNK_ENVS:]
-    work = np.zeros(N_WORK * CHUNK_ENVS)
     for j in range(n):
         env = first + j
         if fast[j] == 0.0:
             advance_env(params, state, history, env, head, coil_current_a[env], control_dt_s,
                         n_substeps, outputs)
+    # lanes advance_env advanced are computed below too, and ignored
+    work = chunk_work(state, first, stop)
     _fast_commands(chunk_constants, work, n, coil_current_a[first:stop],
                    state[L.S_PLAY, first:stop])
-    # lanes advance_env advanced are computed below too, and ignored
-    for row in range(N_RK):
-        work[row * CHUNK_ENVS:row * CHUNK_ENVS + n] = state[row, first:stop]
     same_delay = _same_delay(chunk_constants, n)
     for sub in range(n_substeps):
         head_sub = ring_slot(head + sub, n_slots)
-        _begin_substeps(chunk_constants, work, n, h)
-        _delayed_spool_rows(chunk_constants, work, history, first, n, head_sub, same_delay)
+        prepare_substep(chunk_constants, work, history, first, n, head_sub, same_delay, h)
         _base_substeps_vectorised(chunk_constants, work, n, h)
         _end_substeps(chunk_constants, work, n)
         slot = ring_slot(head_sub + 1, n_slots)
@@ -1171,7 +1291,7 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
                 y0 = _work_rows(work, W_START, j)
                 current = work[W_CURRENT * CHUNK_ENVS + j]
                 y = _split_substep(c, history, env, head_sub, h, current, (current, current),
-                                   y0, refinement(c, y0, h))
+                                   y0, refinement(c, y0, h), c.ambient_pa)
                 _set_work_rows(work, 0, j, _close_substep(c, history, env, slot, y))
     # the batch path's lanes: state and outputs as _store_state writes them
     for row in range(N_RK):

@@ -75,6 +75,8 @@ PARAMETER_NAMES = (
     "stribeck_velocity_m_per_s",  # Stribeck velocity of the sliding friction
     "spool_coulomb_friction_n",  # spool friction: a play (hysteresis) of the spool's current
     "tube_waves",  # 0: the paper's tube (Eqs. 30, 31); 1: transmission line (waves, reflections)
+    "exhaust_vent_area_m2",  # exhaust back-pressure: the valve exhausts through this vent
+    "exhaust_volume_m3",  # the exhaust node's volume (0: quasi-static, the node holds no air)
 )
 
 # The parameters a cylinder file (configs/cylinders/) defines: bore through leakage.
@@ -95,6 +97,8 @@ EFFECT_NEUTRAL_VALUES = {
     "stribeck_velocity_m_per_s": 0.0,
     "spool_coulomb_friction_n": 0.0,
     "tube_waves": 0.0,
+    "exhaust_vent_area_m2": 0.0,
+    "exhaust_volume_m3": 0.0,
 }
 
 _g = globals()
@@ -125,6 +129,8 @@ STATE_NAMES = (
     "spool_play_current_a",  # output of the spool-friction play (the command while it is off)
     "coil_force_current_a",  # the coil's force over K_f: the coil current through the force
     # lag (the coil current unless coil_lag_shape > 0); it drives the spool
+    "exhaust_node_pa",  # pressure behind the valve's exhaust ports (ambient unless
+    # exhaust_vent_area_m2 > 0 and exhaust_volume_m3 > 0)
 )
 for _i, _name in enumerate(STATE_NAMES):
     _g["S_" + _name.upper()] = _i
@@ -141,6 +147,7 @@ S_PLAY = S_SPOOL_PLAY_CURRENT_A
 S_COIL_FORCE = S_COIL_FORCE_CURRENT_A
 S_T1 = S_T1_K
 S_T2 = S_T2_K
+S_EXHAUST_NODE = S_EXHAUST_NODE_PA
 
 # Channels kept in the tube-delay ring buffer, one sample per substep boundary. The wave
 # channels (Pa) are the transmission line's wave variables (tube_waves = 1, docs/effects.md):
