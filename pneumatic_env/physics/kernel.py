@@ -60,7 +60,8 @@ Constants = namedtuple("Constants", (
     "load_force", "spring_k", "spring_rest",
     # effects (docs/effects.md)
     "discharge_ex", "null_leak", "seal_leak", "flow_law", "supply_resistance", "exhaust_vent",
-    "exhaust_capacity", "coil_lag", "coil_decay_half", "coil_decay_full", "coil_force_lag", "force_rate", "force_rate_difference",
+    "exhaust_capacity", "coil_lag", "coil_decay_half", "coil_decay_full", "coil_force_lag",
+    "force_rate", "force_rate_difference",
     "energy", "gas", "temperature", "heat_conductance",
     "static_friction", "stribeck", "stribeck_v", "spool_play_band",
     "waves", "line_impedance", "line_friction",
