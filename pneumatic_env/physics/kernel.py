@@ -325,14 +325,8 @@ def exhaust_node_after_substep(c, history, env, slot, y, exhaust_node_pa, h):
     dP_e/dt = (R T / V) ``_exhaust_node_balance``(P_e) with the valve's inputs at the
     boundary ``slot`` (state ``y``), solved by ``exhaust_pressure_at_valve``; stable for
     any volume, and the quasi-static node as V -> 0."""
-    spool_delayed = delayed_value(history, env, L.H_X_S, slot, 0.0, c.delay_substeps, y[0], y[0])
-    valve_p1, valve_p2 = y[2], y[3]
-    if c.literal:
-        valve_p1 = delayed_value(history, env, L.H_P1, slot, 0.0, c.delay_substeps, y[2], y[2])
-        valve_p2 = delayed_value(history, env, L.H_P2, slot, 0.0, c.delay_substeps, y[3], y[3])
-    inv_sqrt_t1, inv_sqrt_t2 = c.inv_sqrt_t, c.inv_sqrt_t
-    if c.energy:
-        inv_sqrt_t1, inv_sqrt_t2 = 1.0 / math.sqrt(y[7]), 1.0 / math.sqrt(y[8])
+    spool_delayed, valve_p1, valve_p2 = _valve_inputs(c, history, env, slot, 0.0, y, y)
+    inv_sqrt_t1, inv_sqrt_t2 = _inv_sqrt_temperatures(c, y[7], y[8])
     return exhaust_pressure_at_valve(c, _scalar_area(c, spool_delayed) + c.null_leak,
                                      _scalar_area(c, -spool_delayed) + c.null_leak, valve_p1,
                                      valve_p2, inv_sqrt_t1, inv_sqrt_t2,
@@ -510,12 +504,7 @@ def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, sp
     ``line_flows`` and the waves ``arriving`` at the line ends; ``spool_delayed``,
     ``valve_p*`` are then unused.
     """
-    if c.energy:
-        inv_sqrt_t1 = 1.0 / math.sqrt(t1)
-        inv_sqrt_t2 = 1.0 / math.sqrt(t2)
-    else:
-        inv_sqrt_t1 = c.inv_sqrt_t
-        inv_sqrt_t2 = c.inv_sqrt_t
+    inv_sqrt_t1, inv_sqrt_t2 = _inv_sqrt_temperatures(c, t1, t2)
     vented = 0.0
     if c.waves:  # a signed flow into each chamber from its line; the line's air at T_s
         supply_1, supply_2, vented, _, _, _, _ = line_flows(c, x_s, arriving, p1, p2)
@@ -575,8 +564,8 @@ def base_model_only(c):
     send the environment to the general path.
     """
     return (c.energy == 0.0 and c.supply_resistance == 0.0 and c.exhaust_vent == 0.0
-            and c.literal == 0.0 and c.leak_area == 0.0 and c.seal_leak == 0.0 and c.null_leak == 0.0
-            and c.coil_lag == 0.0 and c.coil_force_lag == 0.0 and c.stribeck == 0.0
+            and c.literal == 0.0 and c.leak_area == 0.0 and c.seal_leak == 0.0
+            and c.null_leak == 0.0 and c.coil_lag == 0.0 and c.coil_force_lag == 0.0 and c.stribeck == 0.0
             and c.flow_law == FLOW_LAW_PAPER and c.waves == 0.0
             and c.half_width >= c.hole_radius and c.delay_substeps >= 1.0)
 
@@ -646,15 +635,31 @@ def delayed_value(history, env, channel, head, stage_substeps, delay_substeps, v
     return lower + weight * (upper - lower)
 
 
-@njit(cache=True, inline="always")  # inlined: a call would pass every constant as an argument
-def _stage(c, history, env, head, frac, coil_current_a, y, y0, direction, exhaust_node_pa):
+@njit(cache=True, inline="always")
+def _valve_inputs(c, history, env, head, frac, y, y0):
+    """What the valve sees ``frac`` of a substep after boundary ``head`` (state ``y``; ``y0``
+    at the boundary): the delayed spool x_s(t - tau) and the chamber pressures its flow is
+    evaluated with (the delayed ones with the literal Eq. 55, else the present ones)."""
     spool_delayed = delayed_value(history, env, L.H_X_S, head, frac, c.delay_substeps, y0[0], y[0])
     if c.literal:
-        valve_p1 = delayed_value(history, env, L.H_P1, head, frac, c.delay_substeps, y0[2], y[2])
-        valve_p2 = delayed_value(history, env, L.H_P2, head, frac, c.delay_substeps, y0[3], y[3])
-    else:
-        valve_p1 = y[2]
-        valve_p2 = y[3]
+        return (spool_delayed,
+                delayed_value(history, env, L.H_P1, head, frac, c.delay_substeps, y0[2], y[2]),
+                delayed_value(history, env, L.H_P2, head, frac, c.delay_substeps, y0[3], y[3]))
+    return spool_delayed, y[2], y[3]
+
+
+@njit(cache=True, inline="always")
+def _inv_sqrt_temperatures(c, t1, t2):
+    """1/sqrt(T) of the chamber air: of the gas temperatures with the energy model, else
+    of ``temperature_k`` (cached)."""
+    if c.energy:
+        return 1.0 / math.sqrt(t1), 1.0 / math.sqrt(t2)
+    return c.inv_sqrt_t, c.inv_sqrt_t
+
+
+@njit(cache=True, inline="always")  # inlined: a call would pass every constant as an argument
+def _stage(c, history, env, head, frac, coil_current_a, y, y0, direction, exhaust_node_pa):
+    spool_delayed, valve_p1, valve_p2 = _valve_inputs(c, history, env, head, frac, y, y0)
     arriving = (0.0, 0.0, 0.0, 0.0)
     if c.waves:
         arriving = _arriving_waves(c, history, env, head, frac)
