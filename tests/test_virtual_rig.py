@@ -222,6 +222,46 @@ def test_rig_muffler_fills_with_the_exhaust_and_vents_to_the_atmosphere():
     assert np.array_equal(muffler.channels["p1"][early], plain.channels["p1"][early])
 
 
+def test_rig_segmented_line_follows_the_scipy_segmented_line():
+    """The rig's plant of ``--effect tube_waves`` (jitted, fixed RK4 steps, the current
+    changing every plant step) against the independent SciPy solution of the same line
+    (``reference_solution.simulate_segmented_line``) after a 1.5 A step through a 0.5 m
+    tube: the stiffest case (the valve's small first volume, a wide-open orifice)."""
+    from pneumatic_env.identification.segmented_line import (line_constants,
+                                                             segmented_line_rollout)
+    from pneumatic_env.reference_solution import simulate_segmented_line
+
+    cfg = load_config()
+    plant_dt = cfg.number("virtual_rig", "plant_dt_s")
+    p = load_parameters(tube_length_m=0.5)
+    n = round(0.5 / cfg.number("virtual_rig", "line_segment_length_m"))
+    line = segmented_line_rollout(line_constants(p, n), n, np.full(300, 1.5), plant_dt,
+                                  int(cfg.number("virtual_rig", "line_substeps")))
+    ref = simulate_segmented_line(p, 1.5, 0.03, n_segments=n, sample_dt_s=plant_dt)
+    span = p["supply_pressure_pa"] - p["ambient_pressure_pa"]
+    assert np.abs(line[:, 0] - ref["p1"]).max() < 1e-4 * span
+    assert np.abs(line[:, 1] - ref["p2"]).max() < 1e-4 * span
+    assert ref["p1"].max() - p["ambient_pressure_pa"] > 0.5 * span  # the chamber did fill
+    area_cap = 0.25 * math.pi * p["bore_diameter_m"] ** 2
+    area_rod_side = area_cap - 0.25 * math.pi * p["rod_diameter_m"] ** 2
+    expected_force = (line[:, 0] * area_cap - line[:, 1] * area_rod_side
+                      - p["ambient_pressure_pa"] * (area_cap - area_rod_side))  # Eq. 1
+    assert np.allclose(line[:, 2], expected_force, rtol=0, atol=1e-9 * span * area_cap)
+
+
+def test_rig_segmented_line_refusals():
+    from pneumatic_env.identification.segmented_line import line_constants
+
+    with pytest.raises(ValueError, match="effect 'tube_waves' needs piston = 'fixed'"):
+        run_rig("tube_waves", piston="spring", duration_s=0.1)
+    with pytest.raises(ValueError, match=r"effects switched on: \['coil_time_constant_s'\]"):
+        line_constants(load_parameters(coil_time_constant_s=1e-3), 20)
+    with pytest.raises(ValueError, match="n_segments = 1 is not allowed: must be an integer >= 2"):
+        line_constants(load_parameters(), 1)
+    with pytest.raises(ValueError, match="models a clamped rod .* got piston_mode = 2"):
+        line_constants(load_parameters(piston_mode=2), 20)
+
+
 def test_two_cascaded_lags_keep_the_total_time_constant():
     dt, tau = 1e-5, 2e-3
     u = np.ones(20000)

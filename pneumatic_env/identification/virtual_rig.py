@@ -54,8 +54,12 @@ How the plant differs from the fitting model:
   heat_transfer                     wall exchange per chamber with hA proportional to the gas
                                     density to the 2/3 (natural convection), applied between
                                     plant steps on the full energy equation (one constant hA)
+  tube_waves                        each tube a segmented line of finite volumes with the
+                                    air's inertia and the friction along the line
+                                    (``segmented_line``; rod clamped) instead of the kernel
+                                    (a transmission line, friction lumped at its ends)
   valve_null_leak, tube_volume,     **same form** as the candidate (the kernel's parameter):
-  iso_flow_law, tube_waves,         an inverse crime, softened only by the finer step, the
+  iso_flow_law,                     an inverse crime, softened only by the finer step, the
   exhaust_discharge (orifice)       perturbed base and the noise
   stribeck (default friction_model)
   ================================  ==========================================================
@@ -80,8 +84,9 @@ from pneumatic_env.references import ChirpReference, MultisineReference
 from pneumatic_env.simulator import BatchSimulator
 
 from .config import IdentificationConfig, load_config
+from .segmented_line import line_constants, segmented_line_rollout
 
-__all__ = ["KERNEL_EFFECTS", "RIG_EFFECTS", "SPLIT_EFFECTS", "FRICTION_MODELS",
+__all__ = ["KERNEL_EFFECTS", "LINE_EFFECTS", "RIG_EFFECTS", "SPLIT_EFFECTS", "FRICTION_MODELS",
            "RigResult", "excitation", "make_recording", "run_rig", "add_arguments", "run"]
 
 #: Rig effects realised by a kernel parameter (same form as the candidate): name ->
@@ -100,6 +105,10 @@ RIG_EFFECTS = ("none", "leakage", "rod_seal_leak", "coil_lag", "spool_friction",
                "pressure_sensor_lag", "channel_time_skew", "load_cell_compliance",
                "supply_ripple", "heat_transfer", "supply_droop", "exhaust_muffler",
                *KERNEL_EFFECTS)
+#: Rig effects whose plant is not the kernel: the tubes as segmented lines
+#: (``segmented_line``); their ``KERNEL_EFFECTS`` entry states the nearest kernel form in
+#: the truth.
+LINE_EFFECTS = ("tube_waves",)
 #: Rig effects applied by operator splitting between steps of the kernel.
 SPLIT_EFFECTS = ("leakage", "rod_seal_leak", "supply_ripple", "heat_transfer", "supply_droop",
                  "exhaust_muffler")
@@ -546,6 +555,9 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         raise ValueError(f"strength = {strength!r} is not allowed: must be a finite number >= 0")
     if piston not in PISTON_MODES:
         raise ValueError(f"piston = {piston!r} is not allowed: must be one of {list(PISTON_MODES)}")
+    if effect in LINE_EFFECTS and strength > 0 and piston != "fixed":
+        raise ValueError(f"effect {effect!r} needs piston = 'fixed' (the segmented line plant "
+                         f"has a clamped rod); got piston = {piston!r}")
     if effect == "load_cell_compliance" and piston != "fixed":
         raise ValueError(f"effect 'load_cell_compliance' needs piston = 'fixed' (a clamped rod "
                          f"held through a load cell); got piston = {piston!r}")
@@ -630,7 +642,16 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
                          plant_dt / steps_per_plant_step,
                          plant_substeps // steps_per_plant_step)
     first = sim.outputs[:, 0].copy()
-    if form is None:
+    if effect in LINE_EFFECTS and s > 0.0:
+        segments = max(2, int(round(true["tube_length_m"] / cfg.number(
+            "virtual_rig", "line_segment_length_m", positive=True))))
+        truth_parameters.update(tube_volume_fraction=0.0)  # the line holds its own air
+        line = segmented_line_rollout(
+            line_constants(true, segments), segments, fine, plant_dt,
+            int(cfg.number("virtual_rig", "line_substeps", positive=True)))
+        rows = np.tile(first, (fine.size, 1))
+        rows[:, [L.O_P1, L.O_P2, L.O_F]] = line[1:]
+    elif form is None:
         rows = sim.rollout(fine[:, None])[:, :, 0]
     else:
         rows = np.empty((fine.size, L.N_OUTPUT))
@@ -671,6 +692,8 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
     truth = {"effect": effect, "strength": s, "seed": int(seed), "excitation": excitation_kind,
              "duration_s": duration, "perturbed": bool(perturb),
              "effect_reference": ref, "friction_model": friction_model,
+             "plant": (f"segmented line, {segments} volumes per tube"
+                       if effect in LINE_EFFECTS and s > 0.0 else "kernel"),
              "parameters": {k: float(v) for k, v in truth_parameters.items()}}
     return RigResult(t=t, channels=channels, rig=rig, truth=truth)
 
