@@ -37,6 +37,8 @@ ON = {
     "tube_waves": {"tube_waves": "transmission_line"},
     "exhaust_vent_area_m2": {"exhaust_vent_area_m2": 2e-6},
     "exhaust_volume_m3": {"exhaust_vent_area_m2": 2e-6, "exhaust_volume_m3": 1e-5},
+    "lugre_stiffness_n_per_m": {"lugre_stiffness_n_per_m": 1e5},
+    "lugre_damping_n_s_per_m": {"lugre_stiffness_n_per_m": 1e5, "lugre_damping_n_s_per_m": 300.0},
 }
 T_S = 293.15
 
@@ -472,6 +474,74 @@ def test_stribeck_friction_falls_from_static_to_dynamic_with_speed():
         assert accel == pytest.approx(expected, rel=1e-12), v
     assert E.stribeck_friction(0.0, f_df, f_sf, v_s) == f_sf
     assert E.stribeck_friction(1.0, f_df, f_sf, v_s) == pytest.approx(f_df, rel=1e-12)
+
+
+# --------------------------------------------------------------------------- LuGre friction
+
+@pytest.mark.parametrize("velocity", [0.0, 1e-7, 3e-3, 0.05, -0.2])
+def test_lugre_bristle_step_is_the_exact_solution_at_a_held_velocity(velocity):
+    """The bristle ODE dz/dt = v - sigma0 |v| z / g solved by SciPy at the same held v:
+    the deflection at the step's end and the force sigma0 z + sigma1 dz/dt averaged over
+    the step (the series branch at 1e-7 m/s, no relaxation at rest, the stiff one at 0.2)."""
+    sigma0, sigma1, g, h, z0 = 1e5, 300.0, 2.0, 5e-5, 1.2e-5
+
+    def rhs(_t, y):
+        dz = velocity - sigma0 * abs(velocity) * y[0] / g
+        return [dz, sigma0 * y[0] + sigma1 * dz]  # z and the integral of the force
+
+    ref = solve_ivp(rhs, (0.0, h), [z0, 0.0], method="Radau", rtol=1e-12, atol=[1e-18, 1e-16])
+    z_end, force = E.lugre_bristle_step(z0, velocity, h, sigma0, sigma1, g)
+    assert z_end == pytest.approx(ref.y[0, -1], rel=1e-9, abs=1e-17)
+    assert force == pytest.approx(ref.y[1, -1] / h, rel=1e-9)
+
+
+def test_lugre_slides_on_the_friction_curve():
+    """Sliding steadily the bristles sit at g sgn(v) / sigma0 and the force is g(v) sgn(v)."""
+    g = E.stribeck_friction(-0.05, 0.5, 3.8, 0.01)
+    z, force = E.lugre_bristle_step(0.0, -0.05, 1.0, 1e5, 300.0, g)
+    assert z == pytest.approx(-g / 1e5, rel=1e-12)
+    z, force = E.lugre_bristle_step(z, -0.05, 5e-5, 1e5, 300.0, g)
+    assert force == pytest.approx(-g, rel=1e-9)
+
+
+def _held_rod(net_force_n, **friction):
+    """A free rod with the valve closed (sealed chambers) and pressures whose net force on
+    the piston is ``net_force_n``, 50 ms from rest; returns the simulator and parameters."""
+    p = load_parameters(piston_mode="free", **friction)
+    a1, a2, ar = areas(p)
+    p2 = 2.0e5
+    p1 = (net_force_n + p2 * a2 + p["ambient_pressure_pa"] * ar + p["load_force_n"]) / a1
+    sim = _sim([p], initial={"p1": p1, "p2": p2})
+    for _ in range(50):
+        sim.step(np.zeros(1))
+    return sim, p
+
+
+def test_lugre_pre_sliding_is_a_spring_and_breakaway_follows_the_friction_curve():
+    """Below the friction Karnopp friction holds the rod exactly; LuGre lets it creep until
+    its bristles carry the net force. Creeping one way, dz/dx = 1 - sigma0 z / g (g = F_df
+    without Stribeck), so z = (g / sigma0) (1 - exp(-sigma0 x / g)), whatever the force
+    did on the way; at rest sigma0 z is the net pneumatic force (the sealed air stiffens a
+    little as the rod moves). Well above the static friction both slide."""
+    sigma0 = 1e5
+    mass = load_parameters()["piston_mass_kg"] + load_parameters()["load_mass_kg"]
+    lugre = {"lugre_stiffness_n_per_m": sigma0,
+             "lugre_damping_n_s_per_m": 2.0 * math.sqrt(sigma0 * mass)}  # critically damped
+    sim, p = _held_rod(0.25)
+    assert sim.state[L.S_X, 0] == 0.0
+    sim, p = _held_rod(0.25, **lugre)
+    x, z, g = sim.state[L.S_X, 0], sim.state[L.S_BRISTLE, 0], p["dynamic_friction_n"]
+    assert sim.state[L.S_V, 0] == pytest.approx(0.0, abs=1e-9)
+    a1, a2, ar = areas(p)
+    net = (sim.state[L.S_P1, 0] * a1 - sim.state[L.S_P2, 0] * a2
+           - p["ambient_pressure_pa"] * ar - p["load_force_n"])
+    assert sigma0 * z == pytest.approx(net, rel=1e-6)
+    # the bristles take each substep's starting velocity (operator splitting): 0.7 % here
+    assert z == pytest.approx(g / sigma0 * -math.expm1(-sigma0 * x / g), rel=0.02)
+    assert x == pytest.approx(-(g / sigma0) * math.log(1.0 - 0.25 / g), rel=0.1)  # 3.5 um
+    for friction in ({}, lugre):
+        sim, p = _held_rod(1.6 * p["static_friction_n"], **friction)
+        assert sim.state[L.S_X, 0] > 1e-3
 
 
 # --------------------------------------------------------------------------- 10 spool friction

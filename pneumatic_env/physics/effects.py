@@ -132,6 +132,41 @@ def stribeck_friction(velocity_m_per_s, dynamic_friction_n, static_friction_n,
     return dynamic_friction_n + (static_friction_n - dynamic_friction_n) * math.exp(-z * z)
 
 
+LUGRE_SERIES_BELOW = 1e-4  # rate * h below which lugre_bristle_step uses its series forms
+
+
+@njit(cache=True)
+def lugre_bristle_step(bristle_m, velocity_m_per_s, h_s, stiffness_n_per_m, damping_n_s_per_m,
+                       sliding_friction_n):
+    """LuGre friction (Canudas de Wit et al. 1995) over ``h_s`` at a velocity held over it.
+
+    The mean bristle deflection z obeys dz/dt = v - r z, r = sigma0 |v| / g with g the
+    sliding friction at v (``sliding_friction_n``: F_df, or ``stribeck_friction``), so it
+    relaxes towards g sgn(v) / sigma0 at the rate r, which reaches 1e5 /s when sliding: too
+    stiff for an RK4 substep, so it is solved exactly for the held v. Returns the
+    deflection at the end and the friction force sigma0 z + sigma1 dz/dt averaged over the
+    step (positive resists extension; the viscous part beta v is the piston's own):
+    z(h) = z + (v - r z) h phi(r h) and mean z = z + (v - r z) h psi(r h), with phi(x) =
+    (1 - e^-x) / x and psi(x) = (x - 1 + e^-x) / x^2 (with expm1, and in series form
+    for small x: no cancellation; at v = 0 the bristles hold: z stays, the force is sigma0 z). Sliding
+    steadily, the force is g sgn(v): the Stribeck curve of ``stribeck_friction``.
+    """
+    g = max(sliding_friction_n, 1e-12)  # a frictionless seal: the bristles carry nothing
+    rate = stiffness_n_per_m * abs(velocity_m_per_s) / g
+    x = rate * h_s
+    if x < LUGRE_SERIES_BELOW:
+        phi = 1.0 - x * (0.5 - x / 6.0)
+        psi = 0.5 - x * (1.0 / 6.0 - x / 24.0)
+    else:
+        decay_minus_one = math.expm1(-x)  # e^-x - 1, exact for small x
+        phi = -decay_minus_one / x
+        psi = (x + decay_minus_one) / (x * x)
+    drift = (velocity_m_per_s - rate * bristle_m) * h_s
+    new = bristle_m + drift * phi
+    mean = bristle_m + drift * psi
+    return new, stiffness_n_per_m * mean + damping_n_s_per_m * (new - bristle_m) / h_s
+
+
 @njit(cache=True)
 def spool_play_band(spool_coulomb_friction_n, coil_force_n_per_a):
     """Half-width F_cs / K_f (A) of the current band a spool friction F_cs holds still (Eq. 38)."""

@@ -31,7 +31,7 @@ from .chamber import chamber_volumes, pressure_rate
 from .effects import (chamber_energy_rates, coil_decay, coil_force_gain, coil_time_constants,
                       dead_volume_with_tube,
                       drooped_supply_pressure, lagged_coil_current,
-                      lagged_coil_force_current, spool_play_band,
+                      lagged_coil_force_current, lugre_bristle_step, spool_play_band,
                       spool_play_current, stribeck_friction)
 from .flow import (FLOW_LAW_ISO, FLOW_LAW_PAPER, flow_constants, iso_subsonic_reduced_flow,
                    orifice_mass_flow_inv_k,
@@ -45,9 +45,9 @@ from .valve import orifice_area_inv_radius, spool_acceleration
 from .vecmath import _float_to_bits
 
 # advance_env integrates the state rows 0 .. S_T2 with RK4 and sets S_COIL, S_PLAY,
-# S_COIL_FORCE and S_EXHAUST_NODE exactly.
-assert (L.S_T1, L.S_T2, L.S_COIL, L.S_PLAY, L.S_COIL_FORCE, L.S_EXHAUST_NODE,
-        L.N_STATE) == (7, 8, 9, 10, 11, 12, 13), \
+# S_COIL_FORCE, S_EXHAUST_NODE and S_BRISTLE exactly.
+assert (L.S_T1, L.S_T2, L.S_COIL, L.S_PLAY, L.S_COIL_FORCE, L.S_EXHAUST_NODE, L.S_BRISTLE,
+        L.N_STATE) == (7, 8, 9, 10, 11, 12, 13, 14), \
     "kernel assumes this state layout"
 
 Constants = namedtuple("Constants", (
@@ -64,6 +64,7 @@ Constants = namedtuple("Constants", (
     "force_rate", "force_rate_difference",
     "energy", "gas", "temperature", "heat_conductance",
     "static_friction", "stribeck", "stribeck_v", "spool_play_band",
+    "lugre", "lugre_stiffness", "lugre_damping",
     "waves", "line_impedance", "line_friction",
     # numerical guards (docs/convergence.md): pressures and gas temperatures stay positive
     "pressure_floor", "temperature_floor",
@@ -121,6 +122,11 @@ def env_constants(params, env, substep_s):
         force_rate_difference = force_rate - substep_s / coil_tau
     energy_flag = 1.0 if heat_conductance > 0.0 else 0.0
     stribeck_flag = 1.0 if stribeck_v > 0.0 else 0.0
+    lugre_flag = 1.0 if p[L.P_LUGRE_STIFFNESS_N_PER_M] > 0.0 else 0.0
+    # Karnopp's stick threshold; LuGre friction has none (its bristles hold the rod)
+    stick_threshold = max(p[L.P_STATIC_FRICTION_N], p[L.P_DYNAMIC_FRICTION_N])
+    if lugre_flag:
+        stick_threshold = 0.0
     waves_flag = 1.0 if p[L.P_TUBE_WAVES] == 1.0 else 0.0
     tube_area = 0.25 * math.pi * tube_diameter * tube_diameter
     line_impedance = sound_speed(k, gas, temperature) / tube_area
@@ -140,7 +146,7 @@ def env_constants(params, env, substep_s):
         dead_volume_with_tube(p[L.P_DEAD_VOLUME_ROD_M3], tube_fraction, tube_diameter,
                               tube_length),
         1.0 / (p[L.P_PISTON_MASS_KG] + p[L.P_LOAD_MASS_KG]), p[L.P_DYNAMIC_FRICTION_N],
-        max(p[L.P_STATIC_FRICTION_N], p[L.P_DYNAMIC_FRICTION_N]),
+        stick_threshold,
         p[L.P_VISCOUS_FRICTION_N_S_PER_M], p[L.P_LEAKAGE_AREA_M2], float(int(p[L.P_PISTON_MODE])),
         p[L.P_LOAD_FORCE_N], p[L.P_SPRING_STIFFNESS_N_PER_M], p[L.P_SPRING_REST_POSITION_M],
         p[L.P_DISCHARGE_COEFFICIENT] * p[L.P_EXHAUST_DISCHARGE_RATIO],
@@ -152,6 +158,7 @@ def env_constants(params, env, substep_s):
         energy_flag, gas, temperature, heat_conductance,
         p[L.P_STATIC_FRICTION_N], stribeck_flag, stribeck_v,
         spool_play_band(p[L.P_SPOOL_COULOMB_FRICTION_N], p[L.P_COIL_FORCE_N_PER_A]),
+        lugre_flag, p[L.P_LUGRE_STIFFNESS_N_PER_M], p[L.P_LUGRE_DAMPING_N_S_PER_M],
         waves_flag, line_impedance, tube_length * gas * temperature / tube_area,
         PRESSURE_FLOOR_FRACTION * p[L.P_AMBIENT_PRESSURE_PA], TEMPERATURE_FLOOR_FRACTION * temperature,
         gas * temperature * max(p[L.P_ALPHA_IN], k)
@@ -494,7 +501,7 @@ def _volumes(c, x):
 
 @njit(cache=True)
 def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, spool_delayed,
-                valve_p1, valve_p2, arriving, exhaust_node_pa):
+                valve_p1, valve_p2, arriving, exhaust_node_pa, lugre_friction_n=0.0):
     """Right-hand side of the state (x_s, v_s, P1, P2, x, v, exhaust mass, T1, T2).
 
     The general form: all four valve paths, the leakage orifices and every effect.
@@ -502,7 +509,8 @@ def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, sp
     T1, T2 change only with the energy model on (``wall_heat_transfer_w_per_k > 0``).
     With the tubes as transmission lines (``tube_waves``) the chamber flows come from
     ``line_flows`` and the waves ``arriving`` at the line ends; ``spool_delayed``,
-    ``valve_p*`` are then unused.
+    ``valve_p*`` are then unused. With LuGre friction on, ``lugre_friction_n`` (held over
+    the substep, ``lugre_bristle_step``) replaces the sliding friction.
     """
     inv_sqrt_t1, inv_sqrt_t2 = _inv_sqrt_temperatures(c, t1, t2)
     vented = 0.0
@@ -544,7 +552,9 @@ def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, sp
         dt1 = 0.0
         dt2 = 0.0
     friction = c.dynamic_friction
-    if c.stribeck:
+    if c.lugre:  # piston_acceleration applies friction * direction (+-1 while moving)
+        friction = lugre_friction_n * direction
+    elif c.stribeck:
         friction = stribeck_friction(velocity, c.dynamic_friction, c.static_friction,
                                      c.stribeck_v)
     accel, a_s = _motion_and_spool(c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction,
@@ -565,7 +575,8 @@ def base_model_only(c):
     """
     return (c.energy == 0.0 and c.supply_resistance == 0.0 and c.exhaust_vent == 0.0
             and c.literal == 0.0 and c.leak_area == 0.0 and c.seal_leak == 0.0
-            and c.null_leak == 0.0 and c.coil_lag == 0.0 and c.coil_force_lag == 0.0 and c.stribeck == 0.0
+            and c.null_leak == 0.0 and c.coil_lag == 0.0 and c.coil_force_lag == 0.0
+            and c.stribeck == 0.0 and c.lugre == 0.0
             and c.flow_law == FLOW_LAW_PAPER and c.waves == 0.0
             and c.half_width >= c.hole_radius and c.delay_substeps >= 1.0)
 
@@ -658,13 +669,15 @@ def _inv_sqrt_temperatures(c, t1, t2):
 
 
 @njit(cache=True, inline="always")  # inlined: a call would pass every constant as an argument
-def _stage(c, history, env, head, frac, coil_current_a, y, y0, direction, exhaust_node_pa):
+def _stage(c, history, env, head, frac, coil_current_a, y, y0, direction, exhaust_node_pa,
+           lugre_friction_n):
     spool_delayed, valve_p1, valve_p2 = _valve_inputs(c, history, env, head, frac, y, y0)
     arriving = (0.0, 0.0, 0.0, 0.0)
     if c.waves:
         arriving = _arriving_waves(c, history, env, head, frac)
     return derivatives(c, coil_current_a, y[0], y[1], y[2], y[3], y[4], y[5], y[7], y[8],
-                       direction, spool_delayed, valve_p1, valve_p2, arriving, exhaust_node_pa)
+                       direction, spool_delayed, valve_p1, valve_p2, arriving, exhaust_node_pa,
+                       lugre_friction_n)
 
 
 @njit(cache=True)
@@ -711,24 +724,25 @@ def _coil_at(c, command_a, coil_start, frac):
 
 @njit(cache=True)
 def _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start, y, y0, direction,
-         exhaust_node_pa):
+         exhaust_node_pa, lugre_friction_n):
     """One classical RK4 step over substep fractions [frac0, frac0 + dfrac] (h: substep, s).
 
     ``y0`` is the state at the substep boundary ``head`` (the delay interpolation's anchor);
     ``coil_start`` the (coil, force) currents there (``_coil_at``); ``exhaust_node_pa``
-    the exhaust node's pressure, held over the substep.
+    the exhaust node's pressure and ``lugre_friction_n`` the LuGre friction, both held over
+    the substep.
     """
     hh = dfrac * h
     fm = frac0 + 0.5 * dfrac
     fe = frac0 + dfrac
     k1 = _stage(c, history, env, head, frac0, _coil_at(c, command_a, coil_start, frac0)[1], y,
-                y0, direction, exhaust_node_pa)
+                y0, direction, exhaust_node_pa, lugre_friction_n)
     k2 = _stage(c, history, env, head, fm, _coil_at(c, command_a, coil_start, fm)[1],
-                _axpy(y, 0.5 * hh, k1), y0, direction, exhaust_node_pa)
+                _axpy(y, 0.5 * hh, k1), y0, direction, exhaust_node_pa, lugre_friction_n)
     k3 = _stage(c, history, env, head, fm, _coil_at(c, command_a, coil_start, fm)[1],
-                _axpy(y, 0.5 * hh, k2), y0, direction, exhaust_node_pa)
+                _axpy(y, 0.5 * hh, k2), y0, direction, exhaust_node_pa, lugre_friction_n)
     k4 = _stage(c, history, env, head, fe, _coil_at(c, command_a, coil_start, fe)[1],
-                _axpy(y, hh, k3), y0, direction, exhaust_node_pa)
+                _axpy(y, hh, k3), y0, direction, exhaust_node_pa, lugre_friction_n)
     return _rk4_combine(c, y, k1, k2, k3, k4, hh, direction)
 
 
@@ -811,7 +825,7 @@ def refinement(c, y, h):
 
 @njit(cache=True)
 def _advance_interval(c, history, env, head, frac_start, frac_end, h, command_a, coil_start,
-                      y, y0, exhaust_node_pa):
+                      y, y0, exhaust_node_pa, lugre_friction_n):
     """Integrate substep fractions [frac_start, frac_end], splitting at piston events.
 
     When the sliding piston's attempted step crosses an end stop or its velocity reverses,
@@ -824,11 +838,12 @@ def _advance_interval(c, history, env, head, frac_start, frac_end, h, command_a,
         if c.mode != MODE_FIXED:
             applied = (pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area,
                                        c.ambient_pa)
-                       - external_force(c.mode, y[4], c.load_force, c.spring_k, c.spring_rest))
+                       - external_force(c.mode, y[4], c.load_force, c.spring_k, c.spring_rest)
+                       - lugre_friction_n)
             direction = motion_direction(y[4], y[5], applied, c.stick_threshold, c.half_stroke)
         dfrac = frac_end - frac0
         trial = _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start, y, y0,
-                     direction, exhaust_node_pa)
+                     direction, exhaust_node_pa, lugre_friction_n)
         theta = -1.0
         if direction != 0.0:
             theta = event_fraction(y[4], y[5], trial[4], trial[5], direction, c.half_stroke)
@@ -836,24 +851,24 @@ def _advance_interval(c, history, env, head, frac_start, frac_end, h, command_a,
             return trial
         if theta * dfrac > MIN_EVENT_FRACTION:
             y = _rk4(c, history, env, head, frac0, theta * dfrac, h, command_a, coil_start,
-                     y, y0, direction, exhaust_node_pa)
+                     y, y0, direction, exhaust_node_pa, lugre_friction_n)
             frac0 += theta * dfrac
         x, v = apply_event(y[4], y[5], direction, c.half_stroke)
         y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
     # out of events: the rest of the interval with the piston held
     return _rk4(c, history, env, head, frac0, frac_end - frac0, h, command_a, coil_start, y,
-                y0, 0.0, exhaust_node_pa)
+                y0, 0.0, exhaust_node_pa, lugre_friction_n)
 
 
 @njit(cache=True)
 def _split_substep(c, history, env, head_sub, h, command_a, coil_start, y0, parts,
-                   exhaust_node_pa):
+                   exhaust_node_pa, lugre_friction_n):
     """One substep from ``y0`` by the general path, in ``parts`` equal parts
     (``refinement``), each split further at piston events (``_advance_interval``)."""
     y = y0
     for part in range(parts):
         y = _advance_interval(c, history, env, head_sub, part / parts, (part + 1) / parts, h,
-                              command_a, coil_start, y, y0, exhaust_node_pa)
+                              command_a, coil_start, y, y0, exhaust_node_pa, lugre_friction_n)
     return y
 
 
@@ -914,12 +929,19 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
          state[L.S_T2, env])
     coil = (state[L.S_COIL, env], state[L.S_COIL_FORCE, env])
     exhaust_node_pa = state[L.S_EXHAUST_NODE, env]
+    bristle_m = state[L.S_BRISTLE, env]
     for sub in range(n_substeps):
         head_sub = ring_slot(head + sub, n_slots)
         coil_now = coil[0] if c.coil_lag else coil_current_a  # the command without a lag
         coil_start = (coil_now, coil[1] if c.coil_force_lag else coil_now)
+        lugre_friction_n = 0.0
+        if c.lugre:  # the bristles over the substep at its starting velocity (operator split)
+            bristle_m, lugre_friction_n = lugre_bristle_step(
+                bristle_m, y[5], h, c.lugre_stiffness, c.lugre_damping,
+                stribeck_friction(y[5], c.dynamic_friction, c.static_friction, c.stribeck_v)
+                if c.stribeck else c.dynamic_friction)
         y = _split_substep(c, history, env, head_sub, h, coil_current_a, coil_start, y,
-                           refinement(c, y, h), exhaust_node_pa)
+                           refinement(c, y, h), exhaust_node_pa, lugre_friction_n)
         coil = _coil_at(c, coil_current_a, coil_start, 1.0)
         slot = ring_slot(head_sub + 1, n_slots)
         y = _close_substep(c, history, env, slot, y)
@@ -927,6 +949,7 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
             exhaust_node_pa = exhaust_node_after_substep(c, history, env, slot, y,
                                                          exhaust_node_pa, h)
     state[L.S_EXHAUST_NODE, env] = exhaust_node_pa
+    state[L.S_BRISTLE, env] = bristle_m
     _store_state(c, state, env, y, coil, outputs)
 
 
@@ -967,7 +990,8 @@ def load_constants(constants, lane):
         constants[60 * k + lane], constants[61 * k + lane], constants[62 * k + lane], constants[63 * k + lane],
         constants[64 * k + lane], constants[65 * k + lane], constants[66 * k + lane], constants[67 * k + lane],
         constants[68 * k + lane], constants[69 * k + lane], constants[70 * k + lane], constants[71 * k + lane],
-        constants[72 * k + lane], constants[73 * k + lane])
+        constants[72 * k + lane], constants[73 * k + lane], constants[74 * k + lane], constants[75 * k + lane],
+        constants[76 * k + lane])
 
 
 # Rows of the batch path's work array, a flat array of N_WORK rows of CHUNK_ENVS lanes: the
@@ -1297,7 +1321,7 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
                 y0 = _work_rows(work, W_START, j)
                 current = work[W_CURRENT * CHUNK_ENVS + j]
                 y = _split_substep(c, history, env, head_sub, h, current, (current, current),
-                                   y0, refinement(c, y0, h), c.ambient_pa)
+                                   y0, refinement(c, y0, h), c.ambient_pa, 0.0)
                 _set_work_rows(work, 0, j, _close_substep(c, history, env, slot, y))
     # the batch path's lanes: state and outputs as _store_state writes them
     for row in range(N_RK):

@@ -77,6 +77,8 @@ PARAMETER_NAMES = (
     "tube_waves",  # 0: the paper's tube (Eqs. 30, 31); 1: transmission line (waves, reflections)
     "exhaust_vent_area_m2",  # exhaust back-pressure: the valve exhausts through this vent
     "exhaust_volume_m3",  # the exhaust node's volume (0: quasi-static, the node holds no air)
+    "lugre_stiffness_n_per_m",  # LuGre bristle stiffness sigma0; > 0 replaces Karnopp friction
+    "lugre_damping_n_s_per_m",  # LuGre bristle damping sigma1 (used only with sigma0 > 0)
 )
 
 # The parameters a cylinder file (configs/cylinders/) defines: bore through leakage.
@@ -99,6 +101,8 @@ EFFECT_NEUTRAL_VALUES = {
     "tube_waves": 0.0,
     "exhaust_vent_area_m2": 0.0,
     "exhaust_volume_m3": 0.0,
+    "lugre_stiffness_n_per_m": 0.0,
+    "lugre_damping_n_s_per_m": 0.0,
 }
 
 _g = globals()
@@ -131,6 +135,8 @@ STATE_NAMES = (
     # lag (the coil current unless coil_lag_shape > 0); it drives the spool
     "exhaust_node_pa",  # pressure behind the valve's exhaust ports (ambient unless
     # exhaust_vent_area_m2 > 0 and exhaust_volume_m3 > 0)
+    "bristle_deflection_m",  # LuGre friction's mean bristle deflection z (0 unless
+    # lugre_stiffness_n_per_m > 0)
 )
 for _i, _name in enumerate(STATE_NAMES):
     _g["S_" + _name.upper()] = _i
@@ -148,6 +154,7 @@ S_COIL_FORCE = S_COIL_FORCE_CURRENT_A
 S_T1 = S_T1_K
 S_T2 = S_T2_K
 S_EXHAUST_NODE = S_EXHAUST_NODE_PA
+S_BRISTLE = S_BRISTLE_DEFLECTION_M
 
 # Channels kept in the tube-delay ring buffer, one sample per substep boundary. The wave
 # channels (Pa) are the transmission line's wave variables (tube_waves = 1, docs/effects.md):
