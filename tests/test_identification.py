@@ -278,6 +278,24 @@ def test_stribeck_friction_is_diagnosed_on_a_moving_rod(rig_dir):
     assert abs(diag.final.values["static_friction_n"] / truth["static_friction_n"] - 1) < 0.1
 
 
+def test_lugre_friction_is_diagnosed_on_a_moving_rod(rig_dir):
+    # The rig's LuGre friction (a bristle damping that falls with speed, at 10 us) against
+    # the kernel's (a constant damping, once per 25 us fitting substep). Its rival, the
+    # Karnopp friction with the Stribeck curve, is left to the evaluation (time): there it
+    # is the runner-up. At 1 s the held-out error fell by 26 % only (1.5 s: 70 %)
+    csv = _rig(rig_dir, "lugre", 1, duration_s=1.5, piston="spring")
+    diag = diagnose([read_checked(csv)], candidates=["lugre"], max_effects=1)
+    assert diag.selected == ["lugre"], [(s.name, s.relative_improvement, s.reasons)
+                                        for s in diag.scores]
+    before = np.mean(list(diag.baseline_nrmse.values()))
+    after = np.mean(list(diag.after_nrmse.values()))
+    assert after < 0.5 * before
+    truth = _truth(csv)["parameters"]
+    assert 0.5 < diag.final.values["lugre_stiffness_n_per_m"] / truth[
+        "lugre_stiffness_n_per_m"] < 2.0
+    assert abs(diag.final.values["static_friction_n"] / truth["static_friction_n"] - 1) < 0.1
+
+
 def test_muffler_vent_and_volume_are_recovered(effect_diagnoses):
     """The rig's muffler (explicit steps at the plant rate) against the kernel's muffler
     node (backward Euler per substep): the vent area and the volume within 20 %."""
@@ -407,7 +425,9 @@ def test_candidate_table_is_consistent_with_the_kernel_and_its_configs():
             if cand.kind == "plant" and cand.available and (p.neutral is None
                                                             or math.isinf(p.neutral)):
                 if switched_by_another:  # a shape (the coil lag's): the kernel's default
-                    assert p.lower <= load_parameters()[p.name] <= p.upper  # is allowed
+                    default = load_parameters()[p.name]  # is allowed, or is the parameter's
+                    assert (p.lower <= default <= p.upper  # own off value (LuGre's damping)
+                            or default == EFFECT_NEUTRAL_VALUES.get(p.name)), (cand.name, p.name)
                     continue
                 # off only in a limit (a rigid load cell) or by a switch (the transmission
                 # line): the kernel's defaults do not switch on what the candidate `set`s,

@@ -122,25 +122,13 @@ def test_laminar_leak_equalises_the_sealed_chambers():
     assert d1[-10:].mean() < d1[:10].mean() and d2[-10:].mean() > d2[:10].mean()
 
 
-def test_rig_lugre_friction_slides_on_the_stribeck_curve_and_sticks_as_a_spring():
-    """The rig's LuGre friction (``_lugre_step``): sliding steadily it is the candidate's
-    Stribeck curve (``effects.stribeck_friction``); from rest a small displacement loads
-    the bristles like a spring of stiffness sigma0 (pre-sliding), which the candidate lacks."""
-    from pneumatic_env.identification.virtual_rig import _lugre_step
-    from pneumatic_env.physics.effects import stribeck_friction
-    f_s, f_c, v_s, k, c, h = 3.8, 0.5, 0.01, 1e5, 316.0, 1e-5
-    for v in (-0.05, -0.004, 0.001, 0.01, 0.2):
-        z = 0.0
-        for _ in range(2000):  # 2 s at a constant velocity (exact for any step)
-            z, force = _lugre_step(z, v, 1e-3, f_s, f_c, v_s, k, c)
-        assert force == pytest.approx(math.copysign(stribeck_friction(v, f_c, f_s, v_s), v),
-                                      rel=1e-9)
-    z, v = 0.0, 1e-4  # 1 um in 10 ms: far below the pre-sliding range f_c / sigma0 = 5 um
-    for _ in range(1000):
-        z, force = _lugre_step(z, v, h, f_s, f_c, v_s, k, c)
-    assert z == pytest.approx(v * 1000 * h, rel=0.03)  # the bristles follow the rod
-    assert force == pytest.approx(k * z + c * v, rel=0.01)
-    assert force < 0.05 * stribeck_friction(v, f_c, f_s, v_s)  # the candidate slides at F_s
+def test_rig_lugre_damping_falls_with_speed():
+    """The rig's bristle damping (``_lugre_damping``): sigma1 at rest, e^-1 of it at v_d,
+    even in v; the candidate's (the kernel's) is constant."""
+    from pneumatic_env.identification.virtual_rig import _lugre_damping
+    assert _lugre_damping(316.0, 0.0, 0.05) == 316.0
+    assert _lugre_damping(316.0, -0.05, 0.05) == pytest.approx(316.0 / math.e, rel=1e-12)
+    assert _lugre_damping(316.0, 0.02, 0.05) == _lugre_damping(316.0, -0.02, 0.05)
 
 
 def test_rig_wall_heat_exchange_conserves_the_gas_and_relaxes_to_the_wall():
@@ -160,20 +148,20 @@ def test_rig_wall_heat_exchange_conserves_the_gas_and_relaxes_to_the_wall():
             assert abs(t1 - wall) < abs(t - wall)
 
 
-def test_rig_lugre_plant_keeps_the_truth_and_differs_from_the_kernels_friction():
-    karnopp = run_rig("stribeck", seed=4, duration_s=0.4, piston="spring")
-    lugre = run_rig("stribeck", seed=4, duration_s=0.4, piston="spring", friction_model="lugre")
-    assert lugre.truth["friction_model"] == "lugre"
-    assert lugre.truth["parameters"] == karnopp.truth["parameters"]  # F_sf, F_df, v_s kept
-    noise = load_config().number("virtual_rig", "noise", "x")
+def test_rig_lugre_plant_states_its_truth_and_differs_from_the_kernels_friction():
+    karnopp = run_rig("none", seed=4, duration_s=0.4, piston="spring")
+    lugre = run_rig("lugre", seed=4, duration_s=0.4, piston="spring")
+    cfg = load_config()
+    truth = lugre.truth["parameters"]
+    assert truth["lugre_stiffness_n_per_m"] == cfg.number("virtual_rig", "effects", "lugre")
+    assert truth["stribeck_velocity_m_per_s"] == cfg.number("virtual_rig", "effects", "stribeck")
+    for name in ("static_friction_n", "dynamic_friction_n"):  # the perturbed base's
+        assert truth[name] == karnopp.truth["parameters"][name]
+    noise = cfg.number("virtual_rig", "noise", "x")
     assert np.abs(lugre.channels["x"] - karnopp.channels["x"]).max() > 5 * noise
-    with pytest.raises(ValueError, match=r"friction_model = 'lugre' needs effect 'stribeck' "
-                                         r"and a moving piston .*got effect 'none', piston "
-                                         r"'spring'"):
-        run_rig("none", piston="spring", friction_model="lugre")
-    with pytest.raises(ValueError, match=r"friction_model = 'stick' is not allowed: must be "
-                                         r"one of \['karnopp', 'lugre'\]"):
-        run_rig("stribeck", piston="spring", friction_model="stick")
+    with pytest.raises(ValueError, match=r"effect 'lugre' needs a moving piston \('spring' or "
+                                         r"'free'\); got piston = 'fixed'"):
+        run_rig("lugre", piston="fixed", duration_s=0.1)
 
 
 def test_rig_supply_line_droops_like_the_resistance_after_its_lag():

@@ -439,9 +439,11 @@ def diagnose(recordings: Sequence[Recording], params=None, candidates: Sequence[
 
 def _conflicts(cand: Candidate, selected: Sequence[Candidate]) -> bool:
     """Whether ``cand`` fixes a parameter a selected effect fits, or fits one it fixes (e.g.
-    the transmission line holds the tube's air, so it excludes a tube storage volume)."""
+    the transmission line holds the tube's air, so it excludes a tube storage volume), or
+    both fit the same parameter (LuGre friction has the Stribeck curve already)."""
     return any(set(cand.set) & set(other.parameter_names)
-               or set(other.set) & set(cand.parameter_names) for other in selected)
+               or set(other.set) & set(cand.parameter_names)
+               or set(cand.parameter_names) & set(other.parameter_names) for other in selected)
 
 
 def _improvement_is_the_basin(score: CandidateScore, current: FitResult, min_rel: float,

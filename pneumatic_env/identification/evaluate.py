@@ -28,17 +28,16 @@ from pathlib import Path
 BEGIN, END = "<!-- evaluate:begin -->", "<!-- evaluate:end -->"
 OUT_OF_CATALOG = ("supply_ripple",)
 #: Rig set-ups besides the default (Numatics, 0.5 m tube, rod clamped) for effects the
-#: default cannot show: (label suffix, run_rig keyword arguments). Stribeck friction
-#: needs a moving piston, and is also recorded with LuGre friction in the plant (a form
-#: the candidate lacks: pre-sliding and frictional lag); "none" is also recorded on a
+#: default cannot show: (label suffix, run_rig keyword arguments). Stribeck and LuGre
+#: friction need a moving piston; "none" is also recorded on a
 #: spring rod (moving-piston fits, with their static-friction restarts, must not invent
 #: an effect either); the tube volume is also tried with a 2 m tube (16 cm^3 of air), and
 #: the segmented line of ``tube_waves`` with a 2 m tube (where the candidate's friction,
 #: lumped at the line's ends, differs most from the line's own).
 EXTRA_SETUPS = {
     "none": [("", {}), ("spring rod", {"piston": "spring"})],
-    "stribeck": [("spring rod", {"piston": "spring"}),
-                 ("LuGre spring rod", {"piston": "spring", "friction_model": "lugre"})],
+    "stribeck": [("spring rod", {"piston": "spring"})],
+    "lugre": [("spring rod", {"piston": "spring"})],
     "tube_volume": [("", {}), ("2 m tube", {"tube_length_m": 2.0})],
     "tube_waves": [("", {}), ("2 m tube", {"tube_length_m": 2.0})],
 }

@@ -38,9 +38,10 @@ How the plant differs from the fitting model:
                                     1.3 x the Coulomb band and then slides at it (a play of
                                     the Coulomb band, ``spool_coulomb_friction_n``)
   supply_ripple                     not in the catalog: 3 Hz supply-pressure oscillation
-  stribeck with friction_model      LuGre friction (bristle states, pre-sliding, frictional lag;
-  = "lugre"                         steady state F_c + (F_s - F_c) exp(-(v/v_s)^2)), applied
-                                    as a load force every plant substep (Karnopp + Stribeck)
+  lugre                             LuGre friction on the Stribeck curve with a bristle damping
+                                    that falls with speed, sigma1 exp(-(v/v_s)^2) (Canudas de
+                                    Wit et al. 1995), a load force every 10 us plant substep
+                                    (the kernel's LuGre: a constant sigma1, once per substep)
   supply_droop                      a supply line of volume V fed through the regulator's
                                     resistance R (a lag of R V / (R_gas T), 20 ms at S = 1),
                                     drained by the valve (R alone: the droop is immediate)
@@ -61,7 +62,7 @@ How the plant differs from the fitting model:
   valve_null_leak, tube_volume,     **same form** as the candidate (the kernel's parameter):
   iso_flow_law,                     an inverse crime, softened only by the finer step, the
   exhaust_discharge (orifice)       perturbed base and the noise
-  stribeck (default friction_model)
+  stribeck
   ================================  ==========================================================
 """
 from __future__ import annotations
@@ -77,6 +78,7 @@ from scipy.signal import cont2discrete, lfilter, lfilter_zi
 from pneumatic_env.params import load_parameters, parameter_array
 from pneumatic_env.physics import layout as L
 from pneumatic_env.physics.chamber import chamber_volumes
+from pneumatic_env.physics.effects import lugre_bristle_step, stribeck_friction
 from pneumatic_env.physics.flow import flow_constants, orifice_mass_flow, subsonic_reduced_flow
 from pneumatic_env.physics.valve import orifice_area
 from pneumatic_env.recording import PISTON_MODES, canonical_cylinder, write_recording
@@ -86,7 +88,7 @@ from pneumatic_env.simulator import BatchSimulator
 from .config import IdentificationConfig, load_config
 from .segmented_line import line_constants, segmented_line_rollout
 
-__all__ = ["KERNEL_EFFECTS", "LINE_EFFECTS", "RIG_EFFECTS", "SPLIT_EFFECTS", "FRICTION_MODELS",
+__all__ = ["KERNEL_EFFECTS", "LINE_EFFECTS", "RIG_EFFECTS", "SPLIT_EFFECTS", "MOVING_EFFECTS",
            "RigResult", "excitation", "make_recording", "run_rig", "add_arguments", "run"]
 
 #: Rig effects realised by a kernel parameter (same form as the candidate): name ->
@@ -103,7 +105,7 @@ KERNEL_EFFECTS = {
 RIG_EFFECTS = ("none", "leakage", "rod_seal_leak", "coil_lag", "spool_friction",
                "pressure_sensor_offset",
                "pressure_sensor_lag", "channel_time_skew", "load_cell_compliance",
-               "supply_ripple", "heat_transfer", "supply_droop", "exhaust_muffler",
+               "supply_ripple", "heat_transfer", "supply_droop", "exhaust_muffler", "lugre",
                *KERNEL_EFFECTS)
 #: Rig effects whose plant is not the kernel: the tubes as segmented lines
 #: (``segmented_line``); their ``KERNEL_EFFECTS`` entry states the nearest kernel form in
@@ -111,10 +113,9 @@ RIG_EFFECTS = ("none", "leakage", "rod_seal_leak", "coil_lag", "spool_friction",
 LINE_EFFECTS = ("tube_waves",)
 #: Rig effects applied by operator splitting between steps of the kernel.
 SPLIT_EFFECTS = ("leakage", "rod_seal_leak", "supply_ripple", "heat_transfer", "supply_droop",
-                 "exhaust_muffler")
-#: The rig's piston friction: the kernel's Karnopp friction (with the Stribeck curve of
-#: ``--effect stribeck``), or LuGre friction (``--effect stribeck`` only).
-FRICTION_MODELS = ("karnopp", "lugre")
+                 "exhaust_muffler", "lugre")
+#: Rig effects of the piston's friction: they need a moving piston (``spring`` or ``free``).
+MOVING_EFFECTS = ("stribeck", "lugre")
 EXCITATIONS = ("identification", "steps", "prbs", "multisine", "chirp", "triangle")
 _SEGMENTS = ("rest", "step_pos", "step_neg", "prbs", "multisine", "chirp", "triangle")
 
@@ -291,28 +292,6 @@ def _supply_line_step(line_pa: float, regulator_pa: float, resistance_pa_s_per_k
     return steady + (line_pa - steady) * math.exp(-h_s / time_constant_s)
 
 
-def _lugre_step(bristle_m: float, velocity_m_per_s: float, h_s: float, static_n: float,
-                coulomb_n: float, stribeck_velocity_m_per_s: float, stiffness_n_per_m: float,
-                damping_n_s_per_m: float) -> tuple[float, float]:
-    """One step of LuGre friction (Canudas de Wit et al. 1995) at a velocity held over h_s.
-
-    The bristles deflect as dz/dt = v - sigma0 |v| z / g(v), g(v) = F_c + (F_s - F_c)
-    exp(-(v/v_s)^2), integrated exactly for the held v; returns the new deflection and the
-    friction force sigma0 z + sigma1 dz/dt (positive resists extension; the viscous part
-    sigma2 v is the kernel's). Sliding steadily, the force is g(v) sgn(v): the Stribeck
-    curve of the candidate, which lacks the pre-sliding spring and the frictional lag.
-    """
-    g = coulomb_n + (static_n - coulomb_n) * math.exp(
-        -(velocity_m_per_s / stribeck_velocity_m_per_s) ** 2)
-    rate = stiffness_n_per_m * abs(velocity_m_per_s) / g
-    if rate * h_s > 1e-12:
-        steady = velocity_m_per_s / rate
-        new = steady + (bristle_m - steady) * math.exp(-rate * h_s)
-    else:
-        new = bristle_m + velocity_m_per_s * h_s
-    return new, stiffness_n_per_m * new + damping_n_s_per_m * (new - bristle_m) / h_s
-
-
 def _wall_heat_exchange(p_pa: float, t_k: float, volume_m3: float, h_s: float,
                         conductance_ref_w_per_k: float, density_ref_kg_m3: float,
                         density_exponent: float, wall_t_k: float, gas_constant: float,
@@ -480,22 +459,35 @@ class _Muffler(_PlantForm):
 
 
 class _LuGre(_PlantForm):
-    """``stribeck`` with LuGre friction (``_lugre_step``) as the load force."""
+    """``lugre``: LuGre friction (``effects.lugre_bristle_step``) on the Stribeck curve as
+    the load force, its bristle damping falling with speed (``_lugre_damping``)."""
 
     every_substep = True
 
     def __init__(self, true: dict, static_n: float, coulomb_n: float,
                  stribeck_velocity_m_per_s: float, stiffness_n_per_m: float,
-                 damping_n_s_per_m: float):
+                 damping_n_s_per_m: float, damping_decay_velocity_m_per_s: float):
         super().__init__(true)
-        self.friction = (static_n, coulomb_n, stribeck_velocity_m_per_s, stiffness_n_per_m,
-                         damping_n_s_per_m)
+        self.damping_decay_velocity = damping_decay_velocity_m_per_s
+        self.static_n, self.coulomb_n = static_n, coulomb_n
+        self.stribeck_velocity = stribeck_velocity_m_per_s
+        self.stiffness, self.damping = stiffness_n_per_m, damping_n_s_per_m
         self.bristle_m = 0.0
 
     def before_step(self, sim, plant_step, h_s):
-        self.bristle_m, friction = _lugre_step(self.bristle_m, sim.state[L.S_V, 0], h_s,
-                                               *self.friction)
+        v = sim.state[L.S_V, 0]
+        self.bristle_m, friction = lugre_bristle_step(
+            self.bristle_m, v, h_s, self.stiffness,
+            _lugre_damping(self.damping, v, self.damping_decay_velocity),
+            stribeck_friction(v, self.coulomb_n, self.static_n, self.stribeck_velocity))
         sim.params[L.P_LOAD_FORCE_N, 0] = self.true["load_force_n"] + friction
+
+
+def _lugre_damping(damping_n_s_per_m: float, velocity_m_per_s: float,
+                   decay_velocity_m_per_s: float) -> float:
+    """A bristle damping sigma1 exp(-(v/v_d)^2) that damps the pre-sliding motion more than
+    the sliding one (a velocity-dependent sigma1 as discussed by Canudas de Wit et al. 1995)."""
+    return damping_n_s_per_m * math.exp(-(velocity_m_per_s / decay_velocity_m_per_s) ** 2)
 
 
 def _plant_form(effect: str, strength: float, reference: float, true: dict, truth: dict,
@@ -517,11 +509,17 @@ def _plant_form(effect: str, strength: float, reference: float, true: dict, trut
     if effect == "supply_droop":  # the kernel's resistance stays 0
         truth["supply_resistance_pa_s_per_kg"] = value
         return _SupplyLine(true, value, rig("supply_line_volume_m3", positive=True))
-    if effect == "stribeck":  # LuGre replaces the kernel's Karnopp + Stribeck friction
+    if effect == "lugre":  # LuGre replaces the kernel's Karnopp friction
+        # strength scales the bristles' compliance; the damping keeps its ratio to sqrt(sigma0)
+        damping = rig("lugre_damping_n_s_per_m", positive=True) / math.sqrt(strength)
+        stribeck_velocity = cfg.number("virtual_rig", "effects", "stribeck", positive=True)
+        stiffness = reference / strength
+        truth.update(lugre_stiffness_n_per_m=stiffness, lugre_damping_n_s_per_m=damping,
+                     stribeck_velocity_m_per_s=stribeck_velocity)
         true.update(static_friction_n=0.0, dynamic_friction_n=0.0, stribeck_velocity_m_per_s=0.0)
-        return _LuGre(true, truth["static_friction_n"], truth["dynamic_friction_n"], value,
-                      rig("lugre_stiffness_n_per_m", positive=True),
-                      rig("lugre_damping_n_s_per_m", positive=True))
+        return _LuGre(true, truth["static_friction_n"], truth["dynamic_friction_n"],
+                      stribeck_velocity, stiffness, damping,
+                      rig("lugre_damping_decay_velocity_m_per_s", positive=True))
     if effect == "exhaust_muffler":  # the kernel's vent stays off: its node is the muffler
         vent_area = reference / strength  # strength scales the vent's resistance
         volume = rig("exhaust_muffler_volume_m3", positive=True)
@@ -544,7 +542,7 @@ def _perturbed(cylinder: str, base: dict, rng: np.random.Generator,
 def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
             duration_s: float | None = None, cylinder: str = "numatics",
             tube_length_m: float = 0.5, piston: str = "fixed", excitation_kind: str = "identification",
-            perturb: bool = True, friction_model: str = "karnopp",
+            perturb: bool = True,
             config: IdentificationConfig | None = None) -> RigResult:
     """Simulate the virtual rig; returns the recording's samples, sidecar and truth."""
     cfg = config or load_config()
@@ -561,12 +559,9 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
     if effect == "load_cell_compliance" and piston != "fixed":
         raise ValueError(f"effect 'load_cell_compliance' needs piston = 'fixed' (a clamped rod "
                          f"held through a load cell); got piston = {piston!r}")
-    if friction_model not in FRICTION_MODELS:
-        raise ValueError(f"friction_model = {friction_model!r} is not allowed: must be one of "
-                         f"{list(FRICTION_MODELS)}")
-    if friction_model == "lugre" and (effect != "stribeck" or piston == "fixed"):
-        raise ValueError(f"friction_model = 'lugre' needs effect 'stribeck' and a moving piston "
-                         f"('spring' or 'free'); got effect {effect!r}, piston {piston!r}")
+    if effect in MOVING_EFFECTS and strength > 0 and piston == "fixed":
+        raise ValueError(f"effect {effect!r} needs a moving piston ('spring' or 'free'); got "
+                         f"piston = 'fixed'")
     if effect in KERNEL_EFFECTS and KERNEL_EFFECTS[effect][0] not in L.PARAMETER_NAMES:
         raise ValueError(f"effect {effect!r} needs the kernel parameter "
                          f"{KERNEL_EFFECTS[effect][0]!r}, which this kernel does not have")
@@ -634,7 +629,7 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         fine = _stick_slip_play(fine, band, breakaway * band)
     plant_substeps = int(cfg.number("virtual_rig", "plant_substeps", positive=True))
     form = None
-    if s > 0.0 and (effect in SPLIT_EFFECTS or friction_model == "lugre"):
+    if s > 0.0 and effect in SPLIT_EFFECTS:
         form = _plant_form(effect, s, ref, true, truth_parameters, cfg, piston)
     # a stiff form acts before every plant substep (the kernel steps one substep at a time)
     steps_per_plant_step = plant_substeps if form is not None and form.every_substep else 1
@@ -691,7 +686,7 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
                     "pneumatic_env.identification.virtual_rig"}
     truth = {"effect": effect, "strength": s, "seed": int(seed), "excitation": excitation_kind,
              "duration_s": duration, "perturbed": bool(perturb),
-             "effect_reference": ref, "friction_model": friction_model,
+             "effect_reference": ref,
              "plant": (f"segmented line, {segments} volumes per tube"
                        if effect in LINE_EFFECTS and s > 0.0 else "kernel"),
              "parameters": {k: float(v) for k, v in truth_parameters.items()}}
@@ -731,9 +726,6 @@ def add_arguments(p) -> None:
     p.add_argument("--tube-length", type=float, default=0.5, metavar="M")
     p.add_argument("--piston", default="fixed", choices=tuple(PISTON_MODES))
     p.add_argument("--excitation", default="identification", choices=EXCITATIONS)
-    p.add_argument("--friction-model", default="karnopp", choices=FRICTION_MODELS,
-                   help="the piston's friction in the plant; lugre only with --effect stribeck "
-                        "and a moving piston (default: karnopp, the kernel's)")
     p.add_argument("--no-perturb", action="store_true",
                    help="use the configs' default base parameters exactly")
     p.add_argument("--overwrite", action="store_true")
@@ -747,8 +739,7 @@ def run(args) -> int:
                               effect=args.effect, strength=args.strength, seed=args.seed,
                               duration_s=args.duration, cylinder=args.cylinder,
                               tube_length_m=args.tube_length, piston=args.piston,
-                              excitation_kind=args.excitation, perturb=not args.no_perturb,
-                              friction_model=args.friction_model)
+                              excitation_kind=args.excitation, perturb=not args.no_perturb)
     except (FileExistsError, ValueError) as exc:
         print(f"pneumatic-env rig: {exc}", file=sys.stderr)
         return 2
