@@ -544,6 +544,27 @@ def test_lugre_pre_sliding_is_a_spring_and_breakaway_follows_the_friction_curve(
         assert sim.state[L.S_X, 0] > 1e-3
 
 
+def test_stiff_lugre_bristles_split_the_substep_and_match_a_fine_one():
+    """A stiff seal (sigma0 = 1e7 N/m: a pre-sliding mode of 2.3 kHz on the 50 g piston)
+    at the default 200 us substep: ``refinement`` splits it (h sqrt(sigma0 / M) = 2.8), and
+    the rod follows a run at 80 substeps per ms."""
+    mass = load_parameters()["piston_mass_kg"]
+    lugre = dict(piston_mode="free", tube_length_m=0.5, lugre_stiffness_n_per_m=1e7,
+                 lugre_damping_n_s_per_m=2.0 * math.sqrt(1e7 * mass),
+                 stribeck_velocity_m_per_s=0.01)
+    c = kernel.env_constants(parameter_array(load_parameters(**lugre)), 0, 2e-4)
+    y = (0.0, 0.0, 3e5, 3e5, 0.0, 0.0, 0.0, T_S, T_S)
+    assert kernel.refinement(c, y, 2e-4) >= 8
+    t = np.arange(120) * 1e-3
+    currents = np.where(t < 0.06, 0.4, -0.4)
+    default = run_batch([load_parameters(**lugre)], currents)
+    fine = run_batch([load_parameters(**lugre)], currents, substeps=80)
+    assert np.all(np.isfinite(default))
+    x = default[:, L.O_X, 0]
+    assert np.ptp(x) > 5e-3  # it slid both ways
+    assert np.abs(x - fine[:, L.O_X, 0]).max() < 0.01 * np.ptp(x)
+
+
 # --------------------------------------------------------------------------- 10 spool friction
 
 def test_spool_friction_is_a_play_of_half_width_friction_over_coil_force():

@@ -792,6 +792,7 @@ def rk4_base_substep(c, y, coil_current_a, direction, spool_delayed_start, spool
 MAX_EVENTS_PER_SUBSTEP = 4
 MIN_EVENT_FRACTION = 1e-6  # events closer than this to the interval start are applied at once
 STIFFNESS_LIMIT = 2.0  # largest h * lambda_max before a substep is split (RK4's real-axis limit: 2.79)
+LUGRE_COUPLING_LIMIT = 0.5  # largest h sqrt(sigma0 / M) and h sigma1 / M of a LuGre part
 MAX_REFINEMENT = 64  # a substep is split into at most this many equal parts
 
 
@@ -814,8 +815,14 @@ def refinement(c, y, h):
     R T alpha C_f A_max (max |m_r'| + C1) / (sqrt(T) V_min), with V_min the smaller
     chamber volume this substep can reach (``stiffness_ratio``). It is large only when a
     chamber is nearly empty (piston near a stop), where a fixed substep would chatter.
+    With LuGre friction the parts also keep the bristles' explicit coupling to the rod
+    (``_split_substep``) within ``LUGRE_COUPLING_LIMIT``: h sqrt(sigma0 / M) for the
+    pre-sliding spring, h sigma1 / M for its damping.
     """
     ratio = stiffness_ratio(c, y, h)
+    if c.lugre and c.mode != MODE_FIXED:  # the bristles act on the rod once per part
+        ratio = max(ratio, STIFFNESS_LIMIT / LUGRE_COUPLING_LIMIT * h * max(
+            math.sqrt(c.lugre_stiffness * c.inv_moving_mass), c.lugre_damping * c.inv_moving_mass))
     parts = 1
     while ratio > STIFFNESS_LIMIT and parts < MAX_REFINEMENT:
         parts *= 2
@@ -862,14 +869,26 @@ def _advance_interval(c, history, env, head, frac_start, frac_end, h, command_a,
 
 @njit(cache=True)
 def _split_substep(c, history, env, head_sub, h, command_a, coil_start, y0, parts,
-                   exhaust_node_pa, lugre_friction_n):
+                   exhaust_node_pa, bristle_m):
     """One substep from ``y0`` by the general path, in ``parts`` equal parts
-    (``refinement``), each split further at piston events (``_advance_interval``)."""
+    (``refinement``), each split further at piston events (``_advance_interval``).
+
+    With LuGre friction the bristles (deflection ``bristle_m``) are advanced before each
+    part, exactly for the rod's velocity at its start (``lugre_bristle_step``), and their
+    mean friction is held over the part (operator splitting). Returns the state and the
+    bristles' deflection.
+    """
     y = y0
     for part in range(parts):
+        lugre_friction_n = 0.0
+        if c.lugre:
+            bristle_m, lugre_friction_n = lugre_bristle_step(
+                bristle_m, y[5], h / parts, c.lugre_stiffness, c.lugre_damping,
+                stribeck_friction(y[5], c.dynamic_friction, c.static_friction, c.stribeck_v)
+                if c.stribeck else c.dynamic_friction)
         y = _advance_interval(c, history, env, head_sub, part / parts, (part + 1) / parts, h,
                               command_a, coil_start, y, y0, exhaust_node_pa, lugre_friction_n)
-    return y
+    return y, bristle_m
 
 
 @njit(cache=True, forceinline=True)
@@ -934,14 +953,8 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
         head_sub = ring_slot(head + sub, n_slots)
         coil_now = coil[0] if c.coil_lag else coil_current_a  # the command without a lag
         coil_start = (coil_now, coil[1] if c.coil_force_lag else coil_now)
-        lugre_friction_n = 0.0
-        if c.lugre:  # the bristles over the substep at its starting velocity (operator split)
-            bristle_m, lugre_friction_n = lugre_bristle_step(
-                bristle_m, y[5], h, c.lugre_stiffness, c.lugre_damping,
-                stribeck_friction(y[5], c.dynamic_friction, c.static_friction, c.stribeck_v)
-                if c.stribeck else c.dynamic_friction)
-        y = _split_substep(c, history, env, head_sub, h, coil_current_a, coil_start, y,
-                           refinement(c, y, h), exhaust_node_pa, lugre_friction_n)
+        y, bristle_m = _split_substep(c, history, env, head_sub, h, coil_current_a, coil_start,
+                                      y, refinement(c, y, h), exhaust_node_pa, bristle_m)
         coil = _coil_at(c, coil_current_a, coil_start, 1.0)
         slot = ring_slot(head_sub + 1, n_slots)
         y = _close_substep(c, history, env, slot, y)
@@ -1320,8 +1333,9 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
                 c = load_constants(chunk_constants, j)
                 y0 = _work_rows(work, W_START, j)
                 current = work[W_CURRENT * CHUNK_ENVS + j]
-                y = _split_substep(c, history, env, head_sub, h, current, (current, current),
-                                   y0, refinement(c, y0, h), c.ambient_pa, 0.0)
+                y, _ = _split_substep(c, history, env, head_sub, h, current,
+                                      (current, current), y0, refinement(c, y0, h),
+                                      c.ambient_pa, 0.0)
                 _set_work_rows(work, 0, j, _close_substep(c, history, env, slot, y))
     # the batch path's lanes: state and outputs as _store_state writes them
     for row in range(N_RK):
