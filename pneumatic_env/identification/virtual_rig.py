@@ -39,7 +39,7 @@ How the plant differs from the fitting model:
                                     the Coulomb band, ``spool_coulomb_friction_n``)
   supply_ripple                     not in the catalog: 3 Hz supply-pressure oscillation
   lugre                             LuGre friction on the Stribeck curve with a bristle damping
-                                    that falls with speed, sigma1 exp(-(v/v_s)^2) (Canudas de
+                                    that falls with speed, sigma1 exp(-(v/v_d)^2) (Canudas de
                                     Wit et al. 1995), a load force every 10 us plant substep
                                     (the kernel's LuGre: a constant sigma1, once per substep)
   supply_droop                      a supply line of volume V fed through the regulator's
@@ -644,7 +644,7 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         line = segmented_line_rollout(
             line_constants(true, segments), segments, fine, plant_dt,
             int(cfg.number("virtual_rig", "line_substeps", positive=True)))
-        rows = np.tile(first, (fine.size, 1))
+        rows = np.tile(first, (fine.size, 1))  # the rod stays at the clamp
         rows[:, [L.O_P1, L.O_P2, L.O_F]] = line[1:]
     elif form is None:
         rows = sim.rollout(fine[:, None])[:, :, 0]
