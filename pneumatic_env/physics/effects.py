@@ -148,8 +148,9 @@ def lugre_bristle_step(bristle_m, velocity_m_per_s, h_s, stiffness_n_per_m, damp
     step (positive resists extension; the viscous part beta v is the piston's own):
     z(h) = z + (v - r z) h phi(r h) and mean z = z + (v - r z) h psi(r h), with phi(x) =
     (1 - e^-x) / x and psi(x) = (x - 1 + e^-x) / x^2 (with expm1, and in series form
-    for small x: no cancellation; at v = 0 the bristles hold: z stays, the force is sigma0 z). Sliding
-    steadily, the force is g sgn(v): the Stribeck curve of ``stribeck_friction``.
+    for small x: no cancellation; at v = 0 the bristles hold: z stays, the force is
+    sigma0 z). Sliding steadily, the force is g sgn(v): the Stribeck curve of
+    ``stribeck_friction``.
     """
     g = max(sliding_friction_n, 1e-12)  # a frictionless seal: the bristles carry nothing
     rate = stiffness_n_per_m * abs(velocity_m_per_s) / g

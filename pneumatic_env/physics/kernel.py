@@ -491,6 +491,15 @@ def _motion_and_spool(c, coil_current_a, x_s, v_s, p1, p2, x, velocity, directio
     return accel, a_s
 
 
+@njit(cache=True, inline="always")
+def _sliding_friction(c, velocity):
+    """The sliding friction's magnitude at ``velocity``: F_df (Eq. 47), or the Stribeck
+    curve; Karnopp's while sliding, and the curve LuGre's bristles relax towards."""
+    if c.stribeck:
+        return stribeck_friction(velocity, c.dynamic_friction, c.static_friction, c.stribeck_v)
+    return c.dynamic_friction
+
+
 @njit(cache=True, forceinline=True, error_model="numpy")
 def _volumes(c, x):
     """Chamber volumes (Eq. 15) with the position held in the stroke (a trial step may overshoot)."""
@@ -551,12 +560,8 @@ def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, sp
                             c.alpha_in, c.alpha_out, c.alpha_motion)
         dt1 = 0.0
         dt2 = 0.0
-    friction = c.dynamic_friction
-    if c.lugre:  # piston_acceleration applies friction * direction (+-1 while moving)
-        friction = lugre_friction_n * direction
-    elif c.stribeck:
-        friction = stribeck_friction(velocity, c.dynamic_friction, c.static_friction,
-                                     c.stribeck_v)
+    # piston_acceleration applies friction * direction (+-1 while moving)
+    friction = lugre_friction_n * direction if c.lugre else _sliding_friction(c, velocity)
     accel, a_s = _motion_and_spool(c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction,
                                    friction)
     exhaust_rate = max(exhaust_1, 0.0) + max(exhaust_2, 0.0) + max(seal_2, 0.0) + vented
@@ -884,8 +889,7 @@ def _split_substep(c, history, env, head_sub, h, command_a, coil_start, y0, part
         if c.lugre:
             bristle_m, lugre_friction_n = lugre_bristle_step(
                 bristle_m, y[5], h / parts, c.lugre_stiffness, c.lugre_damping,
-                stribeck_friction(y[5], c.dynamic_friction, c.static_friction, c.stribeck_v)
-                if c.stribeck else c.dynamic_friction)
+                _sliding_friction(c, y[5]))
         y = _advance_interval(c, history, env, head_sub, part / parts, (part + 1) / parts, h,
                               command_a, coil_start, y, y0, exhaust_node_pa, lugre_friction_n)
     return y, bristle_m
