@@ -31,7 +31,9 @@ frequencies in Hz. Pure numpy (scipy is used for the chirp when available).
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
+import functools
 import math
 import numbers
 from dataclasses import dataclass
@@ -111,6 +113,16 @@ def _require_rng(owner: str, rng: Any) -> np.random.Generator:
 
 def _time(n_steps: int, dt_s: float) -> np.ndarray:
     return np.arange(n_steps, dtype=np.float64) * dt_s
+
+
+@functools.lru_cache(maxsize=16)
+def _sine_basis(frequencies_hz: tuple, n_steps: int, dt_s: float) -> tuple:
+    """sin and cos of 2 pi f t_k (read-only, shape (n_steps, len(frequencies_hz)))."""
+    omega_t = 2.0 * np.pi * _time(n_steps, dt_s)[:, None] * np.asarray(frequencies_hz)[None, :]
+    basis = np.sin(omega_t), np.cos(omega_t)
+    for b in basis:
+        b.setflags(write=False)
+    return basis
 
 
 def _plain(value: Any) -> Any:
@@ -328,8 +340,10 @@ class MultisineReference(ReferenceSpec):
         else:
             k = np.arange(1, n_f + 1, dtype=np.float64)
             phi = -np.pi * k * (k - 1.0) / n_f
-        t = _time(n, dt)
-        x = np.sin(2.0 * np.pi * freqs[None, :] * t[:, None] + phi[None, :]).sum(axis=1)
+        # sin(w t + phi) = sin(w t) cos(phi) + cos(w t) sin(phi): the episode's basis is
+        # computed once, an episode costs two matrix-vector products
+        sin_wt, cos_wt = _sine_basis(self.frequencies_hz, n, dt)
+        x = sin_wt @ np.cos(phi) + cos_wt @ np.sin(phi)
         peak = float(np.max(np.abs(x))) if n else 0.0
         if peak > 0.0:
             x *= self.amplitude / peak
@@ -485,13 +499,18 @@ class MixtureReference(ReferenceSpec):
     def pick(self, rng: np.random.Generator) -> int:
         """Index of the choice for one episode (one uniform draw from ``rng``)."""
         rng = _require_rng(type(self).__name__, rng)
-        p = self.probabilities()
-        cdf = np.cumsum(p)
-        idx = int(np.searchsorted(cdf, rng.random() * cdf[-1], side="right"))
+        p, cdf = self._cdf
+        idx = bisect.bisect_right(cdf, rng.random() * cdf[-1])
         idx = min(idx, len(self.choices) - 1)
         while p[idx] == 0.0:  # rounding edge case: never pick a zero-weight choice
             idx -= 1
         return idx
+
+    @functools.cached_property
+    def _cdf(self) -> tuple:
+        """The probabilities and their cumulative sums, as floats (``pick`` runs per episode)."""
+        p = self.probabilities()
+        return p.tolist(), np.cumsum(p).tolist()
 
     def generate(self, n_steps: int, dt_s: float,
                  rng: np.random.Generator | None = None) -> np.ndarray:

@@ -109,65 +109,62 @@ class BatchSimulator:
             self.history = grown
 
     # -- state ---------------------------------------------------------------------------
-    def default_initial_state(self, env: int) -> dict:
-        """Both chambers at ambient, piston at rest (at the clamp position when fixed), spool centred."""
-        p = self.params[:, env]
-        x = p[L.P_FIXED_POSITION_M] if int(p[L.P_PISTON_MODE]) == MODE_FIXED else 0.0
-        return {"p1": p[L.P_AMBIENT_PRESSURE_PA], "p2": p[L.P_AMBIENT_PRESSURE_PA], "x": x,
-                "v": 0.0, "x_s": 0.0}
+    def _initial_columns(self, envs: np.ndarray, initial: Mapping[str, float] | None) -> dict:
+        """{key: array over ``envs``} of the initial state: both chambers at ambient, piston at
+        rest (at the clamp position when fixed), spool centred, with ``initial`` applied."""
+        p = self.params[:, envs]
+        fixed = p[L.P_PISTON_MODE].astype(np.int64) == MODE_FIXED
+        columns = {"p1": p[L.P_AMBIENT_PRESSURE_PA].copy(),
+                   "p2": p[L.P_AMBIENT_PRESSURE_PA].copy(),
+                   "x": np.where(fixed, p[L.P_FIXED_POSITION_M], 0.0),
+                   "v": np.zeros(len(envs)), "x_s": np.zeros(len(envs))}
+        if initial:
+            unknown = set(initial) - set(INITIAL_STATE_KEYS)
+            if unknown:
+                raise ValueError(f"initial state key(s) {sorted(unknown)} not known; "
+                                 f"allowed: {list(INITIAL_STATE_KEYS)}")
+            for key, value in initial.items():
+                value = float(value)
+                if not np.isfinite(value):
+                    raise ValueError(f"initial['{key}'] = {value} must be finite")
+                columns[key][:] = value
+        half = 0.5 * p[L.P_STROKE_M]
+        outside = np.flatnonzero(np.abs(columns["x"]) > half)
+        if outside.size:
+            x, h = columns["x"][outside[0]], half[outside[0]]
+            raise ValueError(f"initial['x'] = {x} is outside the stroke: must be in "
+                             f"[{-h}, {h}] m")
+        for key in ("p1", "p2"):
+            if np.any(columns[key] <= 0):
+                raise ValueError(f"initial['{key}'] = {columns[key].min()} must be > 0 Pa "
+                                 "(absolute)")
+        columns["x"] = np.where(fixed, p[L.P_FIXED_POSITION_M], columns["x"])
+        columns["v"] = np.where(fixed, 0.0, columns["v"])
+        return columns
 
     def reset(self, envs: Sequence[int] | np.ndarray | None = None,
               initial: Mapping[str, float] | None = None) -> None:
         """Put ``envs`` (default: all) in their initial state; the delay history equals it."""
-        envs = range(self.n_envs) if envs is None else np.atleast_1d(envs)
-        for env in envs:
-            s = self.default_initial_state(int(env))
-            if initial:
-                unknown = set(initial) - set(INITIAL_STATE_KEYS)
-                if unknown:
-                    raise ValueError(f"initial state key(s) {sorted(unknown)} not known; "
-                                     f"allowed: {list(INITIAL_STATE_KEYS)}")
-                for key, value in initial.items():
-                    value = float(value)
-                    if not np.isfinite(value):
-                        raise ValueError(f"initial['{key}'] = {value} must be finite")
-                    s[key] = value
-            p = self.params[:, int(env)]
-            half = 0.5 * p[L.P_STROKE_M]
-            if abs(s["x"]) > half:
-                raise ValueError(f"initial['x'] = {s['x']} is outside the stroke: must be in "
-                                 f"[{-half}, {half}] m")
-            for key in ("p1", "p2"):
-                if s[key] <= 0:
-                    raise ValueError(f"initial['{key}'] = {s[key]} must be > 0 Pa (absolute)")
-            if int(p[L.P_PISTON_MODE]) == MODE_FIXED:
-                s["x"], s["v"] = p[L.P_FIXED_POSITION_M], 0.0
-            col = self.state[:, int(env)]
-            col[:] = 0.0
-            col[L.S_X_S], col[L.S_P1], col[L.S_P2] = s["x_s"], s["p1"], s["p2"]
-            col[L.S_X], col[L.S_V] = s["x"], s["v"]
-            col[L.S_T1] = col[L.S_T2] = p[L.P_TEMPERATURE_K]  # gas temperatures (effects)
-            col[L.S_EXHAUST_NODE] = p[L.P_AMBIENT_PRESSURE_PA]  # no exhaust flow yet
-            self.history[:, L.H_X_S, int(env)] = s["x_s"]
-            self.history[:, L.H_P1, int(env)] = s["p1"]
-            self.history[:, L.H_P2, int(env)] = s["p2"]
-            # the lines at rest: every wave is the pressure of its end (no flow)
-            self.history[:, [L.H_WAVE_VALVE_1, L.H_WAVE_CHAMBER_1], int(env)] = s["p1"]
-            self.history[:, [L.H_WAVE_VALVE_2, L.H_WAVE_CHAMBER_2], int(env)] = s["p2"]
-            self.time_s[int(env)] = 0.0
-            self._write_outputs(int(env))
-
-    def _write_outputs(self, env: int) -> None:
-        from .physics.piston import output_force, pneumatic_force  # jitted, cheap
-        p, s = self.params[:, env], self.state[:, env]
-        bore, rod = p[L.P_BORE_DIAMETER_M], p[L.P_ROD_DIAMETER_M]
-        a1, ar = 0.25 * np.pi * bore ** 2, 0.25 * np.pi * rod ** 2
-        f_p = pneumatic_force(s[L.S_P1], s[L.S_P2], a1, a1 - ar, ar, p[L.P_AMBIENT_PRESSURE_PA])
-        o = self.outputs[:, env]
-        o[L.O_P1], o[L.O_P2], o[L.O_X] = s[L.S_P1], s[L.S_P2], s[L.S_X]
-        o[L.O_F] = output_force(int(p[L.P_PISTON_MODE]), f_p, s[L.S_X],
-                                p[L.P_SPRING_STIFFNESS_N_PER_M], p[L.P_SPRING_REST_POSITION_M])
-        o[L.O_V], o[L.O_X_S], o[L.O_EXHAUST] = s[L.S_V], s[L.S_X_S], s[L.S_EXHAUST]
+        envs = (np.arange(self.n_envs) if envs is None
+                else np.atleast_1d(np.asarray(envs, dtype=np.int64)))
+        s = self._initial_columns(envs, initial)
+        self.state[:, envs] = 0.0
+        self.state[L.S_X_S, envs], self.state[L.S_P1, envs] = s["x_s"], s["p1"]
+        self.state[L.S_P2, envs], self.state[L.S_X, envs] = s["p2"], s["x"]
+        self.state[L.S_V, envs] = s["v"]
+        temperature = self.params[L.P_TEMPERATURE_K, envs]
+        self.state[L.S_T1, envs] = self.state[L.S_T2, envs] = temperature  # gas (effects)
+        self.state[L.S_EXHAUST_NODE, envs] = self.params[L.P_AMBIENT_PRESSURE_PA, envs]
+        self.history[:, L.H_X_S, envs] = s["x_s"]
+        self.history[:, L.H_P1, envs] = s["p1"]
+        self.history[:, L.H_P2, envs] = s["p2"]
+        # the lines at rest: every wave is the pressure of its end (no flow)
+        for row in (L.H_WAVE_VALVE_1, L.H_WAVE_CHAMBER_1):
+            self.history[:, row, envs] = s["p1"]
+        for row in (L.H_WAVE_VALVE_2, L.H_WAVE_CHAMBER_2):
+            self.history[:, row, envs] = s["p2"]
+        self.time_s[envs] = 0.0
+        kernel.write_outputs(self.params, self.state, envs, self.outputs)
 
     # -- stepping ------------------------------------------------------------------------
     def step(self, coil_current_a: np.ndarray) -> np.ndarray:

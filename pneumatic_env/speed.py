@@ -64,6 +64,11 @@ TARGET_THREAD_SCALING = 1.6
 TARGET_MEASURED_OVER_CEILING = 1.5
 
 RK4_STAGES = 4
+# A vector env's or kernel's repeat is this many windows (of vector_s / WINDOWS_PER_REPEAT),
+# interleaved over the configurations: a ratio of two configurations (threads) is the median
+# over the windows of the ratios of neighbouring windows, which see nearly the same load
+# from other processes.
+WINDOWS_PER_REPEAT = 3
 CEILING_PAIRS = 7  # kernel / operation-cost pairs behind the measured / ceiling ratio
 # each pair interleaves this many kernel timings (of vector_s / PAIR_BURSTS each) with as
 # many operation-cost samples and keeps the fastest of each: a shared machine slows a
@@ -186,16 +191,44 @@ def _median(values) -> float:
 
 
 def _vector_rate(env, seconds: float, min_steps: int) -> float:
-    """Env-steps per second of a vector env: ``benchmark_vector_step``'s loop (sample,
-    step, count ``num_envs``) without its two resets, which cost seconds at N = 16384."""
-    steps = 0
+    """Env-steps per second of a vector env between autoresets: ``benchmark_vector_step``'s
+    loop (sample, step, count ``num_envs``) without its two resets, which cost seconds at
+    N = 16384; a step that reset episodes is left out (``_autoreset_s`` times it)."""
+    steps, stepping_s = 0, 0.0
     start = time.perf_counter()
     while True:
+        before = time.perf_counter()
+        _, _, _, truncated, _ = env.step(env.action_space.sample())
+        if not truncated.any():
+            stepping_s += time.perf_counter() - before
+            steps += 1
+        if time.perf_counter() - start >= seconds and steps >= min_steps:
+            return steps * env.num_envs / stepping_s
+
+
+def _autoreset_s(env, core, steady_rate: float, warmup_steps: int, episode_steps: int) -> float:
+    """Seconds an autoreset of all ``num_envs`` episodes adds to the step that ends them:
+    one step timed with every episode at its last step, less the step time at
+    ``steady_rate``; then ``warmup_steps`` untimed steps (past the tube delay again)."""
+    core.step_count[:] = episode_steps - 1
+    before = time.perf_counter()
+    _, _, _, truncated, _ = env.step(env.action_space.sample())
+    elapsed = time.perf_counter() - before
+    assert truncated.all(), "the timed step did not end every episode"
+    for _ in range(warmup_steps):
         env.step(env.action_space.sample())
-        steps += 1
-        elapsed = time.perf_counter() - start
-        if elapsed >= seconds and steps >= min_steps:
-            return steps * env.num_envs / elapsed
+    return max(elapsed - env.num_envs / steady_rate, 0.0)
+
+
+def _amortized_rate(steady_rate: float, autoreset_s: float, n_envs: int,
+                    episode_steps: int) -> float:
+    """Env-steps per second over whole episodes: ``episode_steps`` steps, one autoreset."""
+    return n_envs * episode_steps / (n_envs * episode_steps / steady_rate + autoreset_s)
+
+
+def _paired_ratio(numerators, denominators) -> float:
+    """Median of the ratios of windows measured one after the other (same index)."""
+    return _median([a / b for a, b in zip(numerators, denominators)])
 
 
 def _with_cpu_share(measure, threads: int):
@@ -253,7 +286,8 @@ def measure_vector(plan: Plan, log) -> dict:
     regime_n = max(n for n in plan.vector_sizes if n <= SCALING_MIN_N)
     for n in plan.vector_sizes:
         env = gym.make_vec(ENV_ID, num_envs=n)
-        core = getattr(env, "unwrapped", env).core
+        vector_env = getattr(env, "unwrapped", env)
+        core = vector_env.core
         env.action_space.seed(0)
         env.reset(seed=0)
         for threads in plan.threads:  # warm-up: jitted kernels and thread pool
@@ -285,20 +319,32 @@ def measure_vector(plan: Plan, log) -> dict:
         for sim in sims.values():
             _copy_batch(core.sim, sim)
 
-        rates = {t: [] for t in plan.threads}
+        steady = {t: [] for t in plan.threads}
+        autoreset = {t: [] for t in plan.threads}
         cpu = {t: [] for t in plan.threads}
+        episode_steps = vector_env.max_episode_steps
         for _ in range(plan.repeats):
-            for threads in plan.threads:
-                _set_threads(threads)
-                rate, share = _with_cpu_share(
-                    lambda: _vector_rate(env, plan.vector_s, plan.min_steps),
-                    threads if core.sim.parallel else 1)
-                rates[threads].append(rate)
-                cpu[threads].append(share)
+            for window in range(WINDOWS_PER_REPEAT):
+                for threads in plan.threads:
+                    _set_threads(threads)
+                    rate, share = _with_cpu_share(
+                        lambda: _vector_rate(env, plan.vector_s / WINDOWS_PER_REPEAT,
+                                             plan.min_steps),
+                        threads if core.sim.parallel else 1)
+                    steady[threads].append(rate)
+                    cpu[threads].append(share)
+                    if window == WINDOWS_PER_REPEAT - 1:
+                        autoreset[threads].append(_autoreset_s(
+                            env, core, rate, plan.warmup_steps, episode_steps))
         for threads in plan.threads:
             env_rows.append({"n": n, "threads": threads,
                              "kernel": "parallel" if core.sim.parallel else "serial",
-                             "rates": rates[threads], "cpu": cpu[threads],
+                             "rates": [_amortized_rate(r, _median(autoreset[threads]), n,
+                                                       episode_steps)
+                                       for r in steady[threads]],
+                             "steady_rates": steady[threads],
+                             "autoreset_s": autoreset[threads],
+                             "episode_steps": episode_steps, "cpu": cpu[threads],
                              "substeps": n_substeps,
                              "bytes_per_env": _array_bytes(core, core.sim) / n})
         i_max = core.i_max
@@ -307,11 +353,12 @@ def measure_vector(plan: Plan, log) -> dict:
         currents = np.random.default_rng(0).uniform(-i_max, i_max, (16, n))
         krates = {cfg: [] for cfg in configs}
         kcpu = {cfg: [] for cfg in configs}
-        for _ in range(plan.repeats):
+        for _ in range(plan.repeats * WINDOWS_PER_REPEAT):
             for kind, threads in configs:
                 _set_threads(threads)
                 rate, share = _with_cpu_share(
-                    lambda: _kernel_rate(sims[kind], currents, plan.vector_s, plan.min_steps),
+                    lambda: _kernel_rate(sims[kind], currents,
+                                         plan.vector_s / WINDOWS_PER_REPEAT, plan.min_steps),
                     threads)
                 krates[(kind, threads)].append(rate)
                 kcpu[(kind, threads)].append(share)
@@ -325,7 +372,8 @@ def measure_vector(plan: Plan, log) -> dict:
                      for _ in range(max(plan.repeats, CEILING_PAIRS))]
             regimes = _sample_regimes(sims["serial"], currents)
         log(f"vector N={n}: " + ", ".join(
-            f"{t} thread(s) {_median(rates[t]):.0f}" for t in plan.threads) + " env-steps/s")
+            f"{r['threads']} thread(s) {_median(r['rates']):.0f}" for r in env_rows
+            if r["n"] == n) + " env-steps/s")
         del sims
     _set_threads(plan.threads[-1])
     return {"env": env_rows, "kernel": kernel_rows, "regimes": regimes, "regime_n": regime_n,
@@ -875,13 +923,18 @@ def _ratio_rows(res: dict, plan: Plan) -> list[tuple]:
     if ceiling:
         row(f"kernel measured / ceiling, N={res['vector']['regime_n']}, 1 thread",
             _median(ceiling["pair_ratios"]), TARGET_MEASURED_OVER_CEILING, False)
+    env_windows = {(r["n"], r["threads"]): r["rates"] for r in res["vector"]["env"]}
+    kern_windows = {(r["n"], r["kernel"], r["threads"]): r["rates"]
+                    for r in res["vector"]["kernel"]}
     for n in big:
         if many > 1 and (n, many) in env:
-            row(f"vector env N={n}, {many} threads / 1 thread", env[(n, many)] / env[(n, 1)],
+            row(f"vector env N={n}, {many} threads / 1 thread",
+                _paired_ratio(env_windows[(n, many)], env_windows[(n, 1)]),
                 TARGET_THREAD_SCALING)
         if (n, "parallel", many) in kern and many > 1:
             row(f"kernel N={n}, {many} threads / serial 1 thread",
-                kern[(n, "parallel", many)] / kern[(n, "serial", 1)], TARGET_THREAD_SCALING)
+                _paired_ratio(kern_windows[(n, "parallel", many)],
+                              kern_windows[(n, "serial", 1)]), TARGET_THREAD_SCALING)
     return rows
 
 
@@ -932,16 +985,22 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
         rate = _median(r["rates"])
         rhs = rate * r["substeps"] * RK4_STAGES
         rows.append((r["n"], r["threads"], f"env ({r['kernel']})", _fmt(rate),
+                     _fmt(_median(r["steady_rates"])), _fmt(_median(r["autoreset_s"]) * 1e3),
                      _fmt(rate * r["substeps"]), _fmt(1e9 / rhs), _fmt(r["bytes_per_env"]),
                      _pct(r["cpu"])))
     for r in res["vector"]["kernel"]:
         rate = _median(r["rates"])
         rhs = rate * r["substeps"] * RK4_STAGES
-        rows.append((r["n"], r["threads"], f"kernel ({r['kernel']})", _fmt(rate),
+        rows.append((r["n"], r["threads"], f"kernel ({r['kernel']})", _fmt(rate), "", "",
                      _fmt(rate * r["substeps"]), _fmt(1e9 / rhs), "", _pct(r["cpu"])))
     rows.sort(key=lambda row: (row[0], row[2].startswith("kernel"), row[1]))
-    lines += _table(("N", "threads", "what", "env-steps/s", "env-substeps/s",
-                     "wall ns per RHS", "bytes per env", "CPU busy"), rows)
+    episode_steps = res["vector"]["env"][0]["episode_steps"]
+    lines += [f"An env's env-steps/s are over whole episodes ({episode_steps} steps and one "
+              "autoreset of all N episodes); the steps between autoresets and the time an "
+              "autoreset adds are in their own columns.", ""]
+    lines += _table(("N", "threads", "what", "env-steps/s", "between autoresets",
+                     "autoreset (ms)", "env-substeps/s", "wall ns per RHS", "bytes per env",
+                     "CPU busy"), rows)
 
     lines += ["", "## SyncVectorEnv (gym.make_vec(..., vectorization_mode=\"sync\"), "
               "`benchmark_vector_step`)", ""]
@@ -1022,12 +1081,21 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
     lines += ["", "## How it is measured", "",
               "- Single envs: `gymnasium.utils.performance.benchmark_step` (a random action per "
               "step, resets included), through `gym.make` with its default wrappers.",
-              "- Native vector env: the loop of `benchmark_vector_step` (random actions, "
-              "N env-steps per step, in-env autoreset) after one reset, without that helper's "
-              "two resets per call (seconds at N = 16384). The env chooses its kernel: the "
-              "parallel one for N >= 256 (`simulator.PARALLEL_MIN_ENVS`).",
+              "- Native vector env: the loop of `benchmark_vector_step` (a random action per "
+              "step, N env-steps per step) after one reset, without that helper's two resets "
+              "per call (seconds at N = 16384), timing the steps between autoresets; then one "
+              "step with every episode at its last step (`max_episode_steps`), whose extra "
+              "time is the autoreset of all N episodes. env-steps/s = N x episode steps / "
+              "(their time + one autoreset). The env chooses its kernel: the parallel one for "
+              "N >= 256 (`simulator.PARALLEL_MIN_ENVS`).",
               "- Bare kernel: `BatchSimulator.step` with random currents, serial and parallel "
               "kernels chosen explicitly. Wall ns per RHS = 1e9 / (env-steps/s x substeps x 4).",
+              f"- Vector env and kernel: each repeat is {WINDOWS_PER_REPEAT} timing windows of "
+              f"{plan.vector_s / WINDOWS_PER_REPEAT:.3g} s per configuration, interleaved over "
+              "the configurations (the autoreset timed once per repeat); rates are medians over "
+              "the windows, and a thread-scaling ratio is the median over the windows of the "
+              "ratio of two neighbouring windows (both see nearly the same load from other "
+              "processes).",
               "- Bytes per env: all NumPy arrays of the env's `TaskCore` and `BatchSimulator` "
               "(parameters, state, outputs, delay history, references, ...) divided by N.",
               "- SciPy: `reference_solution.simulate_reference` at each rtol; the fastest one "

@@ -116,6 +116,8 @@ def test_parallel_task_kernel_equals_the_serial_one():
         for a, b in zip(one[:4], many[:4]):
             assert np.array_equal(a, b)
         assert np.array_equal(one[4]["tracking_error"], many[4]["tracking_error"])
+        # the observation the task step fills is the one TaskCore.observation builds
+        assert np.array_equal(many[0], threaded.unwrapped.core.observation())
     serial.close()
     threaded.close()
 

@@ -456,6 +456,26 @@ def test_reset_restores_the_initial_run():
     assert np.array_equal(sim.rollout(currents), first)
 
 
+def test_reset_of_some_envs_restarts_them_and_leaves_the_others():
+    """reset(envs) puts those columns (state, delay history, outputs, clock) where a fresh
+    batch starts them and does not touch the other environments."""
+    sets = _mixed_sets()
+    currents = _random_currents(np.random.default_rng(10), 60, len(sets))
+    num = load_numerics()
+    fresh = BatchSimulator(parameter_array(sets), num["control_dt_s"], num["substeps"])
+    sim = BatchSimulator(parameter_array(sets), num["control_dt_s"], num["substeps"])
+    sim.rollout(currents)
+    before = {name: getattr(sim, name).copy()
+              for name in ("state", "history", "outputs", "time_s")}
+    chosen, others = [1, 3], [0, 2, 4]
+    sim.reset(chosen)
+    for name, old in before.items():
+        new, start = getattr(sim, name), getattr(fresh, name)
+        assert np.array_equal(new[..., others], old[..., others]), name
+        assert np.array_equal(new[..., chosen], start[..., chosen]), name
+        assert not np.array_equal(old[..., chosen], start[..., chosen]), name
+
+
 # --------------------------------------------------------------------------- BatchSimulator errors
 
 def test_batch_simulator_rejects_bad_params(default_params):

@@ -111,6 +111,18 @@ def test_multisine_peak_and_spectrum(phases):
     np.testing.assert_allclose(power[bins], power[bins][0], rtol=1e-9)
 
 
+def test_multisine_is_the_sum_of_sines_with_the_drawn_phases():
+    """The generated signal is offset + amplitude / peak * sum_k sin(2 pi f_k t + phi_k),
+    phi_k the uniform draws of the rng (written out here term by term)."""
+    freqs, n = (0.5, 2.0, 5.0), 2011
+    y = MultisineReference(amplitude=0.5, frequencies_hz=freqs, offset=0.1).generate(
+        n, DT, _rng(4))
+    phases = _rng(4).uniform(0.0, 2.0 * np.pi, size=len(freqs))
+    t = np.arange(n) * DT
+    x = sum(np.sin(2.0 * np.pi * f * t + phi) for f, phi in zip(freqs, phases))
+    np.testing.assert_allclose(y, 0.1 + 0.5 * x / np.abs(x).max(), rtol=0, atol=1e-13)
+
+
 def test_multisine_phases_random_vs_schroeder():
     spec = MultisineReference(amplitude=1.0, frequencies_hz=(1.0, 2.0, 3.0))
     a = spec.generate(500, DT, _rng(1))

@@ -12,7 +12,8 @@ def test_quick_speed_run_prints_every_table(tmp_path, capsys):
     printed = capsys.readouterr().out
     for header in ("| ratio | value | target | met |",
                    "| env | steps/s (median) |",
-                   "| N | threads | what | env-steps/s | env-substeps/s | wall ns per RHS |",
+                   "| N | threads | what | env-steps/s | between autoresets | autoreset (ms) | "
+                   "env-substeps/s | wall ns per RHS |",
                    "| N | Sync env-steps/s |",
                    "| operation | ns each | per substep and env | ns per substep |"):
         assert header in printed, header

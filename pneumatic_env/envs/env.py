@@ -66,10 +66,10 @@ class PneumaticTrackingEnv(gym.Env):
 
     def step(self, action):
         current = self.core.check_action(action)
-        reward = self.core.step(current, self._rngs)
+        obs, reward = self.core.step(current, self._rngs)
         if self._trace is not None:
             self._trace.record(self.core, 0)
-        return self.core.observation()[0], float(reward[0]), False, False, self.core.info(0)
+        return obs[0], float(reward[0]), False, False, self.core.info(0)
 
     def render(self):
         if self.render_mode is None:
@@ -128,11 +128,11 @@ class PneumaticTrackingVectorEnv(VectorEnv):
 
     def step(self, actions):
         current = self.core.check_action(actions)
-        reward = self.core.step(current, self._rngs).copy()
+        obs, reward = self.core.step(current, self._rngs)
+        reward = reward.copy()
         info = self.core.info()
         terminated = np.zeros(self.num_envs, dtype=bool)
         truncated = self.core.step_count >= self.max_episode_steps
-        obs = self.core.observation()
         if truncated.any():
             done = np.flatnonzero(truncated)
             final_obs = np.full(self.num_envs, None, dtype=object)

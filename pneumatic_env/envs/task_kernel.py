@@ -1,8 +1,9 @@
 """Jitted per-step task logic (clip, simulate, measure, reward, observe) for a batch of envs.
 
-One call per control step does everything ``TaskCore.step`` and ``TaskCore.observation``
-need, so a single env pays one Numba dispatch instead of dozens of NumPy calls on
-one-element arrays, and the vector env loops over environments in compiled code.
+One call per control step does everything ``TaskCore.step`` needs, the observation
+included, so a single env pays one Numba dispatch instead of dozens of NumPy calls on
+one-element arrays, and the vector env loops over environments in compiled code, in one
+parallel region per step (each chunk observed while its rows are in cache).
 """
 from numba import njit, prange
 
@@ -13,9 +14,10 @@ from ..physics.kernel import CHUNK_ENVS, advance_chunk
 def _chunk_step(first, stop, params, state, history, head, action, control_dt_s, n_substeps,
                 outputs, i_max, references, step_count, prev_action, measured, noise, lag,
                 out_rows, tracked_row, scale, effort_weight, chatter_weight, reward, error,
-                reference, applied, key, constants):
+                reference, applied, key, constants, observe, obs):
     """One control step of envs ``first .. stop-1``: clip, simulate (``advance_chunk``),
-    measure (noise, first-order sensor lag), reward."""
+    measure (noise, first-order sensor lag), reward, observe (``observe`` holds the
+    arguments of ``_fill_observation_row`` after ``step_count``)."""
     for env in range(first, stop):
         applied[env] = min(max(action[env], -i_max), i_max)
     advance_chunk(params, state, history, first, stop, head, applied, control_dt_s, n_substeps,
@@ -34,13 +36,15 @@ def _chunk_step(first, stop, params, state, history, head, action, control_dt_s,
         r -= chatter_weight * ((a - prev_action[env]) / (2.0 * i_max)) ** 2
         prev_action[env] = a
         reward[env], error[env], reference[env] = r, e, ref
+        _fill_observation_row(env, measured, references, step_count, observe[0], observe[1],
+                              observe[2], observe[3], observe[4], observe[5], obs)
 
 
 @njit(cache=True)
 def task_step_serial(params, state, history, head, action, control_dt_s, n_substeps, outputs,
                      i_max, references, step_count, prev_action, measured, noise, lag, out_rows,
                      tracked_row, scale, effort_weight, chatter_weight, reward, error,
-                     reference, applied, key, constants):
+                     reference, applied, key, constants, observe, obs):
     """One control step of every env of the batch, on one thread."""
     n_envs = state.shape[1]
     for first in range(0, n_envs, CHUNK_ENVS):
@@ -48,14 +52,14 @@ def task_step_serial(params, state, history, head, action, control_dt_s, n_subst
                     action, control_dt_s, n_substeps, outputs, i_max, references, step_count,
                     prev_action, measured, noise, lag, out_rows, tracked_row, scale,
                     effort_weight, chatter_weight, reward, error, reference, applied, key,
-                    constants)
+                    constants, observe, obs)
 
 
 @njit(cache=True, parallel=True)
 def task_step_parallel(params, state, history, head, action, control_dt_s, n_substeps, outputs,
                        i_max, references, step_count, prev_action, measured, noise, lag,
                        out_rows, tracked_row, scale, effort_weight, chatter_weight, reward,
-                       error, reference, applied, key, constants):
+                       error, reference, applied, key, constants, observe, obs):
     """One control step of every env of the batch, chunks of envs spread over threads."""
     n_envs = state.shape[1]
     for chunk in prange((n_envs + CHUNK_ENVS - 1) // CHUNK_ENVS):
@@ -64,7 +68,7 @@ def task_step_parallel(params, state, history, head, action, control_dt_s, n_sub
                     action, control_dt_s, n_substeps, outputs, i_max, references, step_count,
                     prev_action, measured, noise, lag, out_rows, tracked_row, scale,
                     effort_weight, chatter_weight, reward, error, reference, applied, key,
-                    constants)
+                    constants, observe, obs)
 
 
 @njit(cache=True, inline="always")
@@ -95,14 +99,5 @@ def fill_observation(measured, references, step_count, normalize, ambient_pa, su
                      half_stroke_m, force_scale_n, reference_scale, obs):
     """Every env's observation row (``_fill_observation_row``), on one thread."""
     for env in range(obs.shape[0]):
-        _fill_observation_row(env, measured, references, step_count, normalize, ambient_pa,
-                              supply_pa, half_stroke_m, force_scale_n, reference_scale, obs)
-
-
-@njit(cache=True, parallel=True)
-def fill_observation_parallel(measured, references, step_count, normalize, ambient_pa,
-                              supply_pa, half_stroke_m, force_scale_n, reference_scale, obs):
-    """Every env's observation row (``_fill_observation_row``), envs spread over threads."""
-    for env in prange(obs.shape[0]):
         _fill_observation_row(env, measured, references, step_count, normalize, ambient_pa,
                               supply_pa, half_stroke_m, force_scale_n, reference_scale, obs)

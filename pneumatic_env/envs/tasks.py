@@ -210,6 +210,10 @@ class TaskCore:
         self._out_rows = np.array([_CHANNEL_OUTPUT[c] for c in OBSERVED_CHANNELS])
         self._tracked_row = _CHANNEL_OUTPUT[task.tracked]
         self.obs_dim = len(OBSERVED_CHANNELS) + 1 + self.options.preview_steps
+        # the arguments of task_kernel._fill_observation_row after step_count
+        self._observation_scales = (bool(self.options.normalize_observation), float(self.pa),
+                                    float(self.ps), float(self.half_stroke),
+                                    float(self.force_scale), float(self.scale))
 
     # -- parameters ----------------------------------------------------------------------
     @staticmethod
@@ -278,8 +282,9 @@ class TaskCore:
                              f"finite, in [-{self.i_max}, {self.i_max}] A")
         return a
 
-    def step(self, coil_current_a: np.ndarray, rngs: list) -> np.ndarray:
-        """Advance all envs one control period (one jitted call); returns the reward.
+    def step(self, coil_current_a: np.ndarray, rngs: list) -> tuple[np.ndarray, np.ndarray]:
+        """Advance all envs one control period (one jitted call); returns the observation
+        (as ``observation()``) and the reward.
 
         Per-env details are left in ``self.last_*`` arrays: tracking error, reference,
         applied (clipped) current.
@@ -287,15 +292,17 @@ class TaskCore:
         sim = self.sim
         self._last_action = coil_current_a
         noise = self._draw_noise(range(self.n_envs), rngs) if self._noise_on else self._noise
+        obs = np.empty((self.n_envs, self.obs_dim), dtype=np.float32)
         step = task_kernel.task_step_parallel if sim.parallel else task_kernel.task_step_serial
         step(sim.params, sim.state, sim.history, sim.head, coil_current_a, sim.control_dt_s,
              sim.n_substeps, sim.outputs, self.i_max, self.references, self.step_count,
              self.prev_action, self.measured, noise, self._lag, self._out_rows,
              self._tracked_row, self.scale, self.options.effort_weight,
              self.options.chatter_weight, self.last_reward, self.last_error,
-             self.last_reference, self.last_applied, sim.constants_key, sim.constants)
+             self.last_reference, self.last_applied, sim.constants_key, sim.constants,
+             self._observation_scales, obs)
         sim.advance_clock()
-        return self.last_reward
+        return obs, self.last_reward
 
     def info(self, env: int | None = None) -> dict:
         """The step's info: arrays over envs, or floats for one ``env``."""
@@ -315,10 +322,8 @@ class TaskCore:
     def observation(self) -> np.ndarray:
         """[p1, p2, x, f, ref(k), ref(k+1..k+H)] per env, float32 (SI or normalised)."""
         obs = np.empty((self.n_envs, self.obs_dim), dtype=np.float32)
-        fill = (task_kernel.fill_observation_parallel if self.sim.parallel
-                else task_kernel.fill_observation)
-        fill(self.measured, self.references, self.step_count, self.options.normalize_observation,
-             self.pa, self.ps, self.half_stroke, self.force_scale, self.scale, obs)
+        task_kernel.fill_observation(self.measured, self.references, self.step_count,
+                                     *self._observation_scales, obs)
         return obs
 
     def observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:

@@ -1364,10 +1364,24 @@ def _store_state(c, state, env, y, coil, outputs):
         state[row, env] = y[row]
     state[L.S_COIL, env] = coil[0]
     state[L.S_COIL_FORCE, env] = coil[1]
+    _store_outputs(c, y, env, outputs)
+
+
+@njit(cache=True)
+def _store_outputs(c, y, env, outputs):
+    """The outputs row of ``env`` from its state rows ``y`` (the force by Eq. 1)."""
     for output_row, row in OUTPUT_STATE_ROWS:
         outputs[output_row, env] = y[row]
-    f_p = pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
-    outputs[L.O_F, env] = output_force(c.mode, f_p, y[4], c.spring_k, c.spring_rest)
+    f_p = pneumatic_force(y[L.S_P1], y[L.S_P2], c.area_cap, c.area_rod, c.rod_area,
+                          c.ambient_pa)
+    outputs[L.O_F, env] = output_force(c.mode, f_p, y[L.S_X], c.spring_k, c.spring_rest)
+
+
+@njit(cache=True)
+def write_outputs(params, state, envs, outputs):
+    """The outputs rows of ``envs`` from their state (after a reset)."""
+    for env in envs:
+        _store_outputs(env_constants(params, env, 1.0), state[:, env], env, outputs)
 
 
 @njit(cache=True)
