@@ -15,6 +15,10 @@ from .physics.piston import MODE_FIXED
 from .physics.tube import sound_speed
 
 INITIAL_STATE_KEYS = ("p1", "p2", "x", "v", "x_s")
+# parameters that set the tube delay tau = L_t / c (Eq. 31) or the transmission line: a
+# change goes through set_params' checks (the ring buffer may have to grow)
+DELAY_PARAMETERS = ("tube_length_m", "heat_capacity_ratio", "gas_constant_j_per_kg_k",
+                    "temperature_k", "tube_waves")
 PARALLEL_MIN_ENVS = 256  # below this, threads cost more than they save (see docs/speed.md)
 
 
@@ -23,9 +27,13 @@ class BatchSimulator:
 
     Parameters
     ----------
-    params : array (N_PARAMS, n_envs) from ``params.parameter_array``.
+    params : array (N_PARAMS, n_envs) from ``params.parameter_array`` (copied).
     control_dt_s : control period; the coil current is held over it.
     n_substeps : RK4 substeps per control period.
+
+    ``self.params`` is read-only: change parameters with ``set_params`` (whole columns) or
+    ``set_parameter`` (one parameter, e.g. a drifting supply pressure during a run), which
+    check the values and mark the kernel's cached constants of those environments stale.
     """
 
     def __init__(self, params: np.ndarray, control_dt_s: float = 1e-3, n_substeps: int = 20,
@@ -43,6 +51,7 @@ class BatchSimulator:
         if int(n_substeps) != n_substeps or n_substeps < 1:
             raise ValueError(f"n_substeps = {n_substeps} is not allowed: must be an integer >= 1")
         self.params = params
+        self.params.flags.writeable = False
         self.n_envs = params.shape[1]
         self.control_dt_s = float(control_dt_s)
         self.n_substeps = int(n_substeps)
@@ -51,7 +60,8 @@ class BatchSimulator:
         self.outputs = np.zeros((L.N_OUTPUT, self.n_envs))
         self.head = 0
         self.history = np.zeros((self._slots_needed(), L.N_HISTORY, self.n_envs))
-        # the kernel's per-environment constants, refreshed when a parameter column changes
+        # the kernel's per-environment constants, refreshed where set_params or set_parameter
+        # marked them stale
         self.constants_key, self.constants = kernel.constants_cache(self.n_envs)
         self.time_s = np.zeros(self.n_envs)
         self._check_tube_waves(range(self.n_envs))
@@ -92,11 +102,12 @@ class BatchSimulator:
             raise ValueError(f"set_params: {L.PARAMETER_NAMES[row]} of environment {envs[col]} "
                              f"is {columns[row, col]}, must be finite")
         previous = self.params[:, envs].copy()
-        self.params[:, envs] = columns
+        self._write_params((slice(None), envs), columns, envs)
         try:
             self._check_tube_waves(envs)
         except ValueError:
-            self.params[:, envs] = previous  # a refused change leaves the batch as it was
+            # a refused change leaves the batch as it was
+            self._write_params((slice(None), envs), previous, envs)
             raise
         slots = self._slots_needed()
         if slots > self.history.shape[0]:  # a longer tube than the buffer holds: grow it
@@ -107,6 +118,34 @@ class BatchSimulator:
             grown = np.empty((slots, L.N_HISTORY, self.n_envs))
             grown[(self.head - np.arange(slots)) % slots] = np.concatenate([newest_first, pad])
             self.history = grown
+
+    def set_parameter(self, name: str, envs: Sequence[int] | np.ndarray | int,
+                      value: float) -> None:
+        """Set parameter ``name`` of ``envs`` to ``value`` from the next step on (no reset
+        needed; a parameter in ``DELAY_PARAMETERS`` goes through ``set_params``)."""
+        if name not in L.PARAMETER_INDEX:
+            raise ValueError(f"set_parameter: name = {name!r} is not a parameter; allowed: "
+                             "the names in pneumatic_env.physics.layout.PARAMETER_NAMES")
+        value = float(value)
+        if not np.isfinite(value):
+            raise ValueError(f"set_parameter: {name} = {value} is not allowed: must be finite")
+        envs = np.atleast_1d(np.asarray(envs, dtype=np.int64))
+        row = L.PARAMETER_INDEX[name]
+        if name in DELAY_PARAMETERS:
+            columns = self.params[:, envs].copy()
+            columns[row] = value
+            self.set_params(envs, columns)
+        else:
+            self._write_params((row, envs), value, envs)
+
+    def _write_params(self, index, values, envs: np.ndarray) -> None:
+        """``params[index] = values``, and the cached constants of ``envs`` marked stale."""
+        self.params.flags.writeable = True
+        try:
+            self.params[index] = values
+        finally:
+            self.params.flags.writeable = False
+        self.constants_key[envs] = np.nan
 
     # -- state ---------------------------------------------------------------------------
     def _initial_columns(self, envs: np.ndarray, initial: Mapping[str, float] | None) -> dict:

@@ -88,8 +88,7 @@ VECTOR_OPS = ("vdiv", "vsqrt", "vother")  # SIMD instructions of the vectorised 
 #    and end, from the ring buffer's rows: the benchmark's lanes share one tube delay),
 #    kernel._base_substeps_vectorised (one RK4 substep of kernel.base_derivatives for every
 #    lane), kernel._end_substeps (event test, end stops) and kernel._copy_fast_lanes (the
-#    delay history, once per channel); per control period, kernel._accumulate_differing_bits
-#    (the constants cache's key, once per parameter), kernel._fast_commands (the spool
+#    delay history, once per channel); per control period, kernel._fast_commands (the spool
 #    play) and the state and outputs (kernel._copy_fast_lanes per row,
 #    kernel._fast_output_forces). Their work is not counted by hand:
 #    vector_loop_instructions() reads the SIMD instructions of the compiled loops
@@ -105,15 +104,15 @@ KERNEL_WORK = {
     # per lane and substep: advance_chunk's two tests of the lane's path (general path or
     # redone)
     "lane_substep:fixed": {"flop": 2},
-    # per lane and control period: kernel.refresh_constants testing the key (its
-    # differing bits and the substep; kernel.env_constants runs only when they changed),
+    # per lane and control period: kernel.refresh_constants testing the key (the substep
+    # the constants were derived for; kernel.env_constants runs only when it differs),
     # kernel._same_delay's compare and advance_chunk's test of the lane's path
-    "control_step:cache": {"flop": 4},
+    "control_step:cache": {"flop": 3},
 }
 # the vectorised loops in kernel: calls per substep and per control period
 VECTOR_LOOPS = {"_begin_substeps": (1, 0), "_interpolate_row": (3, 0),
                 "_base_substeps_vectorised": (1, 0),
-                "_end_substeps": (1, 0), "_accumulate_differing_bits": (0, L.N_PARAMS),
+                "_end_substeps": (1, 0),
                 "_fast_commands": (0, 1), "_fast_output_forces": (0, 1),
                 # 3 history channels per substep; per period the RK4 state rows, the two
                 # coil rows and the outputs that are state rows

@@ -641,6 +641,46 @@ def test_vectorised_delay_reads_equal_delayed_value_bit_for_bit():
                 np.testing.assert_array_equal(work[row * n:(row + 1) * n], want)
 
 
+def test_parameters_change_through_set_parameter_and_nowhere_else():
+    """``BatchSimulator.params`` is read-only; ``set_parameter`` changes one parameter from
+    the next step on: the kernel's cached constants are then those of the new column, and
+    the run goes on as a batch built with the new value from the same state does."""
+    base = load_parameters(tube_length_m=0.5)
+    sim = BatchSimulator(parameter_array([base, base]), 1e-3, 5, parallel=False)
+    with pytest.raises(ValueError, match="read-only"):
+        sim.params[L.P_SUPPLY_PRESSURE_PA, 0] = 4e5
+    currents = 0.6 * np.sin(np.arange(40) * 0.3)
+    for k in range(20):
+        sim.step(np.full(2, currents[k]))
+    changed = BatchSimulator(parameter_array([base, load_parameters(
+        tube_length_m=0.5, supply_pressure_pa=4e5)]), 1e-3, 5, parallel=False)
+    changed.state[:], changed.history[:], changed.head = sim.state, sim.history, sim.head
+    sim.set_parameter("supply_pressure_pa", 1, 4e5)
+    for k in range(20, 40):
+        np.testing.assert_array_equal(sim.step(np.full(2, currents[k])),
+                                      changed.step(np.full(2, currents[k])))
+    h = 1e-3 / 5
+    cached = sim.constants[0].reshape(kernel.N_CACHED_CONSTANTS, kernel.CHUNK_ENVS)
+    for env in range(2):
+        fresh = np.zeros(kernel.N_CACHED_CONSTANTS * kernel.CHUNK_ENVS)
+        kernel.store_constants(kernel.env_constants(sim.params, env, h), fresh, env)
+        fresh = fresh.reshape(kernel.N_CACHED_CONSTANTS, kernel.CHUNK_ENVS)
+        np.testing.assert_array_equal(cached[:kernel.N_CONSTANTS, env],
+                                      fresh[:kernel.N_CONSTANTS, env])
+    # a parameter of the tube delay goes through set_params (the buffer grows)
+    slots = sim.history.shape[0]
+    sim.set_parameter("tube_length_m", [0], 3.0)
+    assert sim.history.shape[0] > slots and sim.params[L.P_TUBE_LENGTH_M, 0] == 3.0
+    with pytest.raises(ValueError) as err:
+        sim.set_parameter("supply_pressure", 0, 4e5)
+    assert str(err.value) == ("set_parameter: name = 'supply_pressure' is not a parameter; "
+                              "allowed: the names in pneumatic_env.physics.layout."
+                              "PARAMETER_NAMES")
+    with pytest.raises(ValueError) as err:
+        sim.set_parameter("load_force_n", 0, np.inf)
+    assert str(err.value) == "set_parameter: load_force_n = inf is not allowed: must be finite"
+
+
 def test_a_longer_tube_grows_the_delay_buffer_without_disturbing_the_others():
     """``set_params`` with a tube longer than the ring buffer holds grows the buffer; the
     other environments go on bit for bit as if nothing had changed (their history is kept

@@ -371,8 +371,8 @@ class _SupplyRipple(_PlantForm):
         self.amplitude = amplitude
 
     def before_step(self, sim, plant_step, h_s):
-        sim.params[L.P_SUPPLY_PRESSURE_PA, 0] = self.true["supply_pressure_pa"] * (
-            1.0 + self.amplitude * math.sin(2.0 * math.pi * 3.0 * plant_step * h_s))
+        sim.set_parameter("supply_pressure_pa", 0, self.true["supply_pressure_pa"] * (
+            1.0 + self.amplitude * math.sin(2.0 * math.pi * 3.0 * plant_step * h_s)))
 
 
 class _WallExchange(_PlantForm):
@@ -420,7 +420,7 @@ class _SupplyLine(_PlantForm):
                              fed_pa)
         self.line_pa = _supply_line_step(self.line_pa, self.true["supply_pressure_pa"],
                                          self.resistance, self.time_constant, draw, h_s)
-        sim.params[L.P_SUPPLY_PRESSURE_PA, 0] = self.line_pa
+        sim.set_parameter("supply_pressure_pa", 0, self.line_pa)
 
 
 class _Muffler(_PlantForm):
@@ -446,8 +446,8 @@ class _Muffler(_PlantForm):
             _orifice_flow(self.gas, self.vent_area, 1.0, self.muffler_pa,
                           t["ambient_pressure_pa"]),
             self.volume, self.gas_rt, h_s)
-        sim.params[L.P_AMBIENT_PRESSURE_PA, 0] = self.muffler_pa
-        sim.params[L.P_LOAD_FORCE_N, 0] = t["load_force_n"] - self._rod_force_error()
+        sim.set_parameter("ambient_pressure_pa", 0, self.muffler_pa)
+        sim.set_parameter("load_force_n", 0, t["load_force_n"] - self._rod_force_error())
 
     def _rod_force_error(self) -> float:
         return (self.muffler_pa - self.true["ambient_pressure_pa"]) * (
@@ -480,7 +480,7 @@ class _LuGre(_PlantForm):
             self.bristle_m, v, h_s, self.stiffness,
             _lugre_damping(self.damping, v, self.damping_decay_velocity),
             stribeck_friction(v, self.coulomb_n, self.static_n, self.stribeck_velocity))
-        sim.params[L.P_LOAD_FORCE_N, 0] = self.true["load_force_n"] + friction
+        sim.set_parameter("load_force_n", 0, self.true["load_force_n"] + friction)
 
 
 def _lugre_damping(damping_n_s_per_m: float, velocity_m_per_s: float,

@@ -1025,52 +1025,36 @@ N_WORK = W_REDO + 1
 
 # The batch path caches the per-environment constants (``env_constants``) between control
 # periods: per chunk, the N_CONSTANTS rows of ``store_constants`` and a row C_BASE_ONLY
-# (1.0 where ``base_model_only`` holds); per environment, the key they were derived from
-# (its parameter column and the substep length). ``refresh_constants`` recomputes an
-# environment's constants when its key changed, so parameters may change at any time.
+# (1.0 where ``base_model_only`` holds); per environment, a key: the substep length they
+# were derived for, NaN when stale. The parameters do not change behind the cache's back:
+# ``BatchSimulator.params`` is read-only, and ``set_params`` / ``set_parameter`` mark the
+# changed environments' keys stale. (A key of whole parameter columns, compared every
+# control period, streamed 0.9 kB per environment and period through the caches.)
 C_BASE_ONLY = N_CONSTANTS
 C_SPOOL_PLAY_BAND = Constants._fields.index("spool_play_band")  # read per control period
 C_DELAY_SUBSTEPS = Constants._fields.index("delay_substeps")  # read per substep
 N_CACHED_CONSTANTS = N_CONSTANTS + 1
-K_SUBSTEP = L.N_PARAMS  # the key row of the substep length (s)
-N_KEY = L.N_PARAMS + 1
 
 
 def constants_cache(n_envs):
     """An empty cache of the batch path's constants for ``n_envs`` environments, every
-    entry stale: (key (N_KEY, n_envs), constants (chunks, N_CACHED_CONSTANTS * CHUNK_ENVS))."""
+    entry stale: (key (n_envs,), constants (chunks, N_CACHED_CONSTANTS * CHUNK_ENVS))."""
     n_chunks = (n_envs + CHUNK_ENVS - 1) // CHUNK_ENVS
-    return (np.full((N_KEY, n_envs), np.nan),
-            np.zeros((n_chunks, N_CACHED_CONSTANTS * CHUNK_ENVS)))
-
-
-@njit(cache=True, error_model="numpy", inline="always")  # no call per parameter row
-def _accumulate_differing_bits(values, key_values, differing_bits):
-    """OR the bits in which ``values`` and ``key_values`` differ into ``differing_bits``
-    (zero where every value so far equals its key bit for bit). A loop LLVM vectorises."""
-    for j in range(differing_bits.shape[0]):
-        differing_bits[j] |= _float_to_bits(values[j]) ^ _float_to_bits(key_values[j])
+    return (np.full(n_envs, np.nan), np.zeros((n_chunks, N_CACHED_CONSTANTS * CHUNK_ENVS)))
 
 
 @njit(cache=True)
 def refresh_constants(params, first, stop, substep_s, key, constants):
     """Recompute the cached constants of environments ``first .. stop-1`` (one chunk;
-    ``constants`` is its row of the cache) whose parameter column differs from the key bit
-    for bit, or whose substep length does (a NaN key always does)."""
-    n = stop - first
-    differing_bits = np.zeros(n, dtype=np.int64)
-    for row in range(L.N_PARAMS):  # row by row: contiguous lanes
-        _accumulate_differing_bits(params[row, first:stop], key[row, first:stop],
-                                   differing_bits)
-    for j in range(n):
+    ``constants`` is its row of the cache) whose key is not ``substep_s`` (a NaN key, set
+    when their parameters changed, never is)."""
+    for j in range(stop - first):
         env = first + j
-        if differing_bits[j] != 0 or not key[K_SUBSTEP, env] == substep_s:
+        if not key[env] == substep_s:
             c = env_constants(params, env, substep_s)
             store_constants(c, constants, j)
             constants[C_BASE_ONLY * CHUNK_ENVS + j] = 1.0 if base_model_only(c) else 0.0
-            for row in range(L.N_PARAMS):
-                key[row, env] = params[row, env]
-            key[K_SUBSTEP, env] = substep_s
+            key[env] = substep_s
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")

@@ -109,6 +109,7 @@ _g = globals()
 for _i, _name in enumerate(PARAMETER_NAMES):
     _g["P_" + _name.upper()] = _i
 N_PARAMS = len(PARAMETER_NAMES)
+PARAMETER_INDEX = {name: row for row, name in enumerate(PARAMETER_NAMES)}  # name -> row
 
 # Integer-valued parameters (stored as float rows) and their allowed values.
 DISCRETE_PARAMETERS = {
