@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
+import numba
 import numpy as np
 
 from .physics import kernel
@@ -209,9 +210,14 @@ class BatchSimulator:
     def step(self, coil_current_a: np.ndarray) -> np.ndarray:
         """Advance all environments by one control period; returns ``outputs[O_*, env]`` (a view)."""
         coil_current_a = self._check_currents(coil_current_a, (self.n_envs,))
-        fn = kernel.step_parallel if self.parallel else kernel.step_serial
-        fn(self.params, self.state, self.history, self.head, coil_current_a, self.control_dt_s,
-           self.n_substeps, self.outputs, self.constants_key, self.constants)
+        args = (self.params, self.state, self.history, self.head, coil_current_a,
+                self.control_dt_s, self.n_substeps, self.outputs, self.constants_key,
+                self.constants)
+        if self.parallel:
+            with numba.parallel_chunksize(kernel.PARALLEL_CHUNKS_PER_HANDOUT):
+                kernel.step_parallel(*args)
+        else:
+            kernel.step_serial(*args)
         self.advance_clock()
         return self.outputs
 

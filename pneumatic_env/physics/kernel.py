@@ -971,6 +971,11 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
 
 
 CHUNK_ENVS = 64  # environments advanced together by the batch path (their arrays stay in L1/L2)
+# The callers of the parallel steps (BatchSimulator.step, TaskCore.step) have the threads
+# take chunks one at a time as each gets free (dynamic scheduling, numba's
+# ``parallel_chunksize``) rather than split them evenly up front: a core slowed by other
+# processes then takes fewer chunks instead of holding the others up at the region's end.
+PARALLEL_CHUNKS_PER_HANDOUT = 1
 N_CONSTANTS = len(Constants._fields)
 N_RK = 9  # state rows the RK4 integrates (S_X_S .. S_T2)
 
@@ -1381,7 +1386,8 @@ def step_serial(params, state, history, head, coil_current_a, control_dt_s, n_su
 @njit(cache=True, parallel=True)
 def step_parallel(params, state, history, head, coil_current_a, control_dt_s, n_substeps,
                   outputs, key, constants):
-    """Advance every environment of the batch by one control period, chunks in parallel."""
+    """Advance every environment of the batch by one control period, chunks in parallel
+    (call it within ``numba.parallel_chunksize(PARALLEL_CHUNKS_PER_HANDOUT)``)."""
     n_envs = state.shape[1]
     for chunk in prange((n_envs + CHUNK_ENVS - 1) // CHUNK_ENVS):
         first = chunk * CHUNK_ENVS
