@@ -210,16 +210,22 @@ class BatchSimulator:
     def step(self, coil_current_a: np.ndarray) -> np.ndarray:
         """Advance all environments by one control period; returns ``outputs[O_*, env]`` (a view)."""
         coil_current_a = self._check_currents(coil_current_a, (self.n_envs,))
-        args = (self.params, self.state, self.history, self.head, coil_current_a,
-                self.control_dt_s, self.n_substeps, self.outputs, self.constants_key,
-                self.constants)
-        if self.parallel:
-            with numba.parallel_chunksize(kernel.PARALLEL_CHUNKS_PER_HANDOUT):
-                kernel.step_parallel(*args)
-        else:
-            kernel.step_serial(*args)
+        self.call_step_kernel(kernel.step_serial, kernel.step_parallel,
+                              (self.params, self.state, self.history, self.head,
+                               coil_current_a, self.control_dt_s, self.n_substeps, self.outputs,
+                               self.constants_key, self.constants))
         self.advance_clock()
         return self.outputs
+
+    def call_step_kernel(self, serial, parallel, args: tuple) -> None:
+        """``parallel(*args)`` when this batch runs on threads (``self.parallel``), its chunks
+        handed to the threads one at a time (``kernel.PARALLEL_CHUNKS_PER_HANDOUT``), else
+        ``serial(*args)``: the one place of the threading policy of every step function."""
+        if self.parallel:
+            with numba.parallel_chunksize(kernel.PARALLEL_CHUNKS_PER_HANDOUT):
+                parallel(*args)
+        else:
+            serial(*args)
 
     def _check_currents(self, currents, shape) -> np.ndarray:
         """Coil currents as a C-contiguous float64 array of ``shape``, all finite."""

@@ -13,12 +13,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import gymnasium as gym
-import numba
 import numpy as np
 
 from .. import params as P
 from ..physics import layout as L
-from ..physics.kernel import PARALLEL_CHUNKS_PER_HANDOUT
 from ..references import make_reference, ReferenceSpec
 from ..simulator import BatchSimulator
 from . import task_kernel
@@ -295,18 +293,15 @@ class TaskCore:
         self._last_action = coil_current_a
         noise = self._draw_noise(range(self.n_envs), rngs) if self._noise_on else self._noise
         obs = np.empty((self.n_envs, self.obs_dim), dtype=np.float32)
-        args = (sim.params, sim.state, sim.history, sim.head, coil_current_a, sim.control_dt_s,
-                sim.n_substeps, sim.outputs, self.i_max, self.references, self.step_count,
-                self.prev_action, self.measured, noise, self._lag, self._out_rows,
-                self._tracked_row, self.scale, self.options.effort_weight,
-                self.options.chatter_weight, self.last_reward, self.last_error,
-                self.last_reference, self.last_applied, sim.constants_key, sim.constants,
-                self._observation_scales, obs)
-        if sim.parallel:  # chunks handed out as BatchSimulator.step does
-            with numba.parallel_chunksize(PARALLEL_CHUNKS_PER_HANDOUT):
-                task_kernel.task_step_parallel(*args)
-        else:
-            task_kernel.task_step_serial(*args)
+        sim.call_step_kernel(
+            task_kernel.task_step_serial, task_kernel.task_step_parallel,
+            (sim.params, sim.state, sim.history, sim.head, coil_current_a, sim.control_dt_s,
+             sim.n_substeps, sim.outputs, self.i_max, self.references, self.step_count,
+             self.prev_action, self.measured, noise, self._lag, self._out_rows,
+             self._tracked_row, self.scale, self.options.effort_weight,
+             self.options.chatter_weight, self.last_reward, self.last_error,
+             self.last_reference, self.last_applied, sim.constants_key, sim.constants,
+             self._observation_scales, obs))
         sim.advance_clock()
         return obs, self.last_reward
 

@@ -971,7 +971,7 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
 
 
 CHUNK_ENVS = 64  # environments advanced together by the batch path (their arrays stay in L1/L2)
-# The callers of the parallel steps (BatchSimulator.step, TaskCore.step) have the threads
+# The parallel steps run inside BatchSimulator.call_step_kernel, which has the threads
 # take chunks one at a time as each gets free (dynamic scheduling, numba's
 # ``parallel_chunksize``) rather than split them evenly up front: a core slowed by other
 # processes then takes fewer chunks instead of holding the others up at the region's end.
@@ -1387,7 +1387,7 @@ def step_serial(params, state, history, head, coil_current_a, control_dt_s, n_su
 def step_parallel(params, state, history, head, coil_current_a, control_dt_s, n_substeps,
                   outputs, key, constants):
     """Advance every environment of the batch by one control period, chunks in parallel
-    (call it within ``numba.parallel_chunksize(PARALLEL_CHUNKS_PER_HANDOUT)``)."""
+    (``BatchSimulator.call_step_kernel`` hands them out)."""
     n_envs = state.shape[1]
     for chunk in prange((n_envs + CHUNK_ENVS - 1) // CHUNK_ENVS):
         first = chunk * CHUNK_ENVS
