@@ -5,6 +5,10 @@ construction and produces a sample sequence with::
 
     spec.generate(n_steps, dt_s, rng) -> np.ndarray   # float64, shape (n_steps,)
 
+and one episode per generator with ``spec.generate_rows(n_steps, dt_s, rngs)`` (shape
+``(len(rngs), n_steps)``; row ``i`` equals ``generate(n_steps, dt_s, rngs[i])`` bit for
+bit, so a vector env's episodes are those of single envs with the same generators).
+
 Sample ``k`` belongs to the time ``t_k = k * dt_s``. The output is a deterministic
 function of ``(spec, n_steps, dt_s)`` and the state of ``rng``. Kinds without
 randomness (step, sine, chirp, array, multisine with Schroeder phases) draw nothing from
@@ -26,7 +30,8 @@ Kinds (``kind`` key in dicts):
 * ``mixture``     -- :class:`MixtureReference`
 
 Units are whatever the task uses (N for force, m for position); times are in s,
-frequencies in Hz. Pure numpy (scipy is used for the chirp when available).
+frequencies in Hz. NumPy, scipy for the chirp when available, and one jitted loop that
+sums a multisine episode.
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping
 
 import numpy as np
+from numba import njit
 
 try:  # scipy is optional; the closed form below is used without it
     from scipy.signal import chirp as _scipy_chirp
@@ -94,6 +100,9 @@ def _set(obj: Any, name: str, value: Any) -> None:
 
 
 def _check_generate_args(owner: str, n_steps: Any, dt_s: Any) -> tuple[int, float]:
+    if type(n_steps) is int and type(dt_s) is float and n_steps >= 0 \
+            and 0.0 < dt_s < math.inf:  # the common case, without the ABC checks below
+        return n_steps, dt_s
     if not isinstance(n_steps, numbers.Integral) or isinstance(n_steps, (bool, np.bool_)) \
             or n_steps < 0:
         raise ValueError(f"{owner}.generate: n_steps = {n_steps!r} is not allowed: "
@@ -117,12 +126,33 @@ def _time(n_steps: int, dt_s: float) -> np.ndarray:
 
 @functools.lru_cache(maxsize=16)
 def _sine_basis(frequencies_hz: tuple, n_steps: int, dt_s: float) -> tuple:
-    """sin and cos of 2 pi f t_k (read-only, shape (n_steps, len(frequencies_hz)))."""
-    omega_t = 2.0 * np.pi * _time(n_steps, dt_s)[:, None] * np.asarray(frequencies_hz)[None, :]
+    """sin and cos of 2 pi f t_k (read-only, shape (len(frequencies_hz), n_steps))."""
+    omega_t = 2.0 * np.pi * np.asarray(frequencies_hz)[:, None] * _time(n_steps, dt_s)[None, :]
     basis = np.sin(omega_t), np.cos(omega_t)
     for b in basis:
         b.setflags(write=False)
     return basis
+
+
+@njit(cache=True)
+def _multisine_rows(sin_wt, cos_wt, cos_phase, sin_phase, amplitude, offset, out):
+    """out[i, k] = offset + a_i sum_f sin(w_f t_k + phi_if), with a_i scaling the row's peak
+    |sum| to ``amplitude`` (rows of zeros when the sum is zero everywhere). One fixed order
+    of summation per row, whatever the number of rows."""
+    n_f, n = sin_wt.shape
+    for i in range(out.shape[0]):
+        row = out[i]
+        row[:] = 0.0
+        for f in range(n_f):
+            c, s = cos_phase[i, f], sin_phase[i, f]
+            for k in range(n):
+                row[k] += sin_wt[f, k] * c + cos_wt[f, k] * s
+        peak = 0.0
+        for k in range(n):
+            peak = max(peak, abs(row[k]))
+        scale = amplitude / peak if peak > 0.0 else 0.0
+        for k in range(n):
+            row[k] = offset + row[k] * scale
 
 
 def _plain(value: Any) -> Any:
@@ -149,6 +179,19 @@ class ReferenceSpec:
     def generate(self, n_steps: int, dt_s: float,
                  rng: np.random.Generator | None = None) -> np.ndarray:
         raise NotImplementedError
+
+    def generate_rows(self, n_steps: int, dt_s: float, rngs) -> np.ndarray:
+        """One episode per generator in ``rngs``: shape ``(len(rngs), n_steps)``, row ``i``
+        equal to ``generate(n_steps, dt_s, rngs[i])``. Kinds with a faster batch form
+        override it."""
+        n_steps, dt_s = _check_generate_args(type(self).__name__, n_steps, dt_s)
+        out = np.empty((len(rngs), n_steps))
+        if not self.is_random and len(rngs):
+            out[:] = self.generate(n_steps, dt_s, None)
+            return out
+        for i, rng in enumerate(rngs):
+            out[i] = self.generate(n_steps, dt_s, rng)
+        return out
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict with a ``kind`` key; ``make_reference(spec.to_dict()) == spec``."""
@@ -331,25 +374,26 @@ class MultisineReference(ReferenceSpec):
 
     def generate(self, n_steps: int, dt_s: float,
                  rng: np.random.Generator | None = None) -> np.ndarray:
+        return self.generate_rows(n_steps, dt_s, [rng])[0]
+
+    def generate_rows(self, n_steps: int, dt_s: float, rngs) -> np.ndarray:
         owner = type(self).__name__
         n, dt = _check_generate_args(owner, n_steps, dt_s)
-        freqs = np.asarray(self.frequencies_hz, dtype=np.float64)
-        n_f = freqs.size
+        n_f = len(self.frequencies_hz)
         if self.phases == "random":
-            phi = _require_rng(owner, rng).uniform(0.0, 2.0 * np.pi, size=n_f)
+            phases = np.empty((len(rngs), n_f))
+            for i, rng in enumerate(rngs):
+                phases[i] = _require_rng(owner, rng).uniform(0.0, 2.0 * np.pi, size=n_f)
         else:
             k = np.arange(1, n_f + 1, dtype=np.float64)
-            phi = -np.pi * k * (k - 1.0) / n_f
-        # sin(w t + phi) = sin(w t) cos(phi) + cos(w t) sin(phi): the episode's basis is
-        # computed once, an episode costs two matrix-vector products
+            phases = np.tile(-np.pi * k * (k - 1.0) / n_f, (len(rngs), 1))
+        # sin(w t + phi) = sin(w t) cos(phi) + cos(w t) sin(phi): the basis is computed
+        # once, an episode costs one pass over it
         sin_wt, cos_wt = _sine_basis(self.frequencies_hz, n, dt)
-        x = sin_wt @ np.cos(phi) + cos_wt @ np.sin(phi)
-        peak = float(np.max(np.abs(x))) if n else 0.0
-        if peak > 0.0:
-            x *= self.amplitude / peak
-        else:
-            x[:] = 0.0
-        return self.offset + x
+        out = np.empty((len(rngs), n))
+        _multisine_rows(sin_wt, cos_wt, np.cos(phases), np.sin(phases), self.amplitude,
+                        self.offset, out)
+        return out
 
 
 @dataclass(frozen=True)
@@ -514,10 +558,17 @@ class MixtureReference(ReferenceSpec):
 
     def generate(self, n_steps: int, dt_s: float,
                  rng: np.random.Generator | None = None) -> np.ndarray:
-        owner = type(self).__name__
-        _check_generate_args(owner, n_steps, dt_s)
-        idx = self.pick(_require_rng(owner, rng))
-        return self.choices[idx].generate(n_steps, dt_s, rng)
+        return self.generate_rows(n_steps, dt_s, [rng])[0]
+
+    def generate_rows(self, n_steps: int, dt_s: float, rngs) -> np.ndarray:
+        """Each generator picks its choice; the rows of one choice are generated together."""
+        n, dt = _check_generate_args(type(self).__name__, n_steps, dt_s)
+        picks = np.array([self.pick(rng) for rng in rngs], dtype=np.int64)
+        out = np.empty((len(rngs), n))
+        for idx in np.unique(picks):
+            rows = np.flatnonzero(picks == idx)
+            out[rows] = self.choices[idx].generate_rows(n, dt, [rngs[r] for r in rows])
+        return out
 
 
 # --------------------------------------------------------------------------- factory

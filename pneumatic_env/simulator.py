@@ -218,10 +218,12 @@ class BatchSimulator:
         return self.outputs
 
     def call_step_kernel(self, serial, parallel, args: tuple) -> None:
-        """``parallel(*args)`` when this batch runs on threads (``self.parallel``), its chunks
-        handed to the threads one at a time (``kernel.PARALLEL_CHUNKS_PER_HANDOUT``), else
-        ``serial(*args)``: the one place of the threading policy of every step function."""
-        if self.parallel:
+        """``parallel(*args)`` when this batch runs on threads (``self.parallel`` and more
+        than one Numba thread), its chunks handed to the threads one at a time
+        (``kernel.PARALLEL_CHUNKS_PER_HANDOUT``), else ``serial(*args)`` (on one thread the
+        parallel kernel only adds its scheduling: 3 % at N = 1024): the one place of the
+        threading policy of every step function."""
+        if self.parallel and numba.get_num_threads() > 1:
             with numba.parallel_chunksize(kernel.PARALLEL_CHUNKS_PER_HANDOUT):
                 parallel(*args)
         else:

@@ -298,7 +298,7 @@ def measure_vector(plan: Plan, log) -> dict:
         n_substeps, dt = core.sim.n_substeps, core.sim.control_dt_s
         configs = [("serial", 1)]
         if n >= PARALLEL_MIN_ENVS:
-            configs += [("parallel", t) for t in plan.threads]
+            configs += [("parallel", t) for t in plan.threads if t > 1]
         sims = {kind: BatchSimulator(np.repeat(core.sim.params[:, :1], n, axis=1), dt,
                                      n_substeps, parallel=kind == "parallel")
                 for kind, _ in configs}
@@ -337,7 +337,8 @@ def measure_vector(plan: Plan, log) -> dict:
                             env, core, rate, plan.warmup_steps, episode_steps))
         for threads in plan.threads:
             env_rows.append({"n": n, "threads": threads,
-                             "kernel": "parallel" if core.sim.parallel else "serial",
+                             "kernel": ("parallel" if core.sim.parallel and threads > 1
+                                        else "serial"),
                              "rates": [_amortized_rate(r, _median(autoreset[threads]), n,
                                                        episode_steps)
                                        for r in steady[threads]],
@@ -1086,9 +1087,9 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
               "step with every episode at its last step (`max_episode_steps`), whose extra "
               "time is the autoreset of all N episodes. env-steps/s = N x episode steps / "
               "(their time + one autoreset). The env chooses its kernel: the parallel one for "
-              "N >= 256 (`simulator.PARALLEL_MIN_ENVS`).",
-              "- Bare kernel: `BatchSimulator.step` with random currents, serial and parallel "
-              "kernels chosen explicitly. Wall ns per RHS = 1e9 / (env-steps/s x substeps x 4).",
+              "N >= 256 (`simulator.PARALLEL_MIN_ENVS`) on more than one thread.",
+              "- Bare kernel: `BatchSimulator.step` with random currents, serial (1 thread) "
+              "and parallel (more threads) kernels chosen explicitly. Wall ns per RHS = 1e9 / (env-steps/s x substeps x 4).",
               f"- Vector env and kernel: each repeat is {WINDOWS_PER_REPEAT} timing windows of "
               f"{plan.vector_s / WINDOWS_PER_REPEAT:.3g} s per configuration, interleaved over "
               "the configurations (the autoreset timed once per repeat); rates are medians over "

@@ -1,6 +1,7 @@
 """Shared fixtures and helpers of the physics and environment tests."""
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pytest
 
@@ -12,6 +13,15 @@ from pneumatic_env.simulator import BatchSimulator
 def default_params() -> dict:
     """The reference parameter set: Numatics cylinder, 0.5 m tubes, rod clamped at mid-stroke."""
     return load_parameters()
+
+
+@pytest.fixture
+def numba_threads() -> int:
+    """The Numba threads a parallel step runs on; skips the test on one thread, where
+    ``BatchSimulator.call_step_kernel`` runs the serial kernel instead."""
+    if numba.get_num_threads() < 2:
+        pytest.skip("one Numba thread: the parallel step kernels are not used")
+    return numba.get_num_threads()
 
 
 def run_batch(param_sets, currents, control_dt_s=None, substeps=None, initial=None,

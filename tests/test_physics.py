@@ -434,7 +434,7 @@ def test_kernel_is_deterministic_and_batches_are_independent():
         assert np.array_equal(alone[:, :, 0], batch[:, :, j]), j
 
 
-def test_step_by_step_serial_and_parallel_equal_rollout():
+def test_step_by_step_serial_and_parallel_equal_rollout(numba_threads):
     sets = _mixed_sets()
     currents = _random_currents(np.random.default_rng(8), 200, len(sets))
     rolled = run_batch(sets, currents)

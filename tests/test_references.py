@@ -355,3 +355,28 @@ def test_make_reference_sine_values():
     assert isinstance(spec.amplitude, float)
     assert make_reference({"kind": "Random-Step", "amplitude": 1, "hold_min_s": 0.1,
                            "hold_max_s": 0.2}).kind == "random_step"
+
+
+_RANDOM_MIXTURE = {"kind": "mixture", "weights": [2, 1, 1], "choices": [
+    {"kind": "multisine", "amplitude": 3, "frequencies_hz": [1, 4, 9]},
+    {"kind": "random_step", "amplitude": 2, "hold_min_s": 0.05, "hold_max_s": 0.2},
+    {"kind": "multisine", "amplitude": 1, "frequencies_hz": [2, 5], "phases": "schroeder"},
+]}
+
+
+@pytest.mark.parametrize("kind", sorted(_EXAMPLES) + ["random mixture"])
+def test_generate_rows_equals_one_generate_per_generator(kind):
+    """Row i of a batch is the episode ``generate`` draws from generator i, bit for bit, and
+    each generator is left where ``generate`` leaves it (vector env = single envs)."""
+    spec = make_reference(_RANDOM_MIXTURE if kind == "random mixture" else _EXAMPLES[kind])
+    seeds = range(40)
+    batch_rngs = [_rng(s) for s in seeds]
+    rows = spec.generate_rows(1201, DT, batch_rngs)
+    assert rows.shape == (40, 1201)
+    for s, rng in zip(seeds, batch_rngs):
+        one = _rng(s)
+        np.testing.assert_array_equal(rows[s], spec.generate(1201, DT, one))
+        assert rng.random() == one.random()
+    if kind == "random mixture":  # every choice was picked
+        assert {spec.pick(_rng(s)) for s in seeds} == {0, 1, 2}
+    assert spec.generate_rows(1201, DT, []).shape == (0, 1201)

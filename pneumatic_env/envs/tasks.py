@@ -251,8 +251,8 @@ class TaskCore:
                 columns.append(P.load_parameters(self.cylinder, params=self.base_params, **drawn))
             self.sim.set_params(envs, P.parameter_array(columns))
         self.sim.reset(envs)
-        for env in envs:
-            self.references[env] = self.reference_spec.generate(n_ref, self.dt, rngs[env])
+        self.references[envs] = self.reference_spec.generate_rows(
+            n_ref, self.dt, [rngs[env] for env in envs])
         self.step_count[envs] = 0
         self.prev_action[envs] = 0.0
         self.measured[envs] = self.sim.outputs[self._out_rows][:, envs].T
