@@ -129,6 +129,33 @@ def test_vector_env_equals_single_envs_given_only_max_episode_steps():
     assert np.array_equal(vobs, np.stack([e.reset(seed=3 + i)[0] for i, e in enumerate(envs)]))
 
 
+def test_vector_env_references_over_several_blocks_are_the_single_envs():
+    """An autoreset generates references in blocks (tasks.REFERENCE_BLOCK_ENVS); across
+    blocks, at reset and after a partial autoreset, env i's reference is the single env's
+    with seed 11 + i."""
+    from pneumatic_env.envs.tasks import REFERENCE_BLOCK_ENVS
+    n = 2 * REFERENCE_BLOCK_ENVS + 3
+    venv = gym.make_vec(FORCE_ID, num_envs=n, max_episode_steps=3)
+    venv.reset(seed=11)
+    core = venv.unwrapped.core
+    single = gym.make(FORCE_ID)
+    sampled = [0, REFERENCE_BLOCK_ENVS - 1, REFERENCE_BLOCK_ENVS, n - 1]
+    for env in sampled:
+        single.reset(seed=11 + env)
+        assert np.array_equal(core.references[env], single.unwrapped.core.references[0])
+    core.step_count[0::2] = 2  # only the even envs end their episode in the next step
+    before = core.references.copy()
+    _, _, _, truncated, _ = venv.step(np.zeros((n, 1), np.float32))
+    assert np.array_equal(truncated, np.arange(n) % 2 == 0)
+    assert np.array_equal(core.references[1::2], before[1::2])
+    for env in sampled:  # the second episode of the even envs
+        single.reset(seed=11 + env)
+        if env % 2 == 0:
+            single.reset()
+        assert np.array_equal(core.references[env], single.unwrapped.core.references[0])
+    venv.close()
+
+
 # --------------------------------------------------------------------------- seeding
 
 @pytest.mark.parametrize("env_id", [FORCE_ID, POSITION_ID])

@@ -23,6 +23,7 @@ from . import task_kernel
 
 OBSERVED_CHANNELS = ("p1", "p2", "x", "f")
 DEFAULT_EPISODE_STEPS = 2000  # the registered max_episode_steps: 2 s at the 1 ms control period
+REFERENCE_BLOCK_ENVS = 256  # episodes whose references an autoreset generates together
 _CHANNEL_OUTPUT = {"p1": L.O_P1, "p2": L.O_P2, "x": L.O_X, "f": L.O_F}
 
 
@@ -251,8 +252,10 @@ class TaskCore:
                 columns.append(P.load_parameters(self.cylinder, params=self.base_params, **drawn))
             self.sim.set_params(envs, P.parameter_array(columns))
         self.sim.reset(envs)
-        self.references[envs] = self.reference_spec.generate_rows(
-            n_ref, self.dt, [rngs[env] for env in envs])
+        for first in range(0, len(envs), REFERENCE_BLOCK_ENVS):  # temporaries stay in cache
+            block = envs[first:first + REFERENCE_BLOCK_ENVS]
+            self.references[block] = self.reference_spec.generate_rows(
+                n_ref, self.dt, [rngs[env] for env in block])
         self.step_count[envs] = 0
         self.prev_action[envs] = 0.0
         self.measured[envs] = self.sim.outputs[self._out_rows][:, envs].T
