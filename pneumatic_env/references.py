@@ -30,8 +30,7 @@ Kinds (``kind`` key in dicts):
 * ``mixture``     -- :class:`MixtureReference`
 
 Units are whatever the task uses (N for force, m for position); times are in s,
-frequencies in Hz. NumPy, scipy for the chirp when available, and one jitted loop that
-sums a multisine episode.
+frequencies in Hz. Pure numpy (scipy is used for the chirp when available).
 """
 
 from __future__ import annotations
@@ -45,7 +44,6 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping
 
 import numpy as np
-from numba import njit
 
 try:  # scipy is optional; the closed form below is used without it
     from scipy.signal import chirp as _scipy_chirp
@@ -126,33 +124,12 @@ def _time(n_steps: int, dt_s: float) -> np.ndarray:
 
 @functools.lru_cache(maxsize=16)
 def _sine_basis(frequencies_hz: tuple, n_steps: int, dt_s: float) -> tuple:
-    """sin and cos of 2 pi f t_k (read-only, shape (len(frequencies_hz), n_steps))."""
-    omega_t = 2.0 * np.pi * np.asarray(frequencies_hz)[:, None] * _time(n_steps, dt_s)[None, :]
+    """sin and cos of 2 pi f t_k (read-only, shape (n_steps, len(frequencies_hz)))."""
+    omega_t = 2.0 * np.pi * _time(n_steps, dt_s)[:, None] * np.asarray(frequencies_hz)[None, :]
     basis = np.sin(omega_t), np.cos(omega_t)
     for b in basis:
         b.setflags(write=False)
     return basis
-
-
-@njit(cache=True)
-def _multisine_rows(sin_wt, cos_wt, cos_phase, sin_phase, amplitude, offset, out):
-    """out[i, k] = offset + a_i sum_f sin(w_f t_k + phi_if), with a_i scaling the row's peak
-    |sum| to ``amplitude`` (rows of zeros when the sum is zero everywhere). One fixed order
-    of summation per row, whatever the number of rows."""
-    n_f, n = sin_wt.shape
-    for i in range(out.shape[0]):
-        row = out[i]
-        row[:] = 0.0
-        for f in range(n_f):
-            c, s = cos_phase[i, f], sin_phase[i, f]
-            for k in range(n):
-                row[k] += sin_wt[f, k] * c + cos_wt[f, k] * s
-        peak = 0.0
-        for k in range(n):
-            peak = max(peak, abs(row[k]))
-        scale = amplitude / peak if peak > 0.0 else 0.0
-        for k in range(n):
-            row[k] = offset + row[k] * scale
 
 
 def _plain(value: Any) -> Any:
@@ -380,19 +357,26 @@ class MultisineReference(ReferenceSpec):
         owner = type(self).__name__
         n, dt = _check_generate_args(owner, n_steps, dt_s)
         n_f = len(self.frequencies_hz)
-        if self.phases == "random":
-            phases = np.empty((len(rngs), n_f))
-            for i, rng in enumerate(rngs):
-                phases[i] = _require_rng(owner, rng).uniform(0.0, 2.0 * np.pi, size=n_f)
-        else:
-            k = np.arange(1, n_f + 1, dtype=np.float64)
-            phases = np.tile(-np.pi * k * (k - 1.0) / n_f, (len(rngs), 1))
         # sin(w t + phi) = sin(w t) cos(phi) + cos(w t) sin(phi): the basis is computed
-        # once, an episode costs one pass over it
+        # once, an episode costs two matrix-vector products, row by row (BLAS may sum
+        # a matrix product's columns in another order); the scaling is elementwise, so
+        # done for all rows at once
         sin_wt, cos_wt = _sine_basis(self.frequencies_hz, n, dt)
+        if self.phases == "schroeder":
+            k = np.arange(1, n_f + 1, dtype=np.float64)
+            schroeder = -np.pi * k * (k - 1.0) / n_f
         out = np.empty((len(rngs), n))
-        _multisine_rows(sin_wt, cos_wt, np.cos(phases), np.sin(phases), self.amplitude,
-                        self.offset, out)
+        cos_part = np.empty(n)
+        for i, rng in enumerate(rngs):
+            phi = (_require_rng(owner, rng).uniform(0.0, 2.0 * np.pi, size=n_f)
+                   if self.phases == "random" else schroeder)
+            np.matmul(sin_wt, np.cos(phi), out=out[i])
+            out[i] += np.matmul(cos_wt, np.sin(phi), out=cos_part)
+        peak = np.max(np.abs(out), axis=1) if n else np.zeros(len(rngs))
+        flat = peak == 0.0
+        out *= (self.amplitude / np.where(flat, 1.0, peak))[:, None]
+        out[flat] = 0.0
+        out += self.offset
         return out
 
 
