@@ -31,6 +31,8 @@ class BatchSimulator:
     params : array (N_PARAMS, n_envs) from ``params.parameter_array`` (copied).
     control_dt_s : control period; the coil current is held over it.
     n_substeps : RK4 substeps per control period.
+    parallel : whether steps run the threaded kernel (default: ``n_envs >=
+        PARALLEL_MIN_ENVS``); it does so only on more than one Numba thread.
 
     ``self.params`` is read-only: change parameters with ``set_params`` (whole columns) or
     ``set_parameter`` (one parameter, e.g. a drifting supply pressure during a run), which

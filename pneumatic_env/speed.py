@@ -1089,7 +1089,8 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
               "(their time + one autoreset). The env chooses its kernel: the parallel one for "
               "N >= 256 (`simulator.PARALLEL_MIN_ENVS`) on more than one thread.",
               "- Bare kernel: `BatchSimulator.step` with random currents, serial (1 thread) "
-              "and parallel (more threads) kernels chosen explicitly. Wall ns per RHS = 1e9 / (env-steps/s x substeps x 4).",
+              "and parallel (more threads) kernels chosen explicitly. Wall ns per RHS = "
+              "1e9 / (env-steps/s x substeps x 4).",
               f"- Vector env and kernel: each repeat is {WINDOWS_PER_REPEAT} timing windows of "
               f"{plan.vector_s / WINDOWS_PER_REPEAT:.3g} s per configuration, interleaved over "
               "the configurations (the autoreset timed once per repeat); rates are medians over "
