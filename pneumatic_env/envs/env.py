@@ -1,6 +1,6 @@
 """Gymnasium environments: ``PneumaticTrackingEnv`` (single) and ``PneumaticTrackingVectorEnv``.
 
-Both are thin shells over ``TaskCore``; see docs/environments.md for the spaces and reward.
+Both are thin shells over ``TaskCore``; the README (*Spaces and reward*) gives the spaces and reward.
 """
 from __future__ import annotations
 
