@@ -1,6 +1,7 @@
 """Gymnasium environments: ``PneumaticTrackingEnv`` (single) and ``PneumaticTrackingVectorEnv``.
 
-Both are thin shells over ``TaskCore``; the README (*Spaces and reward*) gives the spaces and reward.
+Both are thin shells over ``TaskCore``; the README's *Spaces and reward* describes the
+spaces and the reward.
 """
 from __future__ import annotations
 
