@@ -104,7 +104,8 @@ def test_vector_env_equals_single_envs(env_id, extra):
 
 def test_parallel_task_kernel_equals_the_serial_one(numba_threads):
     """The threaded task step and observation (chosen for N >= simulator.PARALLEL_MIN_ENVS
-    on more than one thread) give the serial ones' observations, rewards and infos bit for bit, through a truncation."""
+    on more than one thread) give the serial ones' observations, rewards and infos bit for
+    bit, through a truncation."""
     n, seed = 6, 3
     serial = gym.make_vec(FORCE_ID, num_envs=n, **SHORT, **RANDOMIZED)
     threaded = gym.make_vec(FORCE_ID, num_envs=n, **SHORT, **RANDOMIZED)
