@@ -1,17 +1,25 @@
-"""Controllers, the force-tracking benchmark and learning agents for ``pneumatic_env``.
+"""Controllers, the force-tracking benchmark and learning agents for ``pneumatic_env``
+(installed as ``pneumatic_env.agents``).
 
-* ``agents.base``: the controller interface (``Controller.reset()``, ``Controller.act(obs)``
+* ``base``: the controller interface (``Controller.reset()``, ``Controller.act(obs)``
   -> coil current in A, batched over rows) and ``ControllerContext``.
-* ``agents.pid``: PID with back-calculation anti-windup, rate feed-forward, dead-band
-  compensation; ``agents.tune_pid``: its grid-search tuning (configs/agents/tuning.yaml).
-* ``agents.sliding_mode``: model-based sliding-mode force control (docs/sliding-mode.md).
-* ``agents.bench``: the benchmark suite (configs/benchmark.yaml), ``pneumatic-env bench``.
-* ``agents.sb3``: the native vector env as a Stable-Baselines3 ``VecEnv``;
-  ``agents.train``: ``pneumatic-env train``; ``agents.policy``: trained actors in numpy.
+* ``pid``: PID with back-calculation anti-windup, rate feed-forward, dead-band
+  compensation; ``tune_pid``: its grid-search tuning (configs/agents/tuning.yaml).
+* ``sliding_mode``: model-based sliding-mode force control (docs/sliding-mode.md).
+* ``bench``: the benchmark suite (configs/benchmark.yaml), ``pneumatic-env bench``.
+* ``sb3``: the native vector env as a Stable-Baselines3 ``VecEnv``;
+  ``train``: ``pneumatic-env train``; ``policy``: trained actors in numpy.
 
-SB3 and torch are imported only by ``agents.sb3``, ``agents.train`` and the export side of
-``agents.policy``.
+SB3 and torch are imported only by ``sb3``, ``train`` and the export side of
+``policy``.
 """
+from pathlib import Path
+
+from pneumatic_env._numba_cache import LIBRARY_ROOT, invalidate_stale_numba_cache
+
+# their jitted functions inline the library's sub-models
+invalidate_stale_numba_cache(Path(__file__).resolve().parent, depends_on=(LIBRARY_ROOT,))
+
 from .base import Controller, ControllerContext, ZeroController
 from .pid import PIDController
 from .sliding_mode import SlidingModeController

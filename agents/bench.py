@@ -28,8 +28,8 @@ from pneumatic_env.envs.tasks import scale_spec  # scale-unit reference spec -> 
 from pneumatic_env.params import ConfigError, read_yaml, config_dir, load_numerics
 from pneumatic_env.references import make_reference
 
-from .base import Controller, ControllerContext, ZeroController
-from .config import agent_config_path, load_agent_config
+from .base import Controller, ControllerContext
+from .registry import resolve_controller
 
 __all__ = ["Suite", "BenchTask", "load_suite", "parse_variant", "make_env", "closed_loop",
            "frequency_response", "bandwidth", "error_bandwidth", "task_metrics",
@@ -265,56 +265,6 @@ def task_metrics(force_n, reference_n, current_a, exhaust_kg, scale_n: float) ->
 
 
 # --------------------------------------------------------------------------- controllers
-
-@dataclass
-class ControllerSpec:
-    """How to build a controller for a variant: env options first, then ``build(context)``."""
-
-    name: str
-    env_options: dict
-    build: Callable[[ControllerContext], Controller]
-    source: str = ""
-
-
-def _variant_key(variant: str) -> str:
-    return variant.lower()
-
-
-def _classical(name: str, variant: str, config: str | None, preview_steps: int) -> ControllerSpec:
-    from .pid import PIDController
-    from .sliding_mode import SlidingModeController
-    classes = {"pid": PIDController, "sliding_mode": SlidingModeController}
-    if config is None:
-        per_variant = agent_config_path(f"{name}-{_variant_key(variant)}")
-        config = per_variant if per_variant.is_file() else agent_config_path(name)
-    cfg = load_agent_config(config)
-    if cfg.get("controller") != name:
-        raise ConfigError(f"{config}: controller = {cfg.get('controller')!r}, expected {name!r}")
-    gains = cfg.get("gains")
-    if not isinstance(gains, dict):
-        raise ConfigError(f"{config}: missing the 'gains' mapping")
-    preview = int(cfg.get("preview_steps", preview_steps))
-    cls = classes[name]
-    return ControllerSpec(name, {"preview_steps": preview, "normalize_observation": False},
-                          lambda ctx: cls(ctx, **gains), str(config))
-
-
-def resolve_controller(spec: str, variant: str, config: str | None = None,
-                       preview_steps: int = 20) -> ControllerSpec:
-    """``pid``, ``sliding_mode``, ``zero``, or a trained policy (``.npz`` export, SB3 ``.zip``)."""
-    names = ("pid", "sliding_mode", "zero")
-    if spec in ("pid", "sliding_mode"):
-        return _classical(spec, variant, config, preview_steps)
-    if spec == "zero":
-        return ControllerSpec("zero", {"preview_steps": preview_steps,
-                                       "normalize_observation": False}, ZeroController)
-    path = Path(spec)
-    if path.suffix in (".npz", ".zip"):
-        from .policy import load_policy_spec
-        return load_policy_spec(path)
-    raise ValueError(f"controller = {spec!r} is not allowed: use one of {list(names)} or a path "
-                     "to a trained policy (.npz from agents.policy.export_policy, or SB3 .zip)")
-
 
 # --------------------------------------------------------------------------- suite run
 

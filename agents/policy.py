@@ -3,9 +3,9 @@
 ``export_policy(model, path, ...)`` writes the deterministic actor of a PPO or SAC model
 (its linear layers and activations) plus what the env must look like (id, preview length,
 observation normalisation, current scale). ``NumpyPolicy`` evaluates it with numpy only;
-``PolicyController`` makes it a :class:`agents.base.Controller` for the benchmark.
+``PolicyController`` makes it a :class:`pneumatic_env.agents.base.Controller` for the benchmark.
 
-    python -m agents.policy export run/model.zip      # writes run/model.npz
+    python -m pneumatic_env.agents.policy export run/model.zip      # writes run/model.npz
 
 Deterministic actions, as SB3's ``predict(obs, deterministic=True)``: PPO's Gaussian mean
 clipped to [-1, 1]; SAC's mean squashed by tanh. Both are then scaled to amperes.
@@ -64,7 +64,7 @@ def export_policy(model, path: str | Path, *, env_id: str, preview_steps: int,
                   ) -> Path:
     """Write the actor of an SB3 PPO/SAC ``model`` to ``path`` (.npz); returns the path.
 
-    The policy must act in [-1, 1] (``agents.sb3.SB3VecEnv(normalize_action=True)``);
+    The policy must act in [-1, 1] (``pneumatic_env.agents.sb3.SB3VecEnv(normalize_action=True)``);
     ``action_scale_a`` turns that into amperes.
     """
     layers, output = _actor(model)
@@ -92,7 +92,7 @@ class NumpyPolicy:
         with np.load(path, allow_pickle=False) as data:
             if "meta" not in data:
                 raise ValueError(f"{path}: not an exported policy (no 'meta' entry); write it "
-                                 "with agents.policy.export_policy")
+                                 "with pneumatic_env.agents.policy.export_policy")
             self.meta = json.loads(str(data["meta"]))
             n = len(self.meta["activations"])
             self.layers = [(data[f"w{i}"], data[f"b{i}"], self.meta["activations"][i])
@@ -147,7 +147,7 @@ class PolicyController(Controller):
 
 def load_policy_spec(path: str | Path):
     """Bench controller spec for ``model.npz`` or ``model.zip`` (uses the sibling ``.npz``)."""
-    from .bench import ControllerSpec
+    from .registry import ControllerSpec
     path = Path(path)
     npz = path if path.suffix == ".npz" else path.with_suffix(".npz")
     if not npz.is_file():
@@ -164,7 +164,7 @@ def load_policy_spec(path: str | Path):
 
 
 def export_from_zip(path: str | Path) -> Path:
-    """Export ``model.zip`` (PPO or SAC saved by ``agents.train``) to ``model.npz`` beside it.
+    """Export ``model.zip`` (PPO or SAC saved by ``pneumatic_env.agents.train``) to ``model.npz`` beside it.
 
     Needs the training stack once (SB3, torch); the env metadata comes from ``train.json``
     written by ``pneumatic-env train`` in the same directory.
@@ -183,5 +183,5 @@ def export_from_zip(path: str | Path) -> Path:
 
 if __name__ == "__main__":
     if len(sys.argv) != 3 or sys.argv[1] != "export":
-        sys.exit("usage: python -m agents.policy export path/to/model.zip")
+        sys.exit("usage: python -m pneumatic_env.agents.policy export path/to/model.zip")
     print(export_from_zip(sys.argv[2]))

@@ -5,10 +5,10 @@
 
 Hyperparameters come from ``configs/agents/<algo>-<variant>.yaml`` (one file per algorithm and
 variant, rl-zoo style; every number with unit and source). The env is ``gym.make_vec`` (our
-native vector env) behind :class:`agents.sb3.SB3VecEnv`, with ``VecMonitor`` for episode
+native vector env) behind :class:`pneumatic_env.agents.sb3.SB3VecEnv`, with ``VecMonitor`` for episode
 statistics and optionally ``VecNormalize`` for the rewards (observations are normalised by
 the env itself, ``normalize_observation=True``). Written to ``--out``: TensorBoard and CSV
-logs, ``model.zip`` (SB3), ``model.npz`` (the actor for ``agents.policy``, no torch needed),
+logs, ``model.zip`` (SB3), ``model.npz`` (the actor for ``pneumatic_env.agents.policy``, no torch needed),
 ``train.json`` (settings, throughput, evaluation) and ``learning_curve.png``.
 """
 from __future__ import annotations

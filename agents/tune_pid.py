@@ -1,6 +1,6 @@
 """Grid-search tuning of the classical controllers (PID by default; also the sliding mode).
 
-    python -m agents.tune_pid [--controller pid|sliding_mode] [--variants V ...] [--dry-run]
+    python -m pneumatic_env.agents.tune_pid [--controller pid|sliding_mode] [--variants V ...] [--dry-run]
 
 The procedure lives in ``configs/agents/tuning.yaml``: a grid of gains, fixed values, tuning
 references (seeds and signals distinct from the benchmark's) and the objective
@@ -106,7 +106,7 @@ def tuned_config(controller: str, variant: str, result: dict, tuning_path: Path,
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m agents.tune_pid", description=__doc__.split(
+    parser = argparse.ArgumentParser(prog="python -m pneumatic_env.agents.tune_pid", description=__doc__.split(
         "\n")[0])
     parser.add_argument("--controller", default="pid", choices=sorted(CONTROLLERS))
     parser.add_argument("--variants", nargs="+", help="default: the benchmark suite's variants")
@@ -116,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     tuning_path = agent_config_path(args.tuning)
     tuning = load_agent_config(tuning_path, raw=("references",))
     variants = args.variants or list(load_suite().variants)
-    command = "python -m agents.tune_pid --controller " + args.controller
+    command = "python -m pneumatic_env.agents.tune_pid --controller " + args.controller
     for variant in variants:
         res = grid_search(args.controller, variant, tuning)
         best = res["best"]

@@ -2,43 +2,48 @@
 
 Numba keys a cached function on its own source file only. A jitted function that inlines
 functions from another module (the task kernel calls ``kernel.advance_chunk``, which calls the
-sub-models) keeps running the old code after that other module changes. On import,
-the package hashes all of its Python sources. When the digest differs from the one stored
-with the cache, the package's cache files are deleted and the functions compile afresh.
+sub-models) keeps running the old code after that other module changes. On import, a
+package hashes its own Python sources and those of the packages its jitted code inlines;
+when the digest differs from the one stored with its cache, its cache files are deleted and
+its functions compile afresh. The library calls this for itself; ``pneumatic_env.agents``
+and ``pneumatic_env.studies`` call it for their folders (the library's sources included).
 """
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Sequence
 from pathlib import Path
 
-_ROOTS = (Path(__file__).resolve().parent, Path(__file__).resolve().parent.parent / "agents")
-_STAMP = Path(__file__).resolve().parent / "__pycache__" / "numba-source-digest"
+LIBRARY_ROOT = Path(__file__).resolve().parent
 
 
-def _sources() -> list[Path]:
-    return sorted(p for root in _ROOTS if root.is_dir() for p in root.rglob("*.py"))
+def _sources(roots: Sequence[Path]) -> list[Path]:
+    return sorted(p for root in roots if root.is_dir() for p in root.rglob("*.py"))
 
 
-def source_digest() -> str:
-    """SHA-256 over the package's Python sources (paths and contents)."""
+def source_digest(roots: Sequence[Path] = (LIBRARY_ROOT,)) -> str:
+    """SHA-256 over the Python sources (paths and contents) below ``roots``."""
     h = hashlib.sha256()
-    for path in _sources():
+    for path in _sources(roots):
         h.update(str(path.relative_to(path.parents[1])).encode())
         h.update(path.read_bytes())
     return h.hexdigest()
 
 
-def invalidate_stale_numba_cache() -> bool:
-    """Delete the package's Numba cache files if any source changed; True if it did."""
+def invalidate_stale_numba_cache(root: Path = LIBRARY_ROOT,
+                                 depends_on: Sequence[Path] = ()) -> bool:
+    """Delete the Numba cache files below ``root`` if a source below ``root`` or
+    ``depends_on`` changed since the last call; True if it did."""
+    root = Path(root).resolve()
+    stamp = root / "__pycache__" / "numba-source-digest"
     try:
-        digest = source_digest()
-        if _STAMP.is_file() and _STAMP.read_text() == digest:
+        digest = source_digest((root, *depends_on))
+        if stamp.is_file() and stamp.read_text() == digest:
             return False
-        for root in _ROOTS:
-            for cache_file in [*root.rglob("*.nbi"), *root.rglob("*.nbc")]:
-                cache_file.unlink(missing_ok=True)
-        _STAMP.parent.mkdir(parents=True, exist_ok=True)
-        _STAMP.write_text(digest)
+        for cache_file in [*root.rglob("*.nbi"), *root.rglob("*.nbc")]:
+            cache_file.unlink(missing_ok=True)
+        stamp.parent.mkdir(parents=True, exist_ok=True)
+        stamp.write_text(digest)
         return True
     except OSError:  # a read-only installation: leave its cache alone
         return False

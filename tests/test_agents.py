@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 import pneumatic_env
-from agents.base import ControllerContext, ZeroController, valve_currents
-from agents.bench import closed_loop, make_env, resolve_controller
-from agents.config import ConfigError, load_agent_config
-from agents.pid import PIDController
-from agents.sliding_mode import force_rate, invert_force_rate, model_constants
+from pneumatic_env.agents.base import ControllerContext, ZeroController, valve_currents
+from pneumatic_env.agents.bench import closed_loop, make_env, resolve_controller
+from pneumatic_env.agents.config import ConfigError, load_agent_config
+from pneumatic_env.agents.pid import PIDController
+from pneumatic_env.agents.sliding_mode import force_rate, invert_force_rate, model_constants
 from pneumatic_env.envs.tasks import force_scale
 from pneumatic_env.params import load_parameters
 
@@ -189,7 +189,7 @@ def test_shipped_controller_configs_load():
 # --------------------------------------------------------------------------- SB3 adapter
 
 def _adapter(n, steps, **kw):
-    from agents.sb3 import make_sb3_vec_env
+    from pneumatic_env.agents.sb3 import make_sb3_vec_env
     return make_sb3_vec_env(ID_05, n, episode_steps=steps, **kw)
 
 
@@ -250,7 +250,7 @@ def test_adapter_seeding():
 
 
 def test_adapter_refuses_next_step_autoreset():
-    from agents.sb3 import SB3VecEnv
+    from pneumatic_env.agents.sb3 import SB3VecEnv
     venv = gym.vector.SyncVectorEnv([lambda: gym.make(ID_05, max_episode_steps=5)])
     with pytest.raises(ValueError, match="autoreset_mode = SAME_STEP"):
         SB3VecEnv(venv)
@@ -268,7 +268,7 @@ def test_sb3_check_env_on_single_env():
 @pytest.fixture(scope="module")
 def ppo_run(tmp_path_factory):
     """A few thousand PPO steps on 0.1 s episodes holding half the force scale."""
-    from agents.train import train
+    from pneumatic_env.agents.train import train
     cfg = copy.deepcopy(load_agent_config("ppo-numatics-2m"))
     scale = force_scale(load_parameters("numatics", tube_length_m=0.5))
     cfg.update(n_envs=8, episode_steps=100,
@@ -293,7 +293,7 @@ def test_ppo_smoke_beats_zero_current(ppo_run):
 
 def test_exported_ppo_policy_matches_sb3_predict(ppo_run):
     from stable_baselines3 import PPO
-    from agents.policy import NumpyPolicy
+    from pneumatic_env.agents.policy import NumpyPolicy
     out, _ = ppo_run
     model = PPO.load(out / "model.zip", device="cpu")
     policy = NumpyPolicy(out / "model.npz")
@@ -305,7 +305,7 @@ def test_exported_ppo_policy_matches_sb3_predict(ppo_run):
 
 def test_exported_sac_policy_matches_sb3_predict(tmp_path):
     from stable_baselines3 import SAC
-    from agents.policy import NumpyPolicy, export_policy
+    from pneumatic_env.agents.policy import NumpyPolicy, export_policy
     env = _adapter(2, 20, normalize_observation=True)
     model = SAC("MlpPolicy", env, seed=1, device="cpu", learning_starts=10,
                 policy_kwargs={"net_arch": [16, 16]})

@@ -10,11 +10,11 @@ import pytest
 import yaml
 from scipy import signal
 
-from agents.base import ControllerContext
-from agents.bench import (CSV_COLUMNS, bandwidth, closed_loop, error_bandwidth,
+from pneumatic_env.agents.base import ControllerContext
+from pneumatic_env.agents.bench import (CSV_COLUMNS, bandwidth, closed_loop, error_bandwidth,
                           frequency_response, leaderboard, load_suite, make_env, parse_variant,
                           read_results, run_suite, write_results)
-from agents.pid import PIDController
+from pneumatic_env.agents.pid import PIDController
 from pneumatic_env.cli import main as cli_main
 from pneumatic_env.params import ConfigError
 from pneumatic_env.references import make_reference

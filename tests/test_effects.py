@@ -605,7 +605,7 @@ def test_spool_friction_is_a_play_of_half_width_friction_over_coil_force():
 # --------------------------------------------------------------------------- 11 tube waves
 
 def test_segmented_line_reference_conserves_the_air():
-    from pneumatic_env.reference_solution import simulate_segmented_line
+    from pneumatic_env.studies.reference_solution import simulate_segmented_line
     ref = simulate_segmented_line(load_parameters(tube_length_m=2.0), 0.5, 0.03, n_segments=10)
     assert ref["line_mass_kg"] > 0.0 and ref["chamber_mass_kg"] > 0.0
     assert ref["line_mass_kg"] + ref["chamber_mass_kg"] == pytest.approx(
@@ -620,7 +620,7 @@ def test_transmission_line_follows_an_independent_segmented_line(tube_length_m, 
     30-segment finite-volume line (SciPy, ``reference_solution.simulate_segmented_line``),
     which conserves the air and so fills the chambers much faster than the paper's
     attenuated tube (Eq. 30 removes the flow it attenuates)."""
-    from pneumatic_env.tube_study import tube_model_errors
+    from pneumatic_env.studies.tube_study import tube_model_errors
     errors = tube_model_errors(tube_length_m, current_a)
     assert errors["transmission line"] < tolerance
     assert errors["paper tube (Eqs. 30, 31)"] > 3.0 * errors["transmission line"]

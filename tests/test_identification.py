@@ -21,7 +21,7 @@ from pneumatic_env.identification.checks import BadDataError, check_recordings, 
 from pneumatic_env.identification.config import load_config
 from pneumatic_env.identification.diagnose import diagnose, phase_masks
 from pneumatic_env.identification.report import write_report
-from pneumatic_env.identification.virtual_rig import make_recording
+from pneumatic_env.studies.virtual_rig import make_recording
 from pneumatic_env.params import load_parameters
 from pneumatic_env.physics.layout import EFFECT_NEUTRAL_VALUES, PARAMETER_NAMES
 from pneumatic_env.recording import RecordingError, read_recording, write_recording

@@ -1,4 +1,4 @@
-"""The paper's experiments (pneumatic_env.paper) against the facts the paper states."""
+"""The paper's experiments (pneumatic_env.studies.paper) against the facts the paper states."""
 import json
 import math
 
@@ -7,7 +7,7 @@ import pytest
 
 from pneumatic_env.cli import main
 from pneumatic_env.params import load_parameters
-from pneumatic_env.paper import (clamped_step_runs, step_metrics, tube_response,
+from pneumatic_env.studies.paper import (clamped_step_runs, step_metrics, tube_response,
                                  valve_flow_vs_current, valve_flow_vs_downstream, valve_numbers)
 
 P = load_parameters("numatics-0750D02-03A")

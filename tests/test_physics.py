@@ -3,7 +3,7 @@
 Each jitted sub-model is checked against values derived by hand from the paper's
 equations (Richer & Hurmuzlu 2000, corrected as in docs/model.md), the whole model
 against physical invariants, the paper's stated facts and the independent SciPy
-reference solution (pneumatic_env/reference_solution.py).
+reference solution (studies/reference_solution.py).
 """
 from __future__ import annotations
 
@@ -358,13 +358,13 @@ REFERENCE_CASES = [
 
 def _kernel_and_reference(cylinder, overrides, command):
     """(params, kernel outputs[step, O_*], reference dict) at the control-step ends."""
-    pytest.importorskip("pneumatic_env.reference_solution")
+    pytest.importorskip("pneumatic_env.studies.reference_solution")
     return _solve_both(cylinder, overrides, command)
 
 
 @functools.lru_cache(maxsize=None)
 def _solve_both(cylinder, overrides, command):
-    from pneumatic_env.reference_solution import simulate_reference
+    from pneumatic_env.studies.reference_solution import simulate_reference
     num = load_numerics()
     assert num["control_dt_s"] == 1e-3
     p = load_parameters(cylinder, **dict(overrides))

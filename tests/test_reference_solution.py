@@ -1,4 +1,4 @@
-"""Tests of the high-accuracy reference solution (pneumatic_env/reference_solution.py).
+"""Tests of the high-accuracy reference solution (studies/reference_solution.py).
 
 The parameter set is built here from the reference table (Numatics cylinder) so the tests
 do not depend on the config loader.
@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from pneumatic_env.reference_solution import (
+from pneumatic_env.studies.reference_solution import (
     NEUTRAL_EFFECTS,
     ModelConstants,
     chamber_volumes,

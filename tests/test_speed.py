@@ -39,7 +39,7 @@ def test_batch_loop_compiles_to_simd_code():
     """The ceiling counts the instructions of the compiled vectorised loops: every one must
     be vectorised, the RK4 loop with the divisions and square roots of the flow, tube and
     orifice sub-models."""
-    from pneumatic_env.speed import vector_loop_instructions
+    from pneumatic_env.studies.speed import vector_loop_instructions
 
     found = vector_loop_instructions()
     assert found["vectorised"] and found["lanes"] >= 2  # every loop of VECTOR_LOOPS

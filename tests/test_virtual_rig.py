@@ -1,4 +1,4 @@
-"""The virtual rig (pneumatic_env.identification.virtual_rig): synthetic recordings."""
+"""The virtual rig (pneumatic_env.studies.virtual_rig): synthetic recordings."""
 from __future__ import annotations
 
 import json
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pneumatic_env.identification.config import load_config
-from pneumatic_env.identification.virtual_rig import _two_lags, excitation, run_rig
+from pneumatic_env.studies.virtual_rig import _two_lags, excitation, run_rig
 from pneumatic_env.params import load_parameters
 from pneumatic_env.recording import read_recording
 
@@ -62,7 +62,7 @@ def test_strength_zero_is_the_plant_without_the_effect():
 def test_rig_coil_without_its_hold_is_the_candidates_two_lags():
     """The rig's coil (``_coil_plant``) is the kernel's cascade of a current lag and a force
     lag when the amplifier's hold is one plant step; the hold delays it."""
-    from pneumatic_env.identification.virtual_rig import _coil_plant
+    from pneumatic_env.studies.virtual_rig import _coil_plant
     from pneumatic_env.params import load_parameters, parameter_array
     from pneumatic_env.physics import layout as L
     from pneumatic_env.simulator import BatchSimulator
@@ -85,7 +85,7 @@ def test_rig_coil_without_its_hold_is_the_candidates_two_lags():
 def test_rig_spool_friction_is_a_stick_slip_play():
     """Without a breakaway excess the rig's spool friction is the candidate's play; with it
     the spool sticks longer, then jumps to the Coulomb band and slides."""
-    from pneumatic_env.identification.virtual_rig import _stick_slip_play
+    from pneumatic_env.studies.virtual_rig import _stick_slip_play
     from pneumatic_env.physics.effects import spool_play_current
     rng = np.random.default_rng(3)
     current = np.cumsum(rng.normal(0.0, 0.01, 2000))
@@ -125,7 +125,7 @@ def test_laminar_leak_equalises_the_sealed_chambers():
 def test_rig_lugre_damping_falls_with_speed():
     """The rig's bristle damping (``_lugre_damping``): sigma1 at rest, e^-1 of it at v_d,
     even in v; the candidate's (the kernel's) is constant."""
-    from pneumatic_env.identification.virtual_rig import _lugre_damping
+    from pneumatic_env.studies.virtual_rig import _lugre_damping
     assert _lugre_damping(316.0, 0.0, 0.05) == 316.0
     assert _lugre_damping(316.0, -0.05, 0.05) == pytest.approx(316.0 / math.e, rel=1e-12)
     assert _lugre_damping(316.0, 0.02, 0.05) == _lugre_damping(316.0, -0.02, 0.05)
@@ -134,7 +134,7 @@ def test_rig_lugre_damping_falls_with_speed():
 def test_rig_wall_heat_exchange_conserves_the_gas_and_relaxes_to_the_wall():
     """``_wall_heat_exchange``: at constant volume the gas's mass (p / T) stays, and T
     relaxes to the wall's with the time constant m c_v / hA, hA scaled by the density."""
-    from pneumatic_env.identification.virtual_rig import _wall_heat_exchange
+    from pneumatic_env.studies.virtual_rig import _wall_heat_exchange
     r, kappa, wall, volume, h = 287.0, 1.4, 293.15, 5e-5, 1e-4
     for p, t in ((6e5, 380.0), (2e5, 250.0)):
         density = p / (r * t)
@@ -168,7 +168,7 @@ def test_rig_supply_line_droops_like_the_resistance_after_its_lag():
     """``_supply_line_step``: under a steady draw the line settles at the candidate's
     droop p_set - R draw (``supply_resistance_pa_s_per_kg``), but only after the line's
     time constant, where the candidate droops at once."""
-    from pneumatic_env.identification.virtual_rig import _supply_line_step
+    from pneumatic_env.studies.virtual_rig import _supply_line_step
     p_set, resistance, tau, draw = 6.5e5, 1e7, 0.02, 5e-3
     steady = p_set - resistance * draw
     p = _supply_line_step(p_set, p_set, resistance, tau, draw, tau)
@@ -185,7 +185,7 @@ def test_rig_muffler_fills_with_the_exhaust_and_vents_to_the_atmosphere():
     (``--effect exhaust_muffler``) its back-pressure slows the exhaust, so a charged
     chamber vented by a step stays above the plain rig's, and the truth names the
     candidate's vent area and the muffler's volume."""
-    from pneumatic_env.identification.virtual_rig import _muffler_step
+    from pneumatic_env.studies.virtual_rig import _muffler_step
     rt, volume, h = 287.0 * 293.15, 1e-5, 1e-5
     p = _muffler_step(1.2e5, 2e-3, 5e-4, volume, rt, h)
     assert p == pytest.approx(1.2e5 + rt / volume * 1.5e-3 * h, rel=1e-12)
@@ -215,9 +215,9 @@ def test_rig_segmented_line_follows_the_scipy_segmented_line():
     changing every plant step) against the independent SciPy solution of the same line
     (``reference_solution.simulate_segmented_line``) after a 1.5 A step through a 0.5 m
     tube: the stiffest case (the valve's small first volume, a wide-open orifice)."""
-    from pneumatic_env.identification.segmented_line import (line_constants,
+    from pneumatic_env.studies.segmented_line import (line_constants,
                                                              segmented_line_rollout)
-    from pneumatic_env.reference_solution import simulate_segmented_line
+    from pneumatic_env.studies.reference_solution import simulate_segmented_line
 
     cfg = load_config()
     plant_dt = cfg.number("virtual_rig", "plant_dt_s")
@@ -238,7 +238,7 @@ def test_rig_segmented_line_follows_the_scipy_segmented_line():
 
 
 def test_rig_segmented_line_refusals():
-    from pneumatic_env.identification.segmented_line import line_constants
+    from pneumatic_env.studies.segmented_line import line_constants
 
     with pytest.raises(ValueError, match="effect 'tube_waves' needs piston = 'fixed'"):
         run_rig("tube_waves", piston="spring", duration_s=0.1)

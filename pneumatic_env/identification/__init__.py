@@ -10,7 +10,7 @@ report/`` (:mod:`.cli`) and ``pneumatic-env rig --effect NAME --strength S --out
 - :func:`.candidates.available_candidates`, :func:`.candidates.apply_sensor_model`
 - :func:`.checks.read_checked`, :func:`.checks.check_recordings`
 - :func:`.virtual_rig.run_rig`, :func:`.virtual_rig.make_recording`
-- ``python -m pneumatic_env.identification.evaluate``: confusion matrix on the virtual rig
+- ``python -m pneumatic_env.studies.identification_eval``: confusion matrix on the virtual rig
 
 Settings: ``configs/identification.yaml`` (:func:`.config.load_config`).
 """

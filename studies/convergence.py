@@ -1,13 +1,13 @@
 """Convergence of the fixed-step kernel: the table that decides the default substeps.
 
-``python -m pneumatic_env.convergence`` runs the paper's scenarios (b) (rod clamped,
+``python -m pneumatic_env.studies.convergence`` runs the paper's scenarios (b) (rod clamped,
 0.5 A step, 0.5 m and 2 m tubes, both tube couplings) and (c) (free rod, 5 Hz sine, both
-cylinders) from :mod:`pneumatic_env.paper` at 5, 10, 20, 40, 80 (and 320) RK4 substeps
+cylinders) from :mod:`pneumatic_env.studies.paper` at 5, 10, 20, 40, 80 (and 320) RK4 substeps
 per control period and prints, as Markdown:
 
 1. the largest error of ``p1``, ``p2`` (% of supply - ambient), ``f`` (% of the
    scenario's force range) and ``x`` (% of half the stroke) over the control-period
-   samples, against the SciPy reference solution (:mod:`pneumatic_env.reference_solution`,
+   samples, against the SciPy reference solution (:mod:`pneumatic_env.studies.reference_solution`,
    an independent adaptive integrator with event location) where it runs, else against
    the kernel at 1280 substeps;
 2. the effect of the flow linearisation (``flow_linear_ratio`` 0.999 and 0.9995 against
@@ -28,10 +28,10 @@ import time
 
 import numpy as np
 
-from .params import load_numerics
+from pneumatic_env.params import load_numerics
 from .paper import (COUPLINGS, CYLINDERS, STEP_TUBES_M, Scenario, clamped_step_scenario,
                     free_sine_scenario)
-from .replay import simulate_currents
+from pneumatic_env.replay import simulate_currents
 
 __all__ = ["SUBSTEPS", "scenarios", "fine_run", "errors", "chatter", "study", "markdown", "main"]
 
@@ -234,7 +234,7 @@ def markdown(result: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pneumatic_env.convergence",
+    parser = argparse.ArgumentParser(prog="python -m pneumatic_env.studies.convergence",
                                      description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="shorter scenarios")
     parser.add_argument("--no-scipy", action="store_true",

@@ -1,6 +1,6 @@
 """Tube models against an independent segmented line (docs/effects.md, ``tube_waves``).
 
-``python -m pneumatic_env.tube_study`` prints, for current steps through tubes of several
+``python -m pneumatic_env.studies.tube_study`` prints, for current steps through tubes of several
 lengths (rod clamped, chambers at ambient), the largest error of the chamber pressures
 p1, p2 over 100 ms, as a fraction of (supply - ambient), of three tube models against
 ``reference_solution.simulate_segmented_line`` (a finite-volume line that conserves the
@@ -16,10 +16,10 @@ import time
 
 import numpy as np
 
-from .params import load_numerics, load_parameters, parameter_array
-from .physics import layout as L
+from pneumatic_env.params import load_numerics, load_parameters, parameter_array
+from pneumatic_env.physics import layout as L
 from .reference_solution import simulate_segmented_line
-from .simulator import BatchSimulator
+from pneumatic_env.simulator import BatchSimulator
 
 #: The compared tube models: label -> parameter overrides.
 TUBE_MODELS = {
@@ -62,7 +62,7 @@ def markdown(rows: list[tuple[float, float, dict]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pneumatic_env.tube_study",
+    parser = argparse.ArgumentParser(prog="python -m pneumatic_env.studies.tube_study",
                                      description=__doc__.splitlines()[0])
     parser.add_argument("--segments", type=int, default=SEGMENTS,
                         help="finite volumes per tube of the reference")

@@ -38,9 +38,9 @@ import numpy as np
 from numba import njit, types
 
 from .convergence import TOLERANCE_PERCENT
-from .physics import kernel as K
-from .physics import layout as L
-from .physics.kernel import N_RK, OUTPUT_STATE_ROWS
+from pneumatic_env.physics import kernel as K
+from pneumatic_env.physics import layout as L
+from pneumatic_env.physics.kernel import N_RK, OUTPUT_STATE_ROWS
 
 ENV_ID = "pneumatic_env/ForceTrack-Numatics-2m-v0"
 YARDSTICK_ID = "Pendulum-v1"
@@ -279,7 +279,7 @@ def measure_vector(plan: Plan, log) -> dict:
     """Native vector env (gym.make_vec) and the bare kernel at every N and thread count."""
     import gymnasium as gym
 
-    from .simulator import PARALLEL_MIN_ENVS, BatchSimulator
+    from pneumatic_env.simulator import PARALLEL_MIN_ENVS, BatchSimulator
 
     env_rows, kernel_rows, regimes, mismatch, pairs = [], [], None, [], []
     regime_n = max(n for n in plan.vector_sizes if n <= SCALING_MIN_N)
@@ -475,10 +475,10 @@ def measure_scipy(plan: Plan, log) -> dict:
     coupling): our kernel (one env, one thread) and the SciPy reference solution at the
     loosest tolerance whose error meets the accuracy target of the convergence study."""
     from .convergence import _scales, errors
-    from .params import load_numerics, parameter_array
+    from pneumatic_env.params import load_numerics, parameter_array
     from .paper import clamped_step_scenario
-    from .replay import simulate_currents
-    from .simulator import BatchSimulator
+    from pneumatic_env.replay import simulate_currents
+    from pneumatic_env.simulator import BatchSimulator
 
     numerics = load_numerics()
     dt, n_substeps = numerics["control_dt_s"], numerics["substeps"]
@@ -498,7 +498,7 @@ def measure_scipy(plan: Plan, log) -> dict:
     try:
         from .reference_solution import simulate_reference
     except ImportError as exc:
-        result["message"] = f"skipped: pneumatic_env.reference_solution is not available ({exc})"
+        result["message"] = f"skipped: pneumatic_env.studies.reference_solution is not available ({exc})"
         log(result["message"])
         return result
 
@@ -716,7 +716,7 @@ def _sample_regimes(sim, currents: np.ndarray, steps: int = 8, envs: int = 128) 
     ``kernel.refinement`` splits a substep into, and the share of substeps it splits (those
     the general path redoes), sampled at the control-step boundaries of a few more steps
     of the benchmark run."""
-    from .physics import kernel
+    from pneumatic_env.physics import kernel
 
     picks = np.linspace(0, sim.n_envs - 1, min(envs, sim.n_envs)).astype(int)
     h = sim.control_dt_s / sim.n_substeps
@@ -791,7 +791,7 @@ def vector_loop_instructions() -> dict:
     body LLVM interleaved to serve 16 elements counts a quarter). Returns the counts per
     class of each loop, the lanes per vector and whether every loop was vectorised.
     """
-    from .physics import kernel
+    from pneumatic_env.physics import kernel
     loops = {}
     found = []
     for name in VECTOR_LOOPS:
@@ -942,7 +942,7 @@ RATIO_HEADERS = ("ratio", "value", "target", "met")
 
 
 def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -> str:
-    from .params import load_numerics
+    from pneumatic_env.params import load_numerics
     numerics = load_numerics()
     pend = _median(res["single"]["rates"][YARDSTICK_ID])
     lines = ["# Speed", "",
@@ -1048,7 +1048,7 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
                   f"wrappers not counted; {how}), divided by their lanes, and the scalar work "
                   "per lane counted "
                   "in `KERNEL_WORK` "
-                  "(`pneumatic_env/speed.py`); each at its throughput measured in a Numba loop "
+                  "(`studies/speed.py`); each at its throughput measured in a Numba loop "
                   "on this machine (a SIMD instruction: the cost per element of a vectorised "
                   "loop times its lanes, `vother` at the cost of an add or multiply; a scalar "
                   "operation: in a loop that is not vectorised).", ""]

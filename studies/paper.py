@@ -24,11 +24,11 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from .params import DEFAULT_CYLINDER, load_parameters
-from .physics.flow import flow_constants, orifice_mass_flow, subsonic_reduced_flow
-from .physics.tube import reynolds_number, sound_speed, tube_attenuation, tube_resistance
-from .physics.valve import orifice_area, steady_spool_position
-from .replay import simulate_currents
+from pneumatic_env.params import DEFAULT_CYLINDER, load_parameters
+from pneumatic_env.physics.flow import flow_constants, orifice_mass_flow, subsonic_reduced_flow
+from pneumatic_env.physics.tube import reynolds_number, sound_speed, tube_attenuation, tube_resistance
+from pneumatic_env.physics.valve import orifice_area, steady_spool_position
+from pneumatic_env.replay import simulate_currents
 
 __all__ = [
     "CYLINDERS", "STEP_CURRENT_A", "STEP_TUBES_M", "COUPLINGS", "SINE_AMPLITUDE_A",

@@ -85,7 +85,7 @@ from pneumatic_env.recording import PISTON_MODES, canonical_cylinder, write_reco
 from pneumatic_env.references import ChirpReference, MultisineReference
 from pneumatic_env.simulator import BatchSimulator
 
-from .config import IdentificationConfig, load_config
+from pneumatic_env.identification.config import IdentificationConfig, load_config
 from .segmented_line import line_constants, segmented_line_rollout
 
 __all__ = ["KERNEL_EFFECTS", "LINE_EFFECTS", "RIG_EFFECTS", "SPLIT_EFFECTS", "MOVING_EFFECTS",
@@ -683,7 +683,7 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
            "ambient_pressure_pa": float(nominal["ambient_pressure_pa"]),
            "temperature_k": float(nominal["temperature_k"]), "piston": piston_rig,
            "notes": "synthetic (virtual rig) recording made by "
-                    "pneumatic_env.identification.virtual_rig"}
+                    "pneumatic_env.studies.virtual_rig"}
     truth = {"effect": effect, "strength": s, "seed": int(seed), "excitation": excitation_kind,
              "duration_s": duration, "perturbed": bool(perturb),
              "effect_reference": ref,

@@ -1,0 +1,64 @@
+"""Controllers by name: how ``pneumatic-env bench`` (and anything else) builds a controller
+for a variant from its name, its config under ``configs/agents/`` or a trained policy file."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from pneumatic_env.params import ConfigError
+
+from .base import Controller, ControllerContext, ZeroController
+from .config import agent_config_path, load_agent_config
+
+__all__ = ["ControllerSpec", "resolve_controller"]
+
+
+@dataclass
+class ControllerSpec:
+    """How to build a controller for a variant: env options first, then ``build(context)``."""
+
+    name: str
+    env_options: dict
+    build: Callable[[ControllerContext], Controller]
+    source: str = ""
+
+
+def _variant_key(variant: str) -> str:
+    return variant.lower()
+
+
+def _classical(name: str, variant: str, config: str | None, preview_steps: int) -> ControllerSpec:
+    from .pid import PIDController
+    from .sliding_mode import SlidingModeController
+    classes = {"pid": PIDController, "sliding_mode": SlidingModeController}
+    if config is None:
+        per_variant = agent_config_path(f"{name}-{_variant_key(variant)}")
+        config = per_variant if per_variant.is_file() else agent_config_path(name)
+    cfg = load_agent_config(config)
+    if cfg.get("controller") != name:
+        raise ConfigError(f"{config}: controller = {cfg.get('controller')!r}, expected {name!r}")
+    gains = cfg.get("gains")
+    if not isinstance(gains, dict):
+        raise ConfigError(f"{config}: missing the 'gains' mapping")
+    preview = int(cfg.get("preview_steps", preview_steps))
+    cls = classes[name]
+    return ControllerSpec(name, {"preview_steps": preview, "normalize_observation": False},
+                          lambda ctx: cls(ctx, **gains), str(config))
+
+
+def resolve_controller(spec: str, variant: str, config: str | None = None,
+                       preview_steps: int = 20) -> ControllerSpec:
+    """``pid``, ``sliding_mode``, ``zero``, or a trained policy (``.npz`` export, SB3 ``.zip``)."""
+    names = ("pid", "sliding_mode", "zero")
+    if spec in ("pid", "sliding_mode"):
+        return _classical(spec, variant, config, preview_steps)
+    if spec == "zero":
+        return ControllerSpec("zero", {"preview_steps": preview_steps,
+                                       "normalize_observation": False}, ZeroController)
+    path = Path(spec)
+    if path.suffix in (".npz", ".zip"):
+        from .policy import load_policy_spec
+        return load_policy_spec(path)
+    raise ValueError(f"controller = {spec!r} is not allowed: use one of {list(names)} or a path "
+                     "to a trained policy (.npz from pneumatic_env.agents.policy.export_policy, or SB3 .zip)")
