@@ -20,9 +20,9 @@ from pneumatic_env._numba_cache import LIBRARY_ROOT, invalidate_stale_numba_cach
 # their jitted functions inline the library's sub-models
 invalidate_stale_numba_cache(Path(__file__).resolve().parent, depends_on=(LIBRARY_ROOT,))
 
-from .base import Controller, ControllerContext, ZeroController
-from .pid import PIDController
-from .sliding_mode import SlidingModeController
+from .base import Controller, ControllerContext, ZeroController  # noqa: E402
+from .pid import PIDController  # noqa: E402
+from .sliding_mode import SlidingModeController  # noqa: E402
 
 __all__ = ["Controller", "ControllerContext", "ZeroController", "PIDController",
            "SlidingModeController"]

@@ -1,8 +1,8 @@
 """The controller interface shared by the classical baselines and the learned policies.
 
 A controller sees only the observation ``[p1, p2, x, f, ref(k), ref(k+1..k+H)]``
-(``pneumatic_env.envs.tasks.TaskCore.observation``) and may use the model parameters
-(``env.unwrapped.core.base_params``); the simulator's state is never read. It is batched:
+(``pneumatic_env.envs.observation``) and may use the model parameters (the env's
+``base_params``); the simulator's state is never read. It is batched:
 ``act`` maps observations of shape ``(n, obs_dim)`` to coil currents ``(n,)`` in A, keeping
 one internal state (integrator, filters, predictor buffers) per row.
 """
@@ -12,18 +12,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pneumatic_env.envs.tasks import OBSERVED_CHANNELS
 from pneumatic_env import params as P
-from pneumatic_env.physics.valve import steady_spool_position
+from pneumatic_env.envs.observation import (OBS_F, OBS_P1, OBS_P2, OBS_REF, OBS_X,
+                                            ObservationScales, observation_dim,
+                                            observation_scales, observation_to_si)
+from pneumatic_env.physics.derived import valve_currents_a
 
 __all__ = ["OBS_P1", "OBS_P2", "OBS_X", "OBS_F", "OBS_REF", "ControllerContext", "Controller",
            "ZeroController", "check_gain", "valve_currents"]
-
-OBS_P1 = OBSERVED_CHANNELS.index("p1")
-OBS_P2 = OBSERVED_CHANNELS.index("p2")
-OBS_X = OBSERVED_CHANNELS.index("x")
-OBS_F = OBSERVED_CHANNELS.index("f")
-OBS_REF = len(OBSERVED_CHANNELS)  # ref(k); the preview ref(k+1..k+H) follows
 
 
 @dataclass(frozen=True)
@@ -38,13 +34,14 @@ class ControllerContext:
     force_scale_n: float | None = None  # divides the force channel when normalised
 
     @classmethod
-    def from_env(cls, env) -> "ControllerContext":
-        """From a single env (any wrappers) or a native vector env."""
-        core = env.unwrapped.core
-        return cls(base_params=dict(core.base_params), dt_s=float(core.dt),
-                   preview_steps=int(core.options.preview_steps), scale_n=float(core.scale),
-                   normalize_observation=bool(core.options.normalize_observation),
-                   force_scale_n=float(getattr(core, "force_scale", core.scale)))
+    def from_env(cls, env) -> ControllerContext:
+        """From a single env (any wrappers) or a native vector env, by their read-only
+        properties."""
+        e = env.unwrapped
+        return cls(base_params=dict(e.base_params), dt_s=e.control_dt_s,
+                   preview_steps=e.preview_steps, scale_n=e.reference_scale,
+                   normalize_observation=e.normalize_observation,
+                   force_scale_n=e.force_scale_n)
 
     @property
     def i_max_a(self) -> float:
@@ -52,7 +49,13 @@ class ControllerContext:
 
     @property
     def obs_dim(self) -> int:
-        return OBS_REF + 1 + self.preview_steps
+        return observation_dim(self.preview_steps)
+
+    @property
+    def observation_scales(self) -> ObservationScales:
+        """The env's ``observation_scales`` (``pneumatic_env.envs.observation``)."""
+        return observation_scales(self.base_params, self.force_scale_n or self.scale_n,
+                                  self.scale_n, self.normalize_observation)
 
     def param_array(self) -> np.ndarray:
         """The (N_PARAMS, 1) parameter column for the jitted model functions."""
@@ -63,13 +66,11 @@ def valve_currents(params: dict) -> tuple[float, float]:
     """Coil currents (A) at the edge of the dead band and at full opening (Eqs. 43, 44, 46).
 
     The supply path opens when x_s > p_w - R_h and is fully open at x_s = p_w + R_h; Eq. 46
-    (x_s = K_fc i / (2 k_s)) turns both spool positions into currents.
+    (x_s = K_fc i / (2 k_s)) turns both spool positions into currents
+    (``pneumatic_env.physics.derived.valve_currents_a``).
     """
-    per_amp = steady_spool_position(1.0, params["spool_spring_n_per_m"],
-                                    params["coil_force_n_per_a"])
-    overlap = params["spool_half_width_m"] - params["hole_radius_m"]
-    full = params["spool_half_width_m"] + params["hole_radius_m"]
-    return max(overlap, 0.0) / per_amp, full / per_amp
+    return valve_currents_a(params["spool_half_width_m"], params["hole_radius_m"],
+                            params["spool_spring_n_per_m"], params["coil_force_n_per_a"])
 
 
 def check_gain(owner: str, name: str, value, *, ge: float | None = 0.0, gt: float | None = None):
@@ -127,21 +128,9 @@ class Controller:
         return self._act(self.observation_si(o))
 
     def observation_si(self, obs: np.ndarray) -> np.ndarray:
-        """Undo ``normalize_observation`` so the controller works in SI.
-
-        ``TaskCore.observation`` normalises pressures to (p - P_a)/(P_s - P_a), x to x / (L/2),
-        the force by the force scale and the references by the reference scale.
-        """
-        if not self.context.normalize_observation:
-            return obs
-        p = self.context.base_params
-        pa, ps = p["ambient_pressure_pa"], p["supply_pressure_pa"]
-        out = obs.copy()
-        out[:, [OBS_P1, OBS_P2]] = pa + obs[:, [OBS_P1, OBS_P2]] * (ps - pa)
-        out[:, OBS_X] = obs[:, OBS_X] * 0.5 * p["stroke_m"]
-        out[:, OBS_F] = obs[:, OBS_F] * (self.context.force_scale_n or self.context.scale_n)
-        out[:, OBS_REF:] = obs[:, OBS_REF:] * self.context.scale_n
-        return out
+        """Undo ``normalize_observation`` so the controller works in SI
+        (``pneumatic_env.envs.observation.observation_to_si``)."""
+        return observation_to_si(obs, self.context.observation_scales)
 
     def reference_ahead(self, obs: np.ndarray, steps) -> np.ndarray:
         """ref(k + steps) per row from the preview (steps clipped to the preview length)."""

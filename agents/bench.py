@@ -6,7 +6,8 @@ task: RMS and peak tracking error (N and % of the force scale), control effort (
 current), chatter (RMS of current differences), air consumption (exhaust mass), and from the
 chirp the closed-loop -3 dB bandwidth (method: docs/benchmark.md, :func:`frequency_response`).
 Output: results.csv, results.md, results.json and PNG plots in ``--out``; :func:`leaderboard`
-merges several result directories into one Markdown table.
+merges several result directories into one Markdown table. The suite file is read by
+``agents/suite.py`` (re-exported here).
 """
 from __future__ import annotations
 
@@ -16,20 +17,19 @@ import json
 import math
 import shlex
 import sys
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
 
 import gymnasium as gym
 import numpy as np
 
-import pneumatic_env
+from pneumatic_env import ids
 from pneumatic_env.envs.tasks import scale_spec  # scale-unit reference spec -> SI
-from pneumatic_env.params import ConfigError, read_yaml, config_dir, load_numerics
-from pneumatic_env.references import make_reference
+from pneumatic_env.params import load_numerics
 
 from .base import Controller, ControllerContext
 from .registry import resolve_controller
+from .suite import BenchTask, Suite, load_suite, parse_variant
 
 __all__ = ["Suite", "BenchTask", "load_suite", "parse_variant", "make_env", "closed_loop",
            "frequency_response", "bandwidth", "error_bandwidth", "task_metrics",
@@ -44,111 +44,7 @@ CSV_COLUMNS = ("suite_version", "controller", "variant", "task", "duration_s",
                "force_scale_n") + METRIC_COLUMNS
 
 
-# --------------------------------------------------------------------------- suite
-
-@dataclass(frozen=True)
-class BenchTask:
-    name: str
-    seed: int
-    duration_s: float
-    reference: dict  # amplitudes/offsets in units of the force scale
-
-
-@dataclass(frozen=True)
-class Suite:
-    version: str
-    task: str
-    variants: tuple
-    preview_steps: int
-    tasks: tuple
-    bandwidth_task: str
-    bins_per_octave: float
-    bandwidth_level: float
-    plot_tasks: dict = field(default_factory=dict)
-    path: str = ""
-
-    def task_named(self, name: str) -> BenchTask:
-        for t in self.tasks:
-            if t.name == name:
-                return t
-        raise KeyError(name)
-
-
-def default_suite_path() -> Path:
-    return config_dir() / "benchmark.yaml"
-
-
-def load_suite(path: str | Path | None = None) -> Suite:
-    """Read and validate the suite file (default ``configs/benchmark.yaml``)."""
-    path = Path(path) if path is not None else default_suite_path()
-    data = read_yaml(path)
-    where = str(path)
-
-    def need(mapping, key, kind, owner):
-        if not isinstance(mapping, dict) or key not in mapping:
-            raise ConfigError(f"{where}: {owner} is missing {key!r}")
-        value = mapping[key]
-        if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
-            raise ConfigError(f"{where}: {owner}.{key} = {value!r} is not allowed: must be "
-                              f"{getattr(kind, '__name__', kind)}")
-        return value
-
-    version = str(need(data, "version", (str, int, float), "suite"))
-    task = need(data, "task", str, "suite")
-    variants = tuple(need(data, "variants", list, "suite"))
-    for v in variants:
-        parse_variant(v, task)
-    preview = need(need(data, "env", dict, "suite"), "preview_steps", int, "env")
-    metrics = need(data, "metrics", dict, "suite")
-    tasks, names = [], set()
-    for i, t in enumerate(need(data, "tasks", list, "suite")):
-        owner = f"tasks[{i}]"
-        name = need(t, "name", str, owner)
-        if name in names:
-            raise ConfigError(f"{where}: {owner}.name = {name!r} is used twice")
-        names.add(name)
-        seed = need(t, "seed", int, owner)
-        duration = float(need(t, "duration_s", (int, float), owner))
-        if not (math.isfinite(duration) and duration > 0):
-            raise ConfigError(f"{where}: {owner}.duration_s = {duration!r} is not allowed: "
-                              "must be a finite number > 0")
-        ref = need(t, "reference", dict, owner)
-        try:
-            make_reference(ref)
-        except (ValueError, TypeError) as exc:
-            raise ConfigError(f"{where}: {owner}.reference: {exc}") from None
-        tasks.append(BenchTask(name, seed, duration, dict(ref)))
-    bw_task = need(metrics, "bandwidth_task", str, "metrics")
-    if bw_task not in names:
-        raise ConfigError(f"{where}: metrics.bandwidth_task = {bw_task!r} is not a task: "
-                          f"allowed {sorted(names)}")
-    if tasks[[t.name for t in tasks].index(bw_task)].reference.get("kind") != "chirp":
-        raise ConfigError(f"{where}: metrics.bandwidth_task = {bw_task!r} must be a chirp task")
-    plots = data.get("plots", {}) or {}
-    for key, name in plots.items():
-        if name not in names:
-            raise ConfigError(f"{where}: plots.{key} = {name!r} is not a task: "
-                              f"allowed {sorted(names)}")
-    return Suite(version=version, task=task, variants=variants, preview_steps=preview,
-                 tasks=tuple(tasks), bandwidth_task=bw_task,
-                 bins_per_octave=float(need(metrics, "bandwidth_bins_per_octave", (int, float),
-                                            "metrics")),
-                 bandwidth_level=float(need(metrics, "bandwidth_level", float, "metrics")),
-                 plot_tasks=dict(plots), path=str(path))
-
-
-def parse_variant(variant: str, task: str = "ForceTrack") -> str:
-    """``"Numatics-2m"`` -> ``"pneumatic_env/ForceTrack-Numatics-2m-v0"`` (checked)."""
-    allowed = [f"{c}-{t}m" for c in pneumatic_env.CYLINDER_IDS
-               for t in pneumatic_env.TUBE_LENGTHS_M]
-    parts = str(variant).rsplit("-", 1)
-    if len(parts) != 2 or parts[0] not in pneumatic_env.CYLINDER_IDS \
-            or not parts[1].endswith("m") or parts[1][:-1] not in pneumatic_env.TUBE_LENGTHS_M:
-        raise ValueError(f"variant = {variant!r} is not allowed: use one of {allowed}")
-    return pneumatic_env.env_id(task, parts[0], parts[1][:-1])
-
-
-def make_env(variant: str, n_envs: int, n_steps: int, task: str = "ForceTrack", **options):
+def make_env(variant: str, n_envs: int, n_steps: int, task: str = ids.FORCE_TRACK, **options):
     """The native vector env of ``variant`` with ``n_envs`` envs and ``n_steps``-step episodes."""
     return gym.make_vec(parse_variant(variant, task), num_envs=n_envs,
                         max_episode_steps=int(n_steps), **options)
@@ -160,11 +56,11 @@ def closed_loop(env, controller: Controller, references: Sequence[dict], seeds: 
                 n_steps: int) -> dict:
     """Run ``controller`` on the vector ``env``, env i tracking ``references[i]`` (scale units).
 
-    Env i is reset with ``seeds[i]`` and its reference generated exactly as the single env
-    ``gym.make(id, reference=<SI spec>)`` reset with that seed would generate it. Returns arrays
-    of shape (n_steps, n_envs): ``force_n``, ``reference_n``, ``current_a``, ``exhaust_kg``.
+    Env i is reset with ``seeds[i]`` and ``options={"reference": ...}`` (its reference in SI),
+    so its episode is that of the single env ``gym.make(id, reference=<SI spec>)`` reset
+    with that seed. Returns arrays of shape (n_steps, n_envs): ``force_n``, ``reference_n``,
+    ``current_a``, ``exhaust_kg``.
     """
-    core = env.unwrapped.core
     n = env.num_envs
     if len(references) != n or len(seeds) != n:
         raise ValueError(f"closed_loop: {len(references)} references and {len(seeds)} seeds "
@@ -173,13 +69,9 @@ def closed_loop(env, controller: Controller, references: Sequence[dict], seeds: 
     if limit is not None and n_steps > limit:
         raise ValueError(f"closed_loop: n_steps = {n_steps} is longer than the env's episodes "
                          f"({limit} steps): make the env with max_episode_steps >= n_steps")
-    env.reset(seed=[int(s) for s in seeds])
-    n_ref = core.references.shape[1]
-    for i, spec in enumerate(references):
-        rng = gym.utils.seeding.np_random(int(seeds[i]))[0]
-        si = make_reference(scale_spec(spec, core.scale))
-        core.references[i] = si.generate(n_ref, core.dt, rng)
-    obs = core.observation()
+    scale = env.unwrapped.reference_scale
+    obs, _ = env.reset(seed=[int(s) for s in seeds],
+                       options={"reference": [scale_spec(spec, scale) for spec in references]})
     controller.reset()
     out = {k: np.empty((n_steps, n)) for k in ("force_n", "reference_n", "current_a",
                                                "exhaust_kg")}
@@ -281,25 +173,25 @@ def run_suite(controller: str, variants: Sequence[str] | None = None, suite: Sui
         parse_variant(variant, suite.task)
         cspec = resolve_controller(controller, variant, config, suite.preview_steps)
         env = make_env(variant, len(suite.tasks), n_steps, suite.task, **cspec.env_options)
-        core = env.unwrapped.core
+        dt, scale = env.unwrapped.control_dt_s, env.unwrapped.reference_scale
         ctrl = cspec.build(ControllerContext.from_env(env))
         if progress:
             progress(f"{cspec.name} on {variant}: {len(suite.tasks)} tasks, {n_steps} steps")
         tr = closed_loop(env, ctrl, [t.reference for t in suite.tasks],
                          [t.seed for t in suite.tasks], n_steps)
         env.close()
-        traces[variant] = {"dt_s": core.dt, "scale_n": core.scale, "steps": steps, **tr}
+        traces[variant] = {"dt_s": dt, "scale_n": scale, "steps": steps, **tr}
         for i, task in enumerate(suite.tasks):
             k = steps[i]
             m = task_metrics(tr["force_n"][:k, i], tr["reference_n"][:k, i],
-                             tr["current_a"][:k, i], tr["exhaust_kg"][:k, i], core.scale)
+                             tr["current_a"][:k, i], tr["exhaust_kg"][:k, i], scale)
             for key in ("bandwidth", "error_bandwidth"):
                 m[f"{key}_hz"], m[f"{key}_lower_bound"] = math.nan, ""
             if task.name == suite.bandwidth_task:
                 ref = task.reference
-                kk = min(k, int(round(ref["duration_s"] / core.dt)))
+                kk = min(k, int(round(ref["duration_s"] / dt)))
                 f, H = frequency_response(tr["reference_n"][:kk, i], tr["force_n"][:kk, i],
-                                          core.dt, ref["f0_hz"], ref["f1_hz"],
+                                          dt, ref["f0_hz"], ref["f1_hz"],
                                           suite.bins_per_octave)
                 bw, lower = bandwidth(f, H, suite.bandwidth_level)
                 m["bandwidth_hz"], m["bandwidth_lower_bound"] = bw, bool(lower)
@@ -308,7 +200,7 @@ def run_suite(controller: str, variants: Sequence[str] | None = None, suite: Sui
                 traces[variant]["response"] = (f, H)
             rows.append({"suite_version": suite.version, "controller": cspec.name,
                          "variant": variant, "task": task.name, "duration_s": task.duration_s,
-                         "force_scale_n": core.scale, **m})
+                         "force_scale_n": scale, **m})
     return rows, traces
 
 
@@ -477,7 +369,7 @@ def leaderboard(paths: Sequence[str | Path]) -> str:
     for key in dict.fromkeys((r["variant"], r["controller"]) for r in rows):
         sel = [r for r in rows if (r["variant"], r["controller"]) == key]
 
-        def mean_of(pred):
+        def mean_of(pred, sel=sel):
             vals = [r["rms_error_pct"] for r in sel if pred(r["task"])]
             return float(np.mean(vals)) if vals else math.nan
 

@@ -164,7 +164,8 @@ def load_policy_spec(path: str | Path):
 
 
 def export_from_zip(path: str | Path) -> Path:
-    """Export ``model.zip`` (PPO or SAC saved by ``pneumatic_env.agents.train``) to ``model.npz`` beside it.
+    """Export ``model.zip`` (PPO or SAC saved by ``pneumatic_env.agents.train``) to
+    ``model.npz`` beside it.
 
     Needs the training stack once (SB3, torch); the env metadata comes from ``train.json``
     written by ``pneumatic-env train`` in the same directory.

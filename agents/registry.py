@@ -2,14 +2,15 @@
 for a variant from its name, its config under ``configs/agents/`` or a trained policy file."""
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 from pneumatic_env.params import ConfigError
 
 from .base import Controller, ControllerContext, ZeroController
 from .config import agent_config_path, load_agent_config
+from .suite import suite_preview_steps
 
 __all__ = ["ControllerSpec", "resolve_controller"]
 
@@ -28,7 +29,8 @@ def _variant_key(variant: str) -> str:
     return variant.lower()
 
 
-def _classical(name: str, variant: str, config: str | None, preview_steps: int) -> ControllerSpec:
+def _classical(name: str, variant: str, config: str | None,
+               preview_steps: int | None) -> ControllerSpec:
     from .pid import PIDController
     from .sliding_mode import SlidingModeController
     classes = {"pid": PIDController, "sliding_mode": SlidingModeController}
@@ -41,19 +43,25 @@ def _classical(name: str, variant: str, config: str | None, preview_steps: int) 
     gains = cfg.get("gains")
     if not isinstance(gains, dict):
         raise ConfigError(f"{config}: missing the 'gains' mapping")
-    preview = int(cfg.get("preview_steps", preview_steps))
+    preview = int(cfg["preview_steps"] if "preview_steps" in cfg
+                  else suite_preview_steps() if preview_steps is None else preview_steps)
     cls = classes[name]
     return ControllerSpec(name, {"preview_steps": preview, "normalize_observation": False},
                           lambda ctx: cls(ctx, **gains), str(config))
 
 
 def resolve_controller(spec: str, variant: str, config: str | None = None,
-                       preview_steps: int = 20) -> ControllerSpec:
-    """``pid``, ``sliding_mode``, ``zero``, or a trained policy (``.npz`` export, SB3 ``.zip``)."""
+                       preview_steps: int | None = None) -> ControllerSpec:
+    """``pid``, ``sliding_mode``, ``zero``, or a trained policy (``.npz`` export, SB3 ``.zip``).
+
+    ``preview_steps``: the preview a classical controller gets unless its config sets one;
+    default the benchmark suite's (``suite_preview_steps()``, not the env's default).
+    """
     names = ("pid", "sliding_mode", "zero")
     if spec in ("pid", "sliding_mode"):
         return _classical(spec, variant, config, preview_steps)
     if spec == "zero":
+        preview_steps = suite_preview_steps() if preview_steps is None else preview_steps
         return ControllerSpec("zero", {"preview_steps": preview_steps,
                                        "normalize_observation": False}, ZeroController)
     path = Path(spec)
@@ -61,4 +69,5 @@ def resolve_controller(spec: str, variant: str, config: str | None = None,
         from .policy import load_policy_spec
         return load_policy_spec(path)
     raise ValueError(f"controller = {spec!r} is not allowed: use one of {list(names)} or a path "
-                     "to a trained policy (.npz from pneumatic_env.agents.policy.export_policy, or SB3 .zip)")
+                     "to a trained policy (.npz from pneumatic_env.agents.policy.export_policy, "
+                     "or SB3 .zip)")

@@ -15,7 +15,8 @@ The adapter also times the env (``env_time_s``) for throughput reports.
 from __future__ import annotations
 
 import time
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -150,7 +151,7 @@ def make_sb3_vec_env(env_id: str, num_envs: int, episode_steps: int | None = Non
                      normalize_action: bool = True, **env_kwargs) -> SB3VecEnv:
     """``gym.make_vec(env_id, num_envs)`` (native vector env) wrapped for SB3.
 
-    ``episode_steps`` sets the episode length (the registered default is 2000 steps).
+    ``episode_steps`` sets the episode length (default the registered ``ids.EPISODE_STEPS``).
     """
     if episode_steps is not None:
         env_kwargs["max_episode_steps"] = int(episode_steps)

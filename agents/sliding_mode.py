@@ -25,8 +25,9 @@ import numpy as np
 from numba import njit
 
 from pneumatic_env.physics.chamber import chamber_volumes, pressure_rate
-from pneumatic_env.physics.flow import flow_constants, orifice_mass_flow, subsonic_reduced_flow
-from pneumatic_env.physics.tube import sound_speed, tube_attenuation
+from pneumatic_env.physics.derived import orifice_gas_constants, piston_areas_m2, tube_delay_s
+from pneumatic_env.physics.flow import orifice_mass_flow
+from pneumatic_env.physics.tube import tube_attenuation
 from pneumatic_env.physics.valve import orifice_area
 
 from .base import OBS_F, OBS_P1, OBS_P2, OBS_X, Controller, ControllerContext, check_gain
@@ -44,21 +45,21 @@ __all__ = ["SlidingModeController", "force_rate", "invert_force_rate", "model_co
 def model_constants(params: dict) -> np.ndarray:
     """The constants of the controller's nominal model from a parameter dict."""
     p = params
-    k, gas, temp = p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"], p["temperature_k"]
-    c1, c2, pcr = flow_constants(k, gas)
-    lin = p["flow_linear_ratio"]
-    a1 = 0.25 * np.pi * p["bore_diameter_m"] ** 2
+    gas, temp = p["gas_constant_j_per_kg_k"], p["temperature_k"]
+    inv_sqrt_t, k, c1, c2, pcr, lin, slope = orifice_gas_constants(
+        p["heat_capacity_ratio"], gas, temp, p["flow_linear_ratio"])
+    a1, a2, _ = piston_areas_m2(p["bore_diameter_m"], p["rod_diameter_m"])
     m = np.empty(_N_MODEL)
-    m[[_RT, _INV_SQRT_T, _K, _C1, _C2, _PCR, _LIN_R]] = (gas * temp, temp ** -0.5, k, c1, c2,
+    m[[_RT, _INV_SQRT_T, _K, _C1, _C2, _PCR, _LIN_R]] = (gas * temp, inv_sqrt_t, k, c1, c2,
                                                          pcr, lin)
-    m[_LIN_SLOPE] = subsonic_reduced_flow(lin, k, c2) / (1.0 - lin)
+    m[_LIN_SLOPE] = slope
     m[[_PS, _PA, _MU, _A_IN, _A_OUT, _CF]] = (p["supply_pressure_pa"], p["ambient_pressure_pa"],
                                              p["air_viscosity_pa_s"], p["alpha_in"],
                                              p["alpha_out"], p["discharge_coefficient"])
     m[[_RH, _PW, _NH]] = p["hole_radius_m"], p["spool_half_width_m"], p["holes_per_path"]
     m[_TAU] = model_delay_s(p)[0]
     m[[_DT, _RE_T]] = p["tube_inner_diameter_m"], p["reynolds_turbulent"]
-    m[[_A1, _A2, _HALF]] = a1, a1 - 0.25 * np.pi * p["rod_diameter_m"] ** 2, 0.5 * p["stroke_m"]
+    m[[_A1, _A2, _HALF]] = a1, a2, 0.5 * p["stroke_m"]
     m[[_V01, _V02]] = p["dead_volume_cap_m3"], p["dead_volume_rod_m3"]
     return m
 
@@ -147,9 +148,8 @@ def invert_force_rate(m, p1, p2, x, fdot_des, openings, blend, spool_out, rate_o
 
 def model_delay_s(params: dict) -> tuple[float, float]:
     """(tube delay L/c of Eq. 31, spool time constant c_s/(2 k_s) of Eq. 38) in s."""
-    c = sound_speed(params["heat_capacity_ratio"], params["gas_constant_j_per_kg_k"],
-                    params["temperature_k"])
-    return (params["tube_length_m"] / c,
+    return (tube_delay_s(params["tube_length_m"], params["heat_capacity_ratio"],
+                         params["gas_constant_j_per_kg_k"], params["temperature_k"]),
             params["spool_damping_n_s_per_m"] / (2.0 * params["spool_spring_n_per_m"]))
 
 

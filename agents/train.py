@@ -5,11 +5,12 @@
 
 Hyperparameters come from ``configs/agents/<algo>-<variant>.yaml`` (one file per algorithm and
 variant, rl-zoo style; every number with unit and source). The env is ``gym.make_vec`` (our
-native vector env) behind :class:`pneumatic_env.agents.sb3.SB3VecEnv`, with ``VecMonitor`` for episode
-statistics and optionally ``VecNormalize`` for the rewards (observations are normalised by
-the env itself, ``normalize_observation=True``). Written to ``--out``: TensorBoard and CSV
-logs, ``model.zip`` (SB3), ``model.npz`` (the actor for ``pneumatic_env.agents.policy``, no torch needed),
-``train.json`` (settings, throughput, evaluation) and ``learning_curve.png``.
+native vector env) behind :class:`pneumatic_env.agents.sb3.SB3VecEnv`, with ``VecMonitor``
+for episode statistics and optionally ``VecNormalize`` for the rewards (observations are
+normalised by the env itself, ``normalize_observation=True``). Written to ``--out``:
+TensorBoard and CSV logs, ``model.zip`` (SB3), ``model.npz`` (the actor for
+``pneumatic_env.agents.policy``, no torch needed), ``train.json`` (settings, throughput,
+evaluation) and ``learning_curve.png``.
 """
 from __future__ import annotations
 
@@ -22,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pneumatic_env.ids import parse_env_id
+
 from .config import ConfigError, agent_config_path, load_agent_config
 
 __all__ = ["train", "evaluate", "add_arguments", "run"]
@@ -30,9 +33,8 @@ ALGOS = ("ppo", "sac")
 
 
 def _variant_of(env_id: str) -> str:
-    """``pneumatic_env/ForceTrack-Numatics-2m-v0`` -> ``numatics-2m``."""
-    name = env_id.split("/")[-1].rsplit("-v", 1)[0]
-    return "-".join(name.split("-")[1:]).lower()
+    """``pneumatic_env/ForceTrack-Numatics-2m-v0`` -> ``numatics-2m`` (the config files' key)."""
+    return parse_env_id(env_id).variant.lower()
 
 
 def evaluate(act, env_id: str, seeds, episode_steps: int, **env_kwargs) -> np.ndarray:
@@ -135,9 +137,9 @@ def train(algo: str, env_id: str, config: str | Path | dict, timesteps: int | No
     wall = time.perf_counter() - t0
     model.logger.close()  # flushes and closes progress.csv and the TensorBoard writer
     model.save(out / "model.zip")
-    core = base.venv.unwrapped.core
-    policy_env = {"env_id": env_id, "preview_steps": int(core.options.preview_steps),
-                  "normalize_observation": True, "action_scale_a": float(core.i_max)}
+    trained = base.venv.unwrapped
+    policy_env = {"env_id": env_id, "preview_steps": trained.preview_steps,
+                  "normalize_observation": True, "action_scale_a": trained.coil_current_max_a}
     export_policy(model, out / "model.npz", **policy_env)
     policy = NumpyPolicy(out / "model.npz")
     episode = int(cfg["episode_steps"])

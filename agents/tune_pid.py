@@ -1,6 +1,7 @@
 """Grid-search tuning of the classical controllers (PID by default; also the sliding mode).
 
-    python -m pneumatic_env.agents.tune_pid [--controller pid|sliding_mode] [--variants V ...] [--dry-run]
+    python -m pneumatic_env.agents.tune_pid [--controller pid|sliding_mode] [--variants V ...]
+        [--dry-run]
 
 The procedure lives in ``configs/agents/tuning.yaml``: a grid of gains, fixed values, tuning
 references (seeds and signals distinct from the benchmark's) and the objective
@@ -55,7 +56,7 @@ def grid_search(controller: str, variant: str, tuning: dict) -> dict:
     tr = closed_loop(env, ctrl, [r["reference"] for r in refs] * len(combos),
                      [r["seed"] for r in refs] * len(combos), n_steps)
     wall = time.perf_counter() - t0
-    scale = env.unwrapped.core.scale
+    scale = env.unwrapped.reference_scale
     env.close()
     e = tr["force_n"] - tr["reference_n"]
     rms_pct = (100 * np.sqrt(np.mean(e ** 2, axis=0)) / scale).reshape(len(combos), n_ref)
@@ -106,8 +107,8 @@ def tuned_config(controller: str, variant: str, result: dict, tuning_path: Path,
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pneumatic_env.agents.tune_pid", description=__doc__.split(
-        "\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m pneumatic_env.agents.tune_pid",
+                                     description=__doc__.split("\n")[0])
     parser.add_argument("--controller", default="pid", choices=sorted(CONTROLLERS))
     parser.add_argument("--variants", nargs="+", help="default: the benchmark suite's variants")
     parser.add_argument("--tuning", default="tuning", help="tuning config (configs/agents/...)")

@@ -29,9 +29,16 @@ import time
 import numpy as np
 
 from pneumatic_env.params import load_numerics
-from .paper import (COUPLINGS, CYLINDERS, STEP_TUBES_M, Scenario, clamped_step_scenario,
-                    free_sine_scenario)
 from pneumatic_env.replay import simulate_currents
+
+from .paper import (
+    COUPLINGS,
+    CYLINDERS,
+    STEP_TUBES_M,
+    Scenario,
+    clamped_step_scenario,
+    free_sine_scenario,
+)
 
 __all__ = ["SUBSTEPS", "scenarios", "fine_run", "errors", "chatter", "study", "markdown", "main"]
 
@@ -191,15 +198,18 @@ def markdown(result: dict) -> str:
     out += [f"## Flow linearisation (at {FINE_SUBSTEPS} substeps)", "",
             "Largest difference from the default `flow_linear_ratio` "
             f"{LINEAR_RATIOS[0]} (% of full scale).", "",
-            "| scenario | flow_linear_ratio | p1 % | p2 % | f % | x % |", "|---|---|---|---|---|---|"]
+            "| scenario | flow_linear_ratio | p1 % | p2 % | f % | x % |",
+            "|---|---|---|---|---|---|"]
     for r in rows:
         for ratio, e in r["linearisation"].items():
-            out.append(f"| {r['name']} | {ratio} | " + " | ".join(_fmt(e[k]) for k in CHANNELS) + " |")
+            out.append(f"| {r['name']} | {ratio} | "
+                       + " | ".join(_fmt(e[k]) for k in CHANNELS) + " |")
 
     out += ["", "## Chatter and NaN", "",
             "Sign changes of dp/dt between consecutive substeps while a chamber is within "
             f"{100 * NEAR_FRACTION:g}% of (supply - ambient) of supply or ambient; in brackets "
-            "those on consecutive substeps (period-2 oscillation). `NaN` marks a non-finite output.",
+            "those on consecutive substeps (period-2 oscillation). `NaN` marks a non-finite "
+            "output.",
             "", "| scenario | flow_linear_ratio | " + " | ".join(
                 f"{n} substeps" for n in SUBSTEPS + (FINE_SUBSTEPS,)) + " |",
             "|---|---|" + "---|" * (len(SUBSTEPS) + 1)]

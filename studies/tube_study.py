@@ -18,8 +18,9 @@ import numpy as np
 
 from pneumatic_env.params import load_numerics, load_parameters, parameter_array
 from pneumatic_env.physics import layout as L
-from .reference_solution import simulate_segmented_line
 from pneumatic_env.simulator import BatchSimulator
+
+from .reference_solution import simulate_segmented_line
 
 #: The compared tube models: label -> parameter overrides.
 TUBE_MODELS = {

@@ -1,4 +1,9 @@
-"""Shared fixtures and helpers of the physics and environment tests."""
+"""Shared fixtures and helpers of the physics and environment tests.
+
+``python -m pytest -q`` runs every test (about 7 minutes on two cores); tests that take
+over about 15 s carry ``@pytest.mark.slow``, so ``python -m pytest -q -m "not slow"`` is the
+quick run.
+"""
 from __future__ import annotations
 
 import numba
@@ -7,6 +12,28 @@ import pytest
 
 from pneumatic_env.params import load_numerics, load_parameters, parameter_array
 from pneumatic_env.simulator import BatchSimulator
+
+NO_VALUE = object()  # ``assert_error_names``: the message names no offending value
+
+
+def assert_error_names(error, field, value=NO_VALUE, rule=()) -> str:
+    """Assert that an error message names the field, the offending value and the rule it
+    breaks, without fixing the sentence around them; returns the message.
+
+    ``error`` is a ``pytest.raises`` result, an exception or a message. ``field`` is a text
+    (or several) the message must contain (a parameter, key, column or option name, or its
+    file); ``value`` must appear as its ``repr`` (``'heavy'``, ``-3.0``, ``True``), unless
+    it is ``NO_VALUE``; ``rule`` is one fragment or several of what is allowed (a range, the
+    allowed names, a limit). A few tests keep whole sentences as guards of the wording.
+    """
+    exc = getattr(error, "value", error)
+    message = str(exc)
+    fragments = [*([field] if isinstance(field, str) else field),
+                 *([] if value is NO_VALUE else [repr(value)]),
+                 *([rule] if isinstance(rule, str) else rule)]
+    missing = [f for f in fragments if f not in message]
+    assert not missing, f"the error {message!r} does not name {missing}"
+    return message
 
 
 @pytest.fixture

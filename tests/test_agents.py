@@ -45,8 +45,8 @@ def test_step_reaches_target_on_short_tube(controller, cylinder):
     refs = [{"kind": "step", "amplitude": 0.5, "step_time_s": step_time},
             {"kind": "step", "amplitude": -0.5, "step_time_s": step_time}]
     tr = closed_loop(env, ctrl, refs, [0, 1], n)
-    scale = env.unwrapped.core.scale
-    t = (np.arange(n) + 1) * env.unwrapped.core.dt
+    scale = env.unwrapped.reference_scale
+    t = (np.arange(n) + 1) * env.unwrapped.control_dt_s
     settled = t >= step_time + 0.2
     err = np.abs(tr["force_n"] - tr["reference_n"])[settled]
     assert np.all(err < 0.05 * scale), f"max |e| {err.max():.2f} N, scale {scale:.1f} N"
@@ -204,7 +204,7 @@ def test_adapter_rollout_equals_dummy_vec_env():
     np.testing.assert_array_equal(a.reset(), d.reset())
     rng = np.random.default_rng(0)
     n_done = 0
-    for k in range(3 * T):
+    for _ in range(3 * T):
         act = rng.uniform(-1.5, 1.5, (n, 1)).astype(np.float32)
         oa, ra, da, ia = a.step(act)
         od, rd, dd, id_ = d.step(act)
@@ -229,7 +229,7 @@ def test_adapter_spaces_shapes_and_action_scaling():
     obs, rew, done, infos = a.step(np.array([[1.0], [-0.5], [0.0], [3.0]], dtype=np.float32))
     assert rew.shape == (4,) and rew.dtype == np.float32 and done.dtype == bool
     assert len(infos) == 4
-    i_max = a.venv.unwrapped.core.i_max
+    i_max = a.venv.unwrapped.coil_current_max_a
     np.testing.assert_allclose([inf["coil_current_a"] for inf in infos],
                                [i_max, -0.5 * i_max, 0.0, i_max])  # 3.0 is clipped to 1
     assert a.get_attr("render_mode") == [None] * 4

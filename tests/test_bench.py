@@ -109,8 +109,23 @@ def test_suite_errors_name_the_field(tmp_path):
 
 def test_parse_variant():
     assert parse_variant("Airpel-2m") == "pneumatic_env/ForceTrack-Airpel-2m-v0"
+    assert parse_variant("Numatics-0.5m", "PositionTrack") == (
+        "pneumatic_env/PositionTrack-Numatics-0.5m-v0")
     with pytest.raises(ValueError, match="use one of"):
         parse_variant("airpel-2m")
+
+
+def test_default_preview_is_the_suite_s_not_the_env_s():
+    """Two facts: the benchmark's preview (configs/benchmark.yaml) and the env's default."""
+    from pneumatic_env.agents.bench import resolve_controller
+    from pneumatic_env.ids import ENV_PREVIEW_STEPS
+    suite = load_suite()
+    zero = resolve_controller("zero", "Numatics-2m")
+    assert zero.env_options["preview_steps"] == suite.preview_steps == 20
+    env = gym.make(parse_variant("Numatics-2m"))
+    assert env.unwrapped.preview_steps == ENV_PREVIEW_STEPS == 10
+    assert resolve_controller("zero", "Numatics-2m", preview_steps=3).env_options[
+        "preview_steps"] == 3
 
 
 # --------------------------------------------------------------------------- runner
@@ -127,7 +142,7 @@ def test_vector_runner_reproduces_the_single_env():
     venv = make_env("Airpel-0.5m", 2, n, preview_steps=20)
     tr = closed_loop(venv, PIDController(ControllerContext.from_env(venv), **gains), refs, seeds,
                      n)
-    scale = venv.unwrapped.core.scale
+    scale = venv.unwrapped.reference_scale
     for i in range(2):
         si = dict(refs[i], amplitude=refs[i]["amplitude"] * scale)
         env = gym.make("pneumatic_env/ForceTrack-Airpel-0.5m-v0", max_episode_steps=n,
@@ -158,7 +173,7 @@ def test_zero_controller_metrics_are_those_of_the_reference(zero_and_pid_results
     tmp, suite, out = zero_and_pid_results
     rows, traces = out["zero"]
     scale = traces["Numatics-0.5m"]["scale_n"]
-    n_ref = make_env("Numatics-0.5m", 1, 10, preview_steps=20).unwrapped.core.references.shape[1]
+    n_ref = make_env("Numatics-0.5m", 1, 10, preview_steps=20).unwrapped.references.shape[1]
     for task, row in zip(suite.tasks, rows):
         n = int(round(task.duration_s / DT))
         spec = dict(task.reference)

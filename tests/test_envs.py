@@ -64,9 +64,9 @@ def test_registered_ids_cover_tasks_cylinders_tubes():
         spec = gym.spec(env_id)
         assert spec.vector_entry_point is not None
         env = gym.make(env_id)
-        core = env.unwrapped.core
-        assert core.base_params["tube_length_m"] == spec.kwargs["tube_length_m"]
-        assert core.base_params["piston_mode"] == (0.0 if "ForceTrack" in env_id else 1.0)
+        base = env.unwrapped.base_params
+        assert base["tube_length_m"] == spec.kwargs["tube_length_m"]
+        assert base["piston_mode"] == (0.0 if "ForceTrack" in env_id else 1.0)
         env.close()
 
 
@@ -143,7 +143,7 @@ def test_vector_env_references_over_several_blocks_are_the_single_envs():
     sampled = [0, REFERENCE_BLOCK_ENVS - 1, REFERENCE_BLOCK_ENVS, n - 1]
     for env in sampled:
         single.reset(seed=11 + env)
-        assert np.array_equal(core.references[env], single.unwrapped.core.references[0])
+        assert np.array_equal(venv.unwrapped.references[env], single.unwrapped.references)
     core.step_count[0::2] = 2  # only the even envs end their episode in the next step
     before = core.references.copy()
     _, _, _, truncated, _ = venv.step(np.zeros((n, 1), np.float32))
@@ -153,7 +153,7 @@ def test_vector_env_references_over_several_blocks_are_the_single_envs():
         single.reset(seed=11 + env)
         if env % 2 == 0:
             single.reset()
-        assert np.array_equal(core.references[env], single.unwrapped.core.references[0])
+        assert np.array_equal(venv.unwrapped.references[env], single.unwrapped.references)
     venv.close()
 
 
@@ -180,7 +180,7 @@ def _references(env_id, seeds):
     out = []
     for s in seeds:
         env.reset(seed=s)
-        out.append(env.unwrapped.core.references[0].copy())
+        out.append(env.unwrapped.references.copy())
     return out
 
 
@@ -326,7 +326,7 @@ def test_params_file_from_save_parameters(tmp_path):
     save_parameters(path, {"supply_pressure_pa": 5.0e5, "dynamic_friction_n": 0.6},
                     notes="test fit")
     env = gym.make(FORCE_ID, params=str(path))
-    base = env.unwrapped.core.base_params
+    base = env.unwrapped.base_params
     assert base["supply_pressure_pa"] == 5.0e5 and base["dynamic_friction_n"] == 0.6
     assert base["tube_length_m"] == 0.5 and base["piston_mode"] == 0.0  # the id's own settings
     force = _steady_force(env)
@@ -357,13 +357,14 @@ def test_reward_formula_and_bounds(env_id):
     w_effort, w_chatter = 0.3, 0.2
     env = gym.make(env_id, effort_weight=w_effort, chatter_weight=w_chatter)
     env.reset(seed=2)
-    core = env.unwrapped.core
-    i_max, scale = core.i_max, core.scale
+    e = env.unwrapped
+    i_max, scale, base = e.coil_current_max_a, e.reference_scale, e.base_params
+    span = base["supply_pressure_pa"] - base["ambient_pressure_pa"]
     if "ForceTrack" in env_id:  # a force both chambers can hold: (P_s - P_a) A2
-        a1, a2, _ = areas(core.base_params)
-        assert scale == pytest.approx((core.ps - core.pa) * min(a1, a2), rel=1e-12)
+        a1, a2, _ = areas(base)
+        assert scale == pytest.approx(span * min(a1, a2), rel=1e-12)
     else:
-        assert scale == pytest.approx(0.5 * core.base_params["stroke_m"], rel=1e-12)
+        assert scale == pytest.approx(0.5 * base["stroke_m"], rel=1e-12)
     previous, rewards = 0.0, []
     for a in _actions(400, (1,), seed=4, low=-3.0, high=3.0):
         _, r, _, _, info = env.step(a)
@@ -393,14 +394,16 @@ def test_normalized_observation(env_id):
         raw.append(raw_env.step(a)[0])
         norm.append(norm_env.step(a)[0])
     raw, norm = np.array(raw, dtype=np.float64), np.array(norm, dtype=np.float64)
-    core = raw_env.unwrapped.core
-    span = core.ps - core.pa
-    a1, a2, _ = areas(core.base_params)
+    base = raw_env.unwrapped.base_params
+    pa = base["ambient_pressure_pa"]
+    span = base["supply_pressure_pa"] - pa
+    a1, a2, _ = areas(base)
     expected = np.empty_like(raw)
-    expected[:, :2] = (raw[:, :2] - core.pa) / span
-    expected[:, 2] = raw[:, 2] / (0.5 * core.base_params["stroke_m"])
+    expected[:, :2] = (raw[:, :2] - pa) / span
+    expected[:, 2] = raw[:, 2] / (0.5 * base["stroke_m"])
     expected[:, 3] = raw[:, 3] / (span * min(a1, a2))
-    expected[:, 4:] = raw[:, 4:] / core.scale  # the reference in the tracked channel's scale
+    # the reference in the tracked channel's scale
+    expected[:, 4:] = raw[:, 4:] / raw_env.unwrapped.reference_scale
     assert np.abs(norm).max() < 2.0
     np.testing.assert_allclose(norm, expected, rtol=1e-5, atol=1e-5)
     assert np.abs(norm).max() > 0.3  # not all near zero either
@@ -411,14 +414,14 @@ def test_fitted_load_cell_compliance_becomes_a_force_tracking_env(tmp_path):
     """A parameter file with the rod on a spring (identification's load_cell_compliance) is a
     ForceTrack env on that spring, not silently a rigid clamp; a rod mode the task cannot
     use is refused by keyword and overridden with a warning from a file."""
-    from pneumatic_env.physics.piston import MODE_FIXED, MODE_FREE, MODE_SPRING
+    from pneumatic_env.ids import MODE_FIXED, MODE_FREE, MODE_SPRING
 
     path = tmp_path / "rig.yaml"
     save_parameters(path, {"piston_mode": 2, "spring_stiffness_n_per_m": 5e5,
                            "spring_rest_position_m": 0.0, "static_friction_n": 0.0,
                            "dynamic_friction_n": 0.0}, notes="fitted load cell")
     env = gym.make(FORCE_ID, params=str(path))
-    assert env.unwrapped.core.base_params["piston_mode"] == MODE_SPRING
+    assert env.unwrapped.base_params["piston_mode"] == MODE_SPRING
     f = _steady_force(env)
     x = float(env.unwrapped.core.sim.outputs[L.O_X, 0])
     assert x > 0.0 and f == pytest.approx(5e5 * x, rel=1e-5)  # the cell reads k x
@@ -429,11 +432,229 @@ def test_fitted_load_cell_compliance_becomes_a_force_tracking_env(tmp_path):
         gym.make(FORCE_ID, piston_mode="free")
     with pytest.warns(UserWarning, match="does not fit PositionTrack"):
         position = gym.make(POSITION_ID, params=str(path))
-    assert position.unwrapped.core.base_params["piston_mode"] == MODE_FREE
+    assert position.unwrapped.base_params["piston_mode"] == MODE_FREE
     silent = tmp_path / "no_rod.yaml"  # a file that says nothing of the rod: no warning
     save_parameters(silent, {"supply_pressure_pa": 5.5e5}, notes="fit")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert gym.make(POSITION_ID, params=str(silent)).unwrapped.core.base_params[
+        assert gym.make(POSITION_ID, params=str(silent)).unwrapped.base_params[
             "piston_mode"] == MODE_FREE
-    assert gym.make(FORCE_ID).unwrapped.core.base_params["piston_mode"] == MODE_FIXED
+    assert gym.make(FORCE_ID).unwrapped.base_params["piston_mode"] == MODE_FIXED
+
+
+# --------------------------------------------------------------------------- reset(options)
+
+SINE = {"kind": "sine", "amplitude": 30.0, "frequency_hz": 7.0, "offset": 5.0}
+STEPS = {"kind": "random_step", "amplitude": 40.0, "hold_min_s": 0.01, "hold_max_s": 0.02}
+
+
+def _rollout(env, n_steps=60, seed=0):
+    out = []
+    for a in _actions(n_steps, (1,), seed=seed):
+        obs, r, *_ = env.step(a)
+        out.append(np.append(obs, r))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("spec", [SINE, STEPS], ids=["sine", "random_step"])
+def test_reset_reference_option_is_the_reference_keyword_for_one_episode(spec):
+    """reset(options={"reference": spec}) gives the episode of gym.make(reference=spec) with
+    that seed (a random spec draws from the env's generator where the default would); the
+    next reset without it goes back to the env's own reference."""
+    given = gym.make(FORCE_ID, reference=spec)
+    env = gym.make(FORCE_ID)
+    own = gym.make(FORCE_ID)
+    obs_given, _ = given.reset(seed=5)
+    obs, _ = env.reset(seed=5, options={"reference": spec})
+    assert np.array_equal(obs, obs_given)
+    assert np.array_equal(env.unwrapped.references, given.unwrapped.references)
+    assert np.array_equal(_rollout(env), _rollout(given))
+    env.reset(seed=6)
+    own.reset(seed=6)
+    assert np.array_equal(env.unwrapped.references, own.unwrapped.references)
+    assert not np.array_equal(env.unwrapped.references, given.unwrapped.references)
+
+
+def test_reset_reference_option_takes_samples():
+    env = gym.make(FORCE_ID, preview_steps=3)
+    samples = np.array([0.0, 10.0, 20.0, 15.0])
+    obs, _ = env.reset(seed=0, options={"reference": samples})
+    refs = env.unwrapped.references
+    assert np.array_equal(refs[:4], samples) and np.all(refs[4:] == 15.0)  # held at its end
+    assert np.array_equal(obs[4:], samples.astype(np.float32))
+    _, _, _, _, info = env.step(np.zeros(1, np.float32))
+    assert info["reference"] == 10.0
+
+
+def test_vector_reset_reference_option_equals_single_envs():
+    """Per-env references (a spec, the env's own, samples; or one 2-D array) give env i the
+    single env's episode with that reference and seed; autoresets use the env's own."""
+    n_steps = EPISODE + 5
+    samples = np.linspace(-20.0, 20.0, 30)
+    venv = gym.make_vec(FORCE_ID, num_envs=3, **SHORT)
+    vobs, _ = venv.reset(seed=[4, 5, 6], options={"reference": [STEPS, None, samples]})
+    envs = [gym.make(FORCE_ID, **SHORT) for _ in range(3)]
+    obs = [env.reset(seed=s, options=o)[0] for env, s, o in zip(
+        envs, (4, 5, 6), ({"reference": STEPS}, None, {"reference": samples}))]
+    assert np.array_equal(vobs, np.stack(obs))
+    for action in _actions(n_steps, (3, 1)):
+        vobs, vrew, _, vtrunc, _ = venv.step(action)
+        for i, env in enumerate(envs):
+            o, r, _, trunc, _ = env.step(action[i])
+            if trunc:
+                o, _ = env.reset()  # the env's own reference again
+            assert r == vrew[i] and np.array_equal(vobs[i], o)
+    rows = np.stack([samples, -samples])
+    venv2 = gym.make_vec(FORCE_ID, num_envs=2)
+    venv2.reset(seed=0, options={"reference": rows})
+    for i in range(2):
+        env = gym.make(FORCE_ID)
+        env.reset(seed=i, options={"reference": rows[i]})
+        assert np.array_equal(venv2.unwrapped.references[i], env.unwrapped.references)
+    venv2.reset(seed=0, options={"reference": SINE})  # one spec for every env
+    assert np.array_equal(venv2.unwrapped.references[0], venv2.unwrapped.references[1])
+
+
+@pytest.mark.parametrize("options,field,rule", [
+    ({"referense": SINE}, "options key = 'referense'", "must be one of ['reference']"),
+    ({"reference": {"kind": "sine", "amplitude": 1.0}}, "options['reference']",
+     "missing key(s) ['frequency_hz']"),
+    ({"reference": [1.0, np.nan]}, "options['reference']", "finite samples"),
+    ({"reference": "sine"}, "options['reference']", "reference spec"),
+    ([("reference", SINE)], "options", "a dict with keys from ['reference']"),
+])
+def test_reset_options_errors_single_env(options, field, rule):
+    env = gym.make(FORCE_ID)
+    with pytest.raises(ValueError) as err:
+        env.reset(seed=0, options=options)
+    message = str(err.value)
+    assert message.startswith(field) and "is not allowed" in message and rule in message
+
+
+@pytest.mark.parametrize("reference,field,rule", [
+    ([SINE, SINE, SINE], "options['reference'] (3 entries)", "num_envs = 2"),
+    (np.zeros(5), "options['reference'] (shape (5,))", "a 2-D array (2, n_samples)"),
+    (np.zeros((3, 5)), "options['reference'] (shape (3, 5))", "num_envs = 2"),
+    ([SINE, {"kind": "wave"}], "options['reference'][1]", "unknown reference kind 'wave'"),
+    ([None, [0.0, np.inf]], "options['reference'][1]", "finite samples"),
+])
+def test_reset_options_errors_vector_env(reference, field, rule):
+    venv = gym.make_vec(FORCE_ID, num_envs=2)
+    venv.reset(seed=1)
+    before = venv.unwrapped.references.copy()
+    with pytest.raises(ValueError) as err:
+        venv.reset(seed=2, options={"reference": reference})
+    message = str(err.value)
+    assert message.startswith(field) and "is not allowed" in message and rule in message
+    assert np.array_equal(venv.unwrapped.references, before)  # nothing was reset
+
+
+# --------------------------------------------------------------------------- properties
+
+@pytest.mark.parametrize("make", [gym.make, lambda i, **kw: gym.make_vec(i, num_envs=3, **kw)],
+                         ids=["single", "vector"])
+@pytest.mark.parametrize("env_id", [FORCE_ID, POSITION_ID])
+def test_env_properties_are_the_task_core_values(make, env_id):
+    env = make(env_id, preview_steps=7, normalize_observation=True, supply_pressure_pa=6e5)
+    env.reset(seed=1)
+    e, core = env.unwrapped, env.unwrapped.core
+    assert dict(e.base_params) == core.base_params
+    assert e.base_params["supply_pressure_pa"] == 6e5
+    assert e.control_dt_s == core.dt == 1e-3
+    assert e.coil_current_max_a == core.i_max
+    assert e.force_scale_n == core.force_scale
+    assert e.reference_scale == core.scale
+    assert e.reference_scale == (core.force_scale if "Force" in env_id
+                                 else 0.5 * core.base_params["stroke_m"])
+    assert e.preview_steps == 7 and e.normalize_observation is True
+    assert e.task is core.task and e.reference_spec is core.reference_spec
+    assert e.observation_scales.supply_pa == 6e5
+    refs = e.references
+    assert np.array_equal(refs, core.references[0] if refs.ndim == 1 else core.references)
+    with pytest.raises(TypeError):
+        e.base_params["supply_pressure_pa"] = 1.0
+    with pytest.raises(ValueError, match="read-only"):
+        refs[0] = 1.0
+    with pytest.raises(AttributeError):
+        e.control_dt_s = 2e-3
+
+
+def test_controller_inverts_the_env_normalisation():
+    """Controller.observation_si undoes normalize_observation (one definition of the scales)."""
+    from pneumatic_env.agents.base import ControllerContext, ZeroController
+    raw_env, norm_env = gym.make(FORCE_ID), gym.make(FORCE_ID, normalize_observation=True)
+    raw, norm = [raw_env.reset(seed=2)[0]], [norm_env.reset(seed=2)[0]]
+    for a in _actions(100, (1,), seed=1):
+        raw.append(raw_env.step(a)[0])
+        norm.append(norm_env.step(a)[0])
+    ctrl = ZeroController(ControllerContext.from_env(norm_env))
+    si = ctrl.observation_si(np.array(norm, dtype=np.float64))
+    np.testing.assert_allclose(si, np.array(raw, dtype=np.float64), rtol=1e-6, atol=1e-9)
+
+
+# --------------------------------------------------------------------------- ids, public API
+
+def test_env_id_and_parse_env_id_round_trip():
+    from pneumatic_env.ids import EnvId, env_id, parse_env_id
+    for name in pneumatic_env.registered_ids():
+        parts = parse_env_id(name)
+        assert env_id(*parts) == parts.id == name
+        spec = gym.spec(name)
+        assert spec.kwargs == {"task": parts.task, "cylinder": parts.cylinder_id,
+                               "tube_length_m": parts.tube_length_m}
+    assert parse_env_id("ForceTrack-Airpel-0.5m-v0") == EnvId("ForceTrack", "Airpel", "0.5")
+    assert env_id("PositionTrack", "airpel-E16D3.0N", 2.0) == POSITION_ID
+    assert env_id("ForceTrack", "NUMATICS", "0.5") == FORCE_ID
+    assert pneumatic_env.make("ForceTrack", "numatics", 0.5).spec.id == FORCE_ID
+
+
+@pytest.mark.parametrize("call,field", [
+    (lambda: pneumatic_env.env_id("Balance", "Numatics", 2), "task = 'Balance'"),
+    (lambda: pneumatic_env.env_id("ForceTrack", "festo", 2), "cylinder = 'festo'"),
+    (lambda: pneumatic_env.env_id("ForceTrack", "Numatics", 1.5), "tube = 1.5"),
+    (lambda: pneumatic_env.parse_env_id("pneumatic_env/ForceTrack-Numatics-2m-v1"),
+     "env id = 'pneumatic_env/ForceTrack-Numatics-2m-v1'"),
+    (lambda: pneumatic_env.parse_env_id("ForceTrack-Numatics-7m-v0"),
+     "env id = 'ForceTrack-Numatics-7m-v0'"),
+])
+def test_bad_ids_are_refused(call, field):
+    with pytest.raises(ValueError) as err:
+        call()
+    assert str(err.value).startswith(field + " is not allowed: use ")
+
+
+def test_public_api_resolves_and_is_documented():
+    import pydoc
+    assert len(pneumatic_env.__all__) == len(set(pneumatic_env.__all__))
+    for name in pneumatic_env.__all__:
+        assert getattr(pneumatic_env, name) is not None, name
+    assert pneumatic_env.PneumaticTrackingVectorEnv is gym.make_vec(
+        FORCE_ID, num_envs=2).unwrapped.__class__
+    text = pydoc.render_doc(pneumatic_env, renderer=pydoc.plaintext)
+    for name in ("make", "make_vec", "env_id", "parse_env_id", "registered_ids",
+                 "load_parameters", "read_recording", "simulate_recording", "BatchSimulator",
+                 "PneumaticTrackingEnv", "TaskSpec"):
+        assert f"\n    {name}(" in text or f"class {name}" in text, name
+    with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
+        pneumatic_env.nonexistent  # noqa: B018
+
+
+def test_importing_the_package_loads_no_heavy_dependency():
+    import subprocess
+    import sys
+    heavy = ("torch", "matplotlib", "stable_baselines3")
+    code = ("import sys, pneumatic_env; pneumatic_env.registered_ids(); "
+            f"print([m for m in {heavy!r} if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_env_docstrings_state_spaces_reward_options_and_episode_end():
+    for cls in (pneumatic_env.PneumaticTrackingEnv, pneumatic_env.PneumaticTrackingVectorEnv):
+        doc = cls.__doc__
+        for section in ("## Description", "## Action Space", "## Observation Space",
+                        "## Rewards", "## Starting State", "## Episode End", "## Arguments",
+                        "## Version History"):
+            assert section in doc, (cls.__name__, section)
+        assert 'options={"reference"' in doc and "terminated`` is always False" in doc

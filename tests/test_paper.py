@@ -7,8 +7,14 @@ import pytest
 
 from pneumatic_env.cli import main
 from pneumatic_env.params import load_parameters
-from pneumatic_env.studies.paper import (clamped_step_runs, step_metrics, tube_response,
-                                 valve_flow_vs_current, valve_flow_vs_downstream, valve_numbers)
+from pneumatic_env.studies.paper import (
+    clamped_step_runs,
+    step_metrics,
+    tube_response,
+    valve_flow_vs_current,
+    valve_flow_vs_downstream,
+    valve_numbers,
+)
 
 P = load_parameters("numatics-0750D02-03A")
 
@@ -42,7 +48,8 @@ def test_long_tube_more_than_doubles_the_time_to_final_force(step, coupling):
 
 
 def test_literal_coupling_oscillates_near_supply_with_the_long_tube(step):
-    cmd, lit = step["command"]["p1_oscillation_amplitude_pa"], step["literal"]["p1_oscillation_amplitude_pa"]
+    cmd = step["command"]["p1_oscillation_amplitude_pa"]
+    lit = step["literal"]["p1_oscillation_amplitude_pa"]
     assert cmd["0.5"] < 100.0 and cmd["2.0"] < 100.0  # the default coupling settles
     assert lit["2.0"] > 20e3 and lit["2.0"] > 5.0 * lit["0.5"]
 

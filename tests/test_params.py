@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
+from conftest import assert_error_names
 from pneumatic_env import params as P
 from pneumatic_env.params import (
     CYLINDER_PARAMETERS,
@@ -44,7 +45,7 @@ def test_every_parameter_defined_once_with_value_unit_source():
     cfg = config_dir()
     seen = {}
     for fname in P.BASE_FILES:
-        for name, entry in _raw(cfg / fname).items():
+        for name in _raw(cfg / fname):
             assert name not in seen, f"{name} in {fname} and {seen[name]}"
             seen[name] = fname
     for name in PARAMETER_NAMES:
@@ -59,7 +60,8 @@ def test_every_parameter_defined_once_with_value_unit_source():
         for name in PARAMETER_NAMES:
             info = parameter_info(name, cylinder=canonical)
             assert info["unit"] and info["source"]
-            assert info["source"].startswith(("paper ", "assumed: ", "assumed, chosen by measurement: ")), (name, info["source"])
+            assert info["source"].startswith(
+                ("paper ", "assumed: ", "assumed, chosen by measurement: ")), (name, info["source"])
             if name in DISCRETE_PARAMETERS:
                 assert set(info["allowed"]) == set(DISCRETE_PARAMETERS[name])
             else:
@@ -72,8 +74,9 @@ def test_numerics_not_in_parameter_rows():
                                "substeps": int(numerics_yaml["substeps"]["value"])}
     assert isinstance(load_numerics()["substeps"], int)
     assert load_numerics(substeps=40)["substeps"] == 40
-    with pytest.raises(ConfigError, match=r"must be a whole number"):
+    with pytest.raises(ConfigError) as exc:
         load_numerics(substeps=2.5)
+    assert_error_names(exc, "substeps", 2.5, ("whole number", "[1.0, 100000.0]"))
     assert "control_dt_s" not in load_parameters()
     assert parameter_info("control_dt_s")["unit"] == "s"
 
@@ -124,6 +127,7 @@ def test_cylinder_aliases_case_insensitive():
 def test_unknown_cylinder_lists_known():
     with pytest.raises(ConfigError) as exc:
         load_parameters("festo")
+    # a guard of the wording: the whole sentence
     assert str(exc.value) == (
         "unknown cylinder 'festo'; known cylinders: 'numatics-0750D02-03A' (alias "
         "'numatics'), 'airpel-E16D3.0N' (alias 'airpel')")
@@ -139,8 +143,9 @@ def test_overrides_params_and_discrete_names(tmp_path):
                                 "load_mass_kg": {"value": 0.2, "unit": "kg"}},
                         supply_pressure_pa=4e5)
     assert v["supply_pressure_pa"] == 4e5 and v["load_mass_kg"] == 0.2
-    with pytest.raises(ConfigError, match=r"^params: entry 'load_mass_kg' has unit 'g'"):
+    with pytest.raises(ConfigError) as exc:
         load_parameters(params={"load_mass_kg": {"value": 200, "unit": "g"}})
+    assert_error_names(exc, ("params", "load_mass_kg"), "g", "'kg'")
 
 
 # --------------------------------------------------------------------------- error messages
@@ -153,68 +158,62 @@ def _error(**kw):
 
 
 def test_unknown_field_suggests_close_match():
+    # a guard of the wording: the whole sentence
     assert _error(suply_pressure_pa=5e5) == (
         "override 'suply_pressure_pa' is not a known parameter; did you mean "
         "'supply_pressure_pa'?")
-    assert _error(alpha=1.2) == (
-        "override 'alpha' is not a known parameter; did you mean 'alpha_in' or 'alpha_out'?")
-    assert _error(params={"bore_diam": 0.02}) == (
-        "params 'bore_diam' is not a known parameter; did you mean 'bore_diameter_m'?")
-    assert _error(bore=0.02).endswith("did you mean 'bore_diameter_m'?")
-    assert _error(zzz=1).endswith("known names are pneumatic_env.physics.layout.PARAMETER_NAMES")
+    assert_error_names(_error(alpha=1.2), ("override", "'alpha'"),
+                       rule=("'alpha_in'", "'alpha_out'"))
+    assert_error_names(_error(params={"bore_diam": 0.02}), ("params", "'bore_diam'"),
+                       rule="'bore_diameter_m'")
+    assert_error_names(_error(bore=0.02), "'bore'", rule="'bore_diameter_m'")
+    assert_error_names(_error(zzz=1), "'zzz'", rule="pneumatic_env.physics.layout.PARAMETER_NAMES")
 
 
 def test_out_of_range():
+    # a guard of the wording: the whole sentence
     assert _error(supply_pressure_pa=-3.0) == (
         "override 'supply_pressure_pa' = -3.0 is not allowed: must be in "
         "[100000.0, 2000000.0] Pa")
-    assert _error(discharge_coefficient=0) == (
-        "override 'discharge_coefficient' = 0 is not allowed: must be in (0.0, 1.0]")
+    assert_error_names(_error(discharge_coefficient=0), "discharge_coefficient", 0, "(0.0, 1.0]")
 
 
 def test_nan_and_non_numeric():
-    assert _error(temperature_k=float("nan")) == (
-        "override 'temperature_k' = nan is not allowed: must be a finite number in (0.0, inf] K")
-    assert _error(load_mass_kg="heavy") == (
-        "override 'load_mass_kg' = 'heavy' is not allowed: must be a number in [0.0, inf] kg")
-    assert _error(load_mass_kg="0.5").startswith("override 'load_mass_kg' = '0.5' is not allowed")
-    assert _error(load_mass_kg=True).startswith("override 'load_mass_kg' = True is not allowed")
+    assert_error_names(_error(temperature_k=float("nan")), "temperature_k", float("nan"),
+                       ("finite number", "(0.0, inf] K"))
+    assert_error_names(_error(load_mass_kg="heavy"), "load_mass_kg", "heavy",
+                       ("number", "[0.0, inf] kg"))
+    assert_error_names(_error(load_mass_kg="0.5"), "load_mass_kg", "0.5", "[0.0, inf] kg")
+    assert_error_names(_error(load_mass_kg=True), "load_mass_kg", True, "[0.0, inf] kg")
 
 
 def test_cross_field_rules():
-    assert _error(supply_pressure_pa=1.005e5) == (
-        "override 'supply_pressure_pa' = 100500.0 is not allowed: must be greater than "
-        "ambient_pressure_pa = 101325.0 Pa")
-    assert _error(ambient_pressure_pa=1.5e5, params={"supply_pressure_pa": 1.2e5}) == (
-        "override 'ambient_pressure_pa' = 150000.0 is not allowed: must be less than "
-        "supply_pressure_pa = 120000.0 Pa")
-    assert _error(rod_diameter_m=19.05e-3) == (
-        "override 'rod_diameter_m' = 0.01905 is not allowed: must be less than "
-        "bore_diameter_m = 0.01905 m")
-    assert _error(cylinder="airpel", bore_diameter_m=4e-3) == (
-        "override 'bore_diameter_m' = 0.004 is not allowed: must be greater than "
-        "rod_diameter_m = 0.00476 m")
-    assert _error(fixed_position_m=-0.04) == (
-        "override 'fixed_position_m' = -0.04 is not allowed: must be within "
-        "+-stroke_m/2 = 0.0381 m")
-    assert "spring_rest_position_m" in _error(spring_rest_position_m=0.05)
-    assert _error(alpha_in=1.5) == (
-        "override 'alpha_in' = 1.5 is not allowed: must be at most heat_capacity_ratio = 1.4")
-    assert _error(flow_linear_ratio=0.5).startswith(
-        "override 'flow_linear_ratio' = 0.5 is not allowed: must be in (P_cr, 1) = "
-        "(0.528")
+    assert_error_names(_error(supply_pressure_pa=1.005e5), "supply_pressure_pa", 100500.0,
+                       ("greater than", "ambient_pressure_pa = 101325.0 Pa"))
+    assert_error_names(_error(ambient_pressure_pa=1.5e5, params={"supply_pressure_pa": 1.2e5}),
+                       "ambient_pressure_pa", 150000.0,
+                       ("less than", "supply_pressure_pa = 120000.0 Pa"))
+    assert_error_names(_error(rod_diameter_m=19.05e-3), "rod_diameter_m", 0.01905,
+                       ("less than", "bore_diameter_m = 0.01905 m"))
+    assert_error_names(_error(cylinder="airpel", bore_diameter_m=4e-3), "bore_diameter_m",
+                       0.004, ("greater than", "rod_diameter_m = 0.00476 m"))
+    assert_error_names(_error(fixed_position_m=-0.04), "fixed_position_m", -0.04,
+                       "+-stroke_m/2 = 0.0381 m")
+    assert_error_names(_error(spring_rest_position_m=0.05), "spring_rest_position_m", 0.05,
+                       "+-stroke_m/2 = 0.0381 m")
+    assert_error_names(_error(alpha_in=1.5), "alpha_in", 1.5,
+                       ("at most", "heat_capacity_ratio = 1.4"))
+    assert_error_names(_error(flow_linear_ratio=0.5), "flow_linear_ratio", 0.5,
+                       ("(P_cr, 1)", "(0.528"))
     assert load_parameters(fixed_position_m=0.0381)["fixed_position_m"] == 0.0381
 
 
 def test_bad_discrete_value():
-    expected = ("override 'tube_coupling' = {} is not allowed: must be one of "
-                "0 ('command'), 1 ('literal')")
-    assert _error(tube_coupling="delayed") == expected.format("'delayed'")
-    assert _error(tube_coupling=0.5) == expected.format("0.5")
-    assert _error(tube_coupling=2) == expected.format("2")
-    assert _error(piston_mode="clamped") == (
-        "override 'piston_mode' = 'clamped' is not allowed: must be one of "
-        "0 ('fixed'), 1 ('free'), 2 ('spring')")
+    for value in ("delayed", 0.5, 2):
+        assert_error_names(_error(tube_coupling=value), "tube_coupling", value,
+                           ("0 ('command')", "1 ('literal')"))
+    assert_error_names(_error(piston_mode="clamped"), "piston_mode", "clamped",
+                       ("0 ('fixed')", "1 ('free')", "2 ('spring')"))
 
 
 def test_malformed_config_files(tmp_path, monkeypatch):
@@ -225,25 +224,26 @@ def test_malformed_config_files(tmp_path, monkeypatch):
     air.write_text(text.replace('  unit: Pa s\n', ''))
     with pytest.raises(ConfigError) as exc:
         load_parameters()
-    assert str(exc.value) == f"{air}: entry 'air_viscosity_pa_s' is missing key 'unit'"
+    assert_error_names(exc, (str(air), "air_viscosity_pa_s"), rule="'unit'")
     air.write_text(text.replace("value: 6.5e+5", "value: 5.0e+4"))
     with pytest.raises(ConfigError) as exc:
         load_parameters()
-    assert str(exc.value) == (f"{air} 'supply_pressure_pa' = 50000.0 is not allowed: must be "
-                              f"in [100000.0, 2000000.0] Pa")
+    assert_error_names(exc, (str(air), "supply_pressure_pa"), 50000.0,
+                       "[100000.0, 2000000.0] Pa")
     air.write_text(text + "\nbroken: [\n")
-    with pytest.raises(ConfigError, match=r"air\.yaml: invalid YAML"):
+    with pytest.raises(ConfigError) as exc:
         load_parameters()
+    assert_error_names(exc, str(air), rule="YAML")
     air.write_text(text.replace("alpha_motion:", "alpha_motoin:"))
-    with pytest.raises(ConfigError, match=r"air\.yaml: 'alpha_motoin' is not a known "
-                                          r"parameter; did you mean 'alpha_motion'"):
+    with pytest.raises(ConfigError) as exc:
         load_parameters()
+    assert_error_names(exc, (str(air), "'alpha_motoin'"), rule="'alpha_motion'")
     air.write_text(text)
     cyl = cfg / "cylinders" / f"{NUMATICS}.yaml"
     cyl.write_text(cyl.read_text().replace("value: 6.35e-3", "value: 25.0e-3"))
     with pytest.raises(ConfigError) as exc:
         load_parameters()
-    assert str(exc.value).startswith(f"{cyl} 'rod_diameter_m' = 0.025 is not allowed")
+    assert_error_names(exc, (str(cyl), "rod_diameter_m"), 0.025, "bore_diameter_m")
 
 
 def test_cylinder_file_overrides_and_custom_cylinder(tmp_path, monkeypatch):
@@ -254,7 +254,7 @@ def test_cylinder_file_overrides_and_custom_cylinder(tmp_path, monkeypatch):
     (cfg / "cylinders" / "my-cyl.yaml").write_text(src + extra)
     assert load_parameters("MY-CYL")["supply_pressure_pa"] == 4e5
     assert load_parameters(cfg / "cylinders" / "my-cyl.yaml")["supply_pressure_pa"] == 4e5
-    assert "'my-cyl'" in _error(cylinder="nope")
+    assert_error_names(_error(cylinder="nope"), "'nope'", rule="'my-cyl'")
 
 
 # --------------------------------------------------------------------------- save / array
@@ -280,8 +280,9 @@ def test_save_load_round_trip(tmp_path):
     save_parameters(path, {"supply_pressure_pa": 5.5e5})
     assert load_parameters(params=path) == load_parameters(supply_pressure_pa=5.5e5)
     assert _raw(path)["supply_pressure_pa"]["source"] == "fitted"
-    with pytest.raises(ConfigError, match=r"'supply_pressure_pa' = -1\.0 is not allowed"):
+    with pytest.raises(ConfigError) as exc:
         save_parameters(path, {"supply_pressure_pa": -1.0})
+    assert_error_names(exc, "supply_pressure_pa", -1.0, "[100000.0, 2000000.0] Pa")
 
 
 def test_params_file_edits_are_seen(tmp_path):
@@ -294,8 +295,7 @@ def test_params_file_edits_are_seen(tmp_path):
     path.write_text("load_mas_kg: 0.25\n")
     with pytest.raises(ConfigError) as exc:
         load_parameters(params=path)
-    assert str(exc.value) == (f"{path} 'load_mas_kg' is not a known parameter; "
-                              f"did you mean 'load_mass_kg'?")
+    assert_error_names(exc, (str(path), "'load_mas_kg'"), rule="'load_mass_kg'")
 
 
 def test_parameter_array():
@@ -311,15 +311,17 @@ def test_parameter_array():
     assert np.array_equal(one[:, 0], arr[:, 0])
     incomplete = dict(a)
     del incomplete["stroke_m"]
-    with pytest.raises(ConfigError, match=r"'stroke_m' is missing"):
+    with pytest.raises(ConfigError) as exc:
         parameter_array([a, incomplete])
+    assert_error_names(exc, ("parameter set 1", "stroke_m"), rule="missing")
 
 
 def test_config_dir_env_override(tmp_path, monkeypatch):
     default = config_dir()
     assert (default / "air.yaml").is_file()
     monkeypatch.setenv(P.CONFIG_DIR_ENV, str(tmp_path / "missing"))
-    with pytest.raises(ConfigError, match="is not a directory"):
+    with pytest.raises(ConfigError) as exc:
         config_dir()
+    assert_error_names(exc, P.CONFIG_DIR_ENV, str(tmp_path / "missing"), "not a directory")
     cfg = _copy_configs(tmp_path, monkeypatch)
     assert config_dir() == cfg.resolve()

@@ -1,4 +1,4 @@
-"""Tests of the high-accuracy reference solution (studies/reference_solution.py).
+"""Tests of the high-accuracy reference solution (studies/reference_solution/).
 
 The parameter set is built here from the reference table (Numatics cylinder) so the tests
 do not depend on the config loader.

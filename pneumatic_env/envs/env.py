@@ -1,18 +1,33 @@
 """Gymnasium environments: ``PneumaticTrackingEnv`` (single) and ``PneumaticTrackingVectorEnv``.
 
-Both are thin shells over ``TaskCore``; the README's *Spaces and reward* describes the
-spaces and the reward.
+Both are thin shells over ``TaskCore``; their docstrings state the spaces, the reward, the
+options and the episode end.
 """
 from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from types import MappingProxyType
+from typing import TYPE_CHECKING, Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
+from numpy.typing import NDArray
 
-from .tasks import DEFAULT_EPISODE_STEPS, TASKS, EnvOptions, TaskCore
+from .. import ids
+from ..references import ReferenceSpec
+from .observation import ObservationScales
+from .tasks import TASKS, EnvOptions, TaskCore, TaskSpec
+
+if TYPE_CHECKING:
+    from .render import Trace
+
+__all__ = ["PneumaticTrackingEnv", "PneumaticTrackingVectorEnv", "RESET_OPTIONS"]
 
 _OPTION_NAMES = set(EnvOptions.__dataclass_fields__)
+#: Keys ``reset(options=...)`` accepts.
+RESET_OPTIONS = ("reference",)
 
 
 def _split_kwargs(kwargs: dict) -> tuple[EnvOptions, dict]:
@@ -25,23 +40,215 @@ def _check_render_mode(render_mode) -> None:
         raise ValueError(f"render_mode = {render_mode!r} is not allowed: use 'rgb_array' or None")
 
 
-def _task(name: str):
+def _task(name: str) -> TaskSpec:
     if name not in TASKS:
         raise ValueError(f"task = {name!r} is not known: allowed {sorted(TASKS)}")
     return TASKS[name]
 
 
-class PneumaticTrackingEnv(gym.Env):
-    """One actuator; action = coil current (A), observation = [p1, p2, x, f, ref, preview...].
+def _reset_references(core: TaskCore, options, n_envs: int | None
+                      ) -> list[ReferenceSpec | None] | None:
+    """The per-env references of ``reset(options=...)`` (None: every env's own spec).
 
-    Keyword arguments: ``task``, ``cylinder``, ``tube_length_m``, ``params`` (a fitted
-    parameter YAML or mapping), the ``EnvOptions`` fields, ``render_mode``, and any physical
-    parameter by name (``supply_pressure_pa=5e5``), validated by the config loader.
+    ``n_envs`` None: the single env (one reference); else the vector env's rules.
+    """
+    if options is None:
+        return None
+    if not isinstance(options, Mapping):
+        raise ValueError(f"options = {options!r} is not allowed: must be None or a dict with "
+                         f"keys from {list(RESET_OPTIONS)}")
+    for key in options:
+        if key not in RESET_OPTIONS:
+            raise ValueError(f"options key = {key!r} is not allowed: must be one of "
+                             f"{list(RESET_OPTIONS)}")
+    value = options.get("reference")
+    if value is None:
+        return None
+    field = "options['reference']"
+    if n_envs is None or isinstance(value, (ReferenceSpec, Mapping)):
+        spec = core.episode_reference(value, field)
+        return [spec] * (n_envs or 1)
+    rows: Sequence[Any] | np.ndarray | None = None
+    if isinstance(value, np.ndarray):
+        rows = value if value.ndim == 2 else None
+    elif isinstance(value, Sequence) and not isinstance(value, str):
+        rows = value
+    if rows is None or len(rows) != n_envs:
+        given = (f"shape {value.shape}" if isinstance(value, np.ndarray)
+                 else f"{len(rows)} entries" if rows is not None else type(value).__name__)
+        raise ValueError(f"{field} ({given}) is not allowed: must be one reference spec "
+                         f"for all envs, a list of num_envs = {n_envs} entries (a spec, a 1-D "
+                         f"sample array or None for the env's own) or a 2-D array "
+                         f"({n_envs}, n_samples)")
+    return [None if row is None else core.episode_reference(row, f"{field}[{i}]")
+            for i, row in enumerate(rows)]
+
+
+class _TaskProperties:
+    """Read-only views of the task an env runs (shared by the single and the vector env)."""
+
+    core: TaskCore
+
+    @property
+    def task(self) -> TaskSpec:
+        """The task (what is tracked, the default reference, the rod modes)."""
+        return self.core.task
+
+    @property
+    def base_params(self) -> Mapping[str, float]:
+        """The model parameters (``load_parameters`` names, SI units), read-only; with
+        ``domain_randomization`` the centre values."""
+        return MappingProxyType(self.core.base_params)
+
+    @property
+    def control_dt_s(self) -> float:
+        """The control period (s): one ``step``."""
+        return float(self.core.dt)
+
+    @property
+    def coil_current_max_a(self) -> float:
+        """The action bound (A)."""
+        return float(self.core.i_max)
+
+    @property
+    def force_scale_n(self) -> float:
+        """(P_s - P_a) min(A1, A2) (N): divides the force when normalised."""
+        return float(self.core.force_scale)
+
+    @property
+    def reference_scale(self) -> float:
+        """The tracked channel's unit: the force scale (N) or the half stroke (m); divides
+        the error in the reward and the reference when normalised."""
+        return float(self.core.scale)
+
+    @property
+    def preview_steps(self) -> int:
+        """Reference samples ahead in the observation."""
+        return int(self.core.options.preview_steps)
+
+    @property
+    def normalize_observation(self) -> bool:
+        return bool(self.core.options.normalize_observation)
+
+    @property
+    def observation_scales(self) -> ObservationScales:
+        """What ``normalize_observation`` divides by (``envs.observation``)."""
+        return self.core.observation_scales
+
+    @property
+    def reference_spec(self) -> ReferenceSpec:
+        """The env's own reference spec (SI), used unless ``reset`` is given one."""
+        return self.core.reference_spec
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    view = array.view()
+    view.flags.writeable = False
+    return view
+
+
+class PneumaticTrackingEnv(_TaskProperties, gym.Env[NDArray[np.float32], NDArray[np.float32]]):
+    """A pneumatic cylinder driven by a proportional valve tracks a force or a position.
+
+    ## Description
+
+    The actuator of Richer & Hurmuzlu (2000), Part I: a 4-way proportional spool valve
+    (Eqs. 38-46) feeds the two chambers of a double-acting cylinder (Eq. 14) through tubes
+    with delay and attenuation (Eqs. 30-35); the piston (Eq. 1, stick-slip friction, end
+    stops) is clamped to a load cell (``ForceTrack``: track a force) or free
+    (``PositionTrack``: track a piston position). Each control period (1 ms) the agent sets
+    the coil current, held while the model advances by RK4 substeps. The registered ids are
+    ``pneumatic_env/{task}-{cylinder}-{tube}m-v0`` (``pneumatic_env.registered_ids()``),
+    e.g. ``pneumatic_env/ForceTrack-Numatics-2m-v0``.
+
+    ## Action Space
+
+    ``Box(-i_max, i_max, (1,), float32)``: the valve's coil current (A), ``i_max =
+    coil_current_max_a`` (2 A for both cylinders). Values outside are clipped and
+    ``info["action_clipped"]`` says so; NaN, inf or a wrong shape raise ``ValueError``.
+
+    ## Observation Space
+
+    ``Box(-inf, inf, (5 + preview_steps,), float32)``, unbounded (sensor noise may put a
+    channel anywhere). With ``normalize_observation=True`` each entry is mapped as in the
+    last column (``observation_scales``, module ``pneumatic_env.envs.observation``):
+
+    | index | observation                        | unit  | normalised              |
+    |-------|------------------------------------|-------|-------------------------|
+    | 0     | p1, cap-end chamber (absolute)     | Pa    | (p1 - P_a) / (P_s - P_a)|
+    | 1     | p2, rod-end chamber (absolute)     | Pa    | (p2 - P_a) / (P_s - P_a)|
+    | 2     | x, piston position (0 mid-stroke)  | m     | x / (L/2)               |
+    | 3     | f, load-cell force                 | N     | f / force_scale_n       |
+    | 4     | ref(k), the reference now          | N, m  | ref / reference_scale   |
+    | 5..   | ref(k+1) .. ref(k+H), the preview  | N, m  | ref / reference_scale   |
+
+    p1, p2, x and f are measured (``sensor_noise``, ``sensor_lag_s``). The reference is the
+    tracked channel's: a force (N) for ``ForceTrack``, a position (m) for
+    ``PositionTrack``; ``H = preview_steps``. ``force_scale_n = (P_s - P_a) min(A1, A2)``
+    is the force the cylinder holds both ways (about 139 N for the Numatics);
+    ``reference_scale`` is that force (ForceTrack) or the half stroke L/2 (PositionTrack).
+
+    ## Rewards
+
+    ``r = -min(|e| / reference_scale, 1) - effort_weight (i / i_max)^2
+    - chatter_weight ((i - i_prev) / (2 i_max))^2``, with ``e`` the tracked output (true
+    force or position, not the measured one) minus the reference after the step and ``i``
+    the applied (clipped) current; ``r`` lies in ``[-1 - effort_weight - chatter_weight,
+    0]``. ``info`` holds ``tracking_error`` (``e``), ``reference``, ``coil_current_a``
+    (``i``), ``action_clipped`` and ``exhaust_mass_kg`` (air let out since reset).
+
+    ## Starting State
+
+    Both chambers at ambient pressure, spool centred, piston at rest (at the clamp
+    position ``fixed_position_m`` = 0, mid-stroke, when clamped); the tube delay lines
+    hold that state. Drawn per episode from the env's seeded generator, in this order: the
+    ``domain_randomization`` values, the reference (by default the task's random mixture
+    of steps and multisines), the first sensor noise.
+
+    ## Episode End
+
+    ``terminated`` is always False: tracking has no failure state. Episodes are truncated
+    after ``max_episode_steps`` (registered: 2000 steps, 2 s) by Gymnasium's ``TimeLimit``.
+
+    ## Arguments
+
+    Keyword arguments of ``gym.make(id, ...)``, checked on construction; a bad value raises
+    an error naming the field, the value and what is allowed:
+
+    * ``task`` (``"ForceTrack"`` or ``"PositionTrack"``), ``cylinder`` (name, alias or
+      config id) and ``tube_length_m``: set by the registered id.
+    * ``params``: a parameter YAML file (written by ``identify`` or
+      ``params.save_parameters``) or mapping. Any physical parameter by its name in
+      ``configs/`` (``supply_pressure_pa=5e5``; ``piston_mode`` among the task's rod modes).
+    * ``max_episode_steps`` (2000, ``ids.EPISODE_STEPS``).
+    * ``reference_steps`` (2000): length of the generated reference, held at its last value.
+    * ``preview_steps`` (10, ``ids.ENV_PREVIEW_STEPS``): reference samples ahead.
+    * ``reference``: every episode's reference spec, in the tracked channel's SI unit
+      (``{"kind": "sine", "amplitude": 40, "frequency_hz": 10}``; kinds step, sine, chirp,
+      multisine, random_step, array, mixture: ``pneumatic_env.references``).
+    * ``normalize_observation`` (False); ``effort_weight`` and ``chatter_weight`` (0).
+    * ``domain_randomization``: ``{name: (low, high)}`` or ``{name: relative_half_width}``,
+      uniform per episode.
+    * ``sensor_noise``: ``{channel: std}`` for p1, p2, x, f (SI); ``sensor_lag_s`` (0): a
+      first-order sensor lag.
+    * ``control_dt_s``, ``substeps``: control period and RK4 substeps (configs/numerics.yaml).
+    * ``render_mode``: ``"rgb_array"`` or None.
+
+    ``reset(seed=None, options=None)`` accepts ``options={"reference": r}``: this episode's
+    reference, either a spec (``ReferenceSpec`` or dict, in the tracked channel's SI unit)
+    drawn from the env's generator where the default would be (the episode is that of
+    ``gym.make(id, reference=r)`` with the same seed), or a 1-D array of samples one control
+    period apart from step 0, held at its end. It applies to that episode only; a later
+    ``reset`` without it uses the env's own reference. Other keys are refused.
+
+    ## Version History
+
+    * v0: the initial version.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
 
-    def __init__(self, task: str = "ForceTrack", cylinder: str = "numatics",
+    def __init__(self, task: str = ids.FORCE_TRACK, cylinder: str = ids.DEFAULT_CYLINDER,
                  tube_length_m: float | None = None, params=None, render_mode: str | None = None,
                  **kwargs):
         options, overrides = _split_kwargs(kwargs)
@@ -53,19 +260,28 @@ class PneumaticTrackingEnv(gym.Env):
         low, high = self.core.observation_bounds()
         self.observation_space = gym.spaces.Box(low, high, dtype=np.float32)
         self.metadata = {**self.metadata, "render_fps": int(round(1 / self.core.dt / 20))}
-        self._trace = None
+        self._trace: Trace | None = None
 
-    def reset(self, *, seed=None, options=None):
+    @property
+    def references(self) -> np.ndarray:
+        """This episode's reference samples (read-only view, length ``reference_steps +
+        preview_steps + 1``); ``info["reference"]`` of step k is sample k."""
+        return _read_only(self.core.references[0])
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+        references = _reset_references(self.core, options, None)
         super().reset(seed=seed)
         self._rngs = [self.np_random]
-        self.core.reset_envs(np.array([0]), self._rngs)
+        self.core.reset_envs(np.array([0]), self._rngs, references)
         if self.render_mode is not None:
             from .render import Trace
             self._trace = Trace()
             self._trace.record(self.core, 0)
         return self.core.observation()[0], {}
 
-    def step(self, action):
+    def step(self, action: NDArray[np.float32]
+             ) -> tuple[NDArray[np.float32], SupportsFloat, bool, bool, dict[str, Any]]:
         current = self.core.check_action(action)
         obs, reward = self.core.step(current, self._rngs)
         if self._trace is not None:
@@ -80,21 +296,68 @@ class PneumaticTrackingEnv(gym.Env):
         return render_rgb(self.core, 0, self._trace)
 
 
-class PneumaticTrackingVectorEnv(VectorEnv):
-    """``num_envs`` actuators advanced in one jitted call per step (``gym.make_vec``).
+class PneumaticTrackingVectorEnv(_TaskProperties,
+                                 VectorEnv[NDArray[np.float32], NDArray[np.float32],
+                                           NDArray[Any]]):
+    """``num_envs`` :class:`PneumaticTrackingEnv` advanced in one jitted call per step
+    (``gym.make_vec(id, num_envs=n)``).
 
-    Episodes are truncated after ``max_episode_steps`` (the registered 2000 unless given)
-    inside the env and reset in the same
-    step (``AutoresetMode.SAME_STEP``): the returned observation is the new episode's first,
-    the last one is in ``info["final_obs"]``. Env ``i`` seeded with ``seed + i`` reproduces the
-    single env seeded with ``seed + i`` exactly.
+    ## Description
+
+    A batch of the single env's actuators and task: env ``i`` seeded with ``seed + i`` (or
+    ``seed[i]``) reproduces the single env seeded alike, bit for bit. Batches of
+    ``simulator.PARALLEL_MIN_ENVS`` envs or more run on Numba's threads.
+
+    ## Action Space
+
+    ``Box(-i_max, i_max, (num_envs, 1), float32)``: one coil current (A) per env, as the
+    single env's (``single_action_space``).
+
+    ## Observation Space
+
+    ``Box(-inf, inf, (num_envs, 5 + preview_steps), float32)``: one row per env, laid out
+    and normalised as the single env's (its table; ``single_observation_space``).
+
+    ## Rewards
+
+    The single env's, per env: arrays of shape ``(num_envs,)``; ``info`` is a dict of such
+    arrays (``tracking_error``, ``reference``, ``coil_current_a``, ``action_clipped``,
+    ``exhaust_mass_kg``).
+
+    ## Starting State
+
+    The single env's, per env, from env i's own generator.
+
+    ## Episode End
+
+    ``terminated`` is always False. Episodes are truncated after ``max_episode_steps``
+    (default 2000) inside the env and reset in the same step
+    (``AutoresetMode.SAME_STEP``): the returned observation is the new episode's first, the
+    last one is in ``info["final_obs"]`` (``info["_final_obs"]`` marks the envs).
+
+    ## Arguments
+
+    ``num_envs`` (1), ``max_episode_steps`` (2000) and every keyword argument of
+    :class:`PneumaticTrackingEnv` (``render_mode`` draws env 0).
+
+    ``reset(seed=None, options=None)``: ``seed`` an int (env i gets ``seed + i``) or a list
+    of ``num_envs`` ints. ``options={"reference": r}`` sets this episode's references: one
+    spec (``ReferenceSpec`` or dict, SI) for every env, a list of ``num_envs`` entries (a
+    spec, a 1-D sample array or None for the env's own), or a 2-D array ``(num_envs,
+    n_samples)``; each as in the single env. It applies to that episode only: autoresets
+    use the env's own reference.
+
+    ## Version History
+
+    * v0: the initial version.
     """
 
     metadata = {"render_modes": ["rgb_array"], "autoreset_mode": AutoresetMode.SAME_STEP}
 
-    def __init__(self, num_envs: int = 1, task: str = "ForceTrack", cylinder: str = "numatics",
-                 tube_length_m: float | None = None, params=None,
-                 max_episode_steps: int | None = None, render_mode: str | None = None, **kwargs):
+    def __init__(self, num_envs: int = 1, task: str = ids.FORCE_TRACK,
+                 cylinder: str = ids.DEFAULT_CYLINDER, tube_length_m: float | None = None,
+                 params=None, max_episode_steps: int | None = None,
+                 render_mode: str | None = None, **kwargs):
         if int(num_envs) != num_envs or num_envs < 1:
             raise ValueError(f"num_envs = {num_envs!r} is not allowed: must be an integer >= 1")
         options, overrides = _split_kwargs(kwargs)
@@ -103,7 +366,7 @@ class PneumaticTrackingVectorEnv(VectorEnv):
         self.core = TaskCore(_task(task), self.num_envs, cylinder, tube_length_m, params, options,
                              **overrides)
         if max_episode_steps is None:
-            max_episode_steps = DEFAULT_EPISODE_STEPS
+            max_episode_steps = ids.EPISODE_STEPS
         if int(max_episode_steps) != max_episode_steps or max_episode_steps < 1:
             raise ValueError(f"max_episode_steps = {max_episode_steps!r} is not allowed: must be "
                              "an integer >= 1")
@@ -117,17 +380,29 @@ class PneumaticTrackingVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._rngs = [np.random.default_rng() for _ in range(self.num_envs)]
 
-    def reset(self, *, seed=None, options=None):
+    @property
+    def references(self) -> np.ndarray:
+        """The episodes' reference samples, (num_envs, reference_steps + preview_steps + 1),
+        read-only view; ``info["reference"][i]`` of step k is ``references[i, k]``."""
+        return _read_only(self.core.references)
+
+    def reset(self, *, seed: int | Sequence[int] | None = None,
+              options: dict[str, Any] | None = None
+              ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         if seed is not None:
             seeds = ([seed + i for i in range(self.num_envs)] if isinstance(seed, int)
                      else list(seed))
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed has {len(seeds)} entries, expected {self.num_envs}")
+        references = _reset_references(self.core, options, self.num_envs)
+        if seed is not None:
             self._rngs = [gym.utils.seeding.np_random(s)[0] for s in seeds]
-        self.core.reset_envs(np.arange(self.num_envs), self._rngs)
+        self.core.reset_envs(np.arange(self.num_envs), self._rngs, references)
         return self.core.observation(), {}
 
-    def step(self, actions):
+    def step(self, actions: NDArray[np.float32]) -> tuple[
+            NDArray[np.float32], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_],
+            dict[str, Any]]:
         current = self.core.check_action(actions)
         obs, reward = self.core.step(current, self._rngs)
         reward = reward.copy()

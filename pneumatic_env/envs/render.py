@@ -1,4 +1,4 @@
-"""``render_mode="rgb_array"``: the cylinder's state and the recent traces, drawn with Matplotlib."""
+"""``render_mode="rgb_array"``: the cylinder's state and recent traces, drawn with Matplotlib."""
 from __future__ import annotations
 
 from collections import deque
@@ -21,7 +21,7 @@ class Trace:
 
 
 def render_rgb(core, env: int, trace: Trace | None) -> np.ndarray:
-    """An RGB image (H, W, 3) uint8: the cylinder (piston position, chamber pressures) and traces."""
+    """An RGB image (H, W, 3) uint8: the cylinder (piston position, pressures) and traces."""
     import matplotlib
     matplotlib.use("Agg", force=False)
     from matplotlib.figure import Figure
@@ -29,7 +29,7 @@ def render_rgb(core, env: int, trace: Trace | None) -> np.ndarray:
 
     fig = Figure(figsize=(6.4, 4.8), dpi=80)
     canvas = FigureCanvasAgg(fig)
-    ax_cyl, ax_f, ax_p = fig.add_subplot(3, 1, 1), fig.add_subplot(3, 1, 2), fig.add_subplot(3, 1, 3)
+    ax_cyl, ax_f, ax_p = (fig.add_subplot(3, 1, k) for k in (1, 2, 3))
     p1, p2, x, f = core.measured[env]
     half = core.half_stroke
     span = core.ps - core.pa

@@ -4,24 +4,93 @@ One call per control step does everything ``TaskCore.step`` needs, the observati
 included, so a single env pays one Numba dispatch instead of dozens of NumPy calls on
 one-element arrays, and the vector env loops over environments in compiled code, in one
 parallel region per step (each chunk observed while its rows are in cache).
+
+The step takes a few named tuples of arrays (gymnax style: parameters apart from state):
+:class:`SimArrays` (the simulator's), :class:`TaskParams` and the observation's
+``ObservationScales`` (fixed for the env's life), :class:`TaskState` (updated in place) and
+:class:`StepOutputs` (written by the step). Flat tuples: a parallel loop cannot take a
+tuple nested in a tuple. The entry points take them as plain tuples (``tuple(named)``)
+and name them again inside (free): Numba's dispatcher types a plain tuple of arrays in C
+but a named tuple in Python, which would add some 7 us to each single-env step.
 """
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
 from numba import njit, prange
 
 from ..physics.kernel import CHUNK_ENVS, advance_chunk
+from .observation import ObservationScales, fill_observation_row
+
+__all__ = ["SimArrays", "TaskParams", "TaskState", "StepOutputs", "sim_arrays",
+           "task_step_serial", "task_step_parallel"]
+
+
+class SimArrays(NamedTuple):
+    """A ``BatchSimulator``'s arrays and step settings, as its step kernel takes them."""
+
+    params: np.ndarray  # (N_PARAMS, n_envs), layout.P_* rows
+    state: np.ndarray  # (N_STATE, n_envs), layout.S_* rows
+    history: np.ndarray  # ring buffer of the tube delay (slots, N_HISTORY, n_envs)
+    head: int  # the ring buffer's current slot
+    outputs: np.ndarray  # (N_OUTPUT, n_envs), layout.O_* rows
+    constants_key: np.ndarray  # (n_envs,): which cached constants are stale (NaN)
+    constants: np.ndarray  # the batch path's cached per-env constants
+    control_dt_s: float  # the coil current is held over it
+    n_substeps: int  # RK4 substeps per control period
+
+
+def sim_arrays(sim) -> SimArrays:
+    """The :class:`SimArrays` of ``sim`` (a ``BatchSimulator``) now (``head`` moves each step)."""
+    return SimArrays(sim.params, sim.state, sim.history, sim.head, sim.outputs,
+                     sim.constants_key, sim.constants, sim.control_dt_s, sim.n_substeps)
+
+
+class TaskParams(NamedTuple):
+    """What a task step needs beyond the simulator, fixed for the env's life."""
+
+    coil_current_max_a: float  # actions are clipped to +-this
+    effort_weight: float  # reward -= effort_weight (i / i_max)^2
+    chatter_weight: float  # reward -= chatter_weight ((i - i_prev) / (2 i_max))^2
+    lag: float  # first-order sensor lag per control period: exp(-dt / sensor_lag_s), or 0
+    out_rows: np.ndarray  # layout.O_* row of each observed channel (p1, p2, x, f)
+    tracked_row: int  # layout.O_* row of the tracked channel
+
+
+class TaskState(NamedTuple):
+    """The episodes' state, updated in place by the step (one row per env)."""
+
+    references: np.ndarray  # (n_envs, n_ref) float64, held at the last sample
+    step_count: np.ndarray  # (n_envs,) int64: steps since reset
+    prev_action: np.ndarray  # (n_envs,): the previous applied current (chatter term)
+    measured: np.ndarray  # (n_envs, 4): sensor readings (noise and lag included)
+
+
+class StepOutputs(NamedTuple):
+    """Per-env results the step writes."""
+
+    reward: np.ndarray  # (n_envs,)
+    error: np.ndarray  # (n_envs,): tracked output - reference
+    reference: np.ndarray  # (n_envs,): the reference of this step
+    applied: np.ndarray  # (n_envs,): the clipped coil current (A)
+    obs: np.ndarray  # (n_envs, obs_dim) float32: the next observation
 
 
 @njit(cache=True)
-def _chunk_step(first, stop, params, state, history, head, action, control_dt_s, n_substeps,
-                outputs, i_max, references, step_count, prev_action, measured, noise, lag,
-                out_rows, tracked_row, scale, effort_weight, chatter_weight, reward, error,
-                reference, applied, key, constants, observe, obs):
+def _chunk_step(first, stop, sim, task, scales, state, action, noise, out):
     """One control step of envs ``first .. stop-1``: clip, simulate (``advance_chunk``),
-    measure (noise, first-order sensor lag), reward, observe (``observe`` holds the
-    arguments of ``_fill_observation_row`` after ``step_count``)."""
+    measure (noise, first-order sensor lag), reward, observe."""
+    i_max = task.coil_current_max_a
+    applied = out.applied
     for env in range(first, stop):
         applied[env] = min(max(action[env], -i_max), i_max)
-    advance_chunk(params, state, history, first, stop, head, applied, control_dt_s, n_substeps,
-                  outputs, key, constants)
+    outputs = sim.outputs
+    advance_chunk(sim.params, sim.state, sim.history, first, stop, sim.head, applied,
+                  sim.control_dt_s, sim.n_substeps, outputs, sim.constants_key, sim.constants)
+    out_rows, lag, scale = task.out_rows, task.lag, scales.reference_scale
+    references, step_count, measured = state.references, state.step_count, state.measured
+    prev_action = state.prev_action
     for env in range(first, stop):
         a = applied[env]
         step_count[env] += 1
@@ -30,74 +99,41 @@ def _chunk_step(first, stop, params, state, history, head, action, control_dt_s,
             measured[env, ch] = lag * measured[env, ch] + (1.0 - lag) * fresh
         k = min(step_count[env], references.shape[1] - 1)
         ref = references[env, k]
-        e = outputs[tracked_row, env] - ref
+        e = outputs[task.tracked_row, env] - ref
         r = -min(abs(e) / scale, 1.0)
-        r -= effort_weight * (a / i_max) ** 2
-        r -= chatter_weight * ((a - prev_action[env]) / (2.0 * i_max)) ** 2
+        r -= task.effort_weight * (a / i_max) ** 2
+        r -= task.chatter_weight * ((a - prev_action[env]) / (2.0 * i_max)) ** 2
         prev_action[env] = a
-        reward[env], error[env], reference[env] = r, e, ref
-        _fill_observation_row(env, measured, references, step_count, observe[0], observe[1],
-                              observe[2], observe[3], observe[4], observe[5], obs)
+        out.reward[env], out.error[env], out.reference[env] = r, e, ref
+        fill_observation_row(env, measured, references, step_count, scales, out.obs)
 
 
 @njit(cache=True)
-def task_step_serial(params, state, history, head, action, control_dt_s, n_substeps, outputs,
-                     i_max, references, step_count, prev_action, measured, noise, lag, out_rows,
-                     tracked_row, scale, effort_weight, chatter_weight, reward, error,
-                     reference, applied, key, constants, observe, obs):
-    """One control step of every env of the batch, on one thread."""
-    n_envs = state.shape[1]
+def task_step_serial(sim, task, scales, state, action, noise, out):
+    """One control step of every env of the batch, on one thread.
+
+    ``sim``: :class:`SimArrays`; ``task``: :class:`TaskParams`; ``scales``: the
+    observation's :class:`ObservationScales` (``reference_scale`` also scales the reward's
+    error); ``state``: :class:`TaskState`; ``action``: coil currents (n_envs,) in A;
+    ``noise``: sensor noise (n_envs, 4) added this step; ``out``: :class:`StepOutputs`; the
+    named tuples as plain tuples (``tuple(named)``).
+    """
+    sim, task, scales = SimArrays(*sim), TaskParams(*task), ObservationScales(*scales)
+    state, out = TaskState(*state), StepOutputs(*out)  # named again (see the module doc)
+    n_envs = sim.state.shape[1]
     for first in range(0, n_envs, CHUNK_ENVS):
-        _chunk_step(first, min(first + CHUNK_ENVS, n_envs), params, state, history, head,
-                    action, control_dt_s, n_substeps, outputs, i_max, references, step_count,
-                    prev_action, measured, noise, lag, out_rows, tracked_row, scale,
-                    effort_weight, chatter_weight, reward, error, reference, applied, key,
-                    constants, observe, obs)
+        _chunk_step(first, min(first + CHUNK_ENVS, n_envs), sim, task, scales, state, action,
+                    noise, out)
 
 
 @njit(cache=True, parallel=True)
-def task_step_parallel(params, state, history, head, action, control_dt_s, n_substeps, outputs,
-                       i_max, references, step_count, prev_action, measured, noise, lag,
-                       out_rows, tracked_row, scale, effort_weight, chatter_weight, reward,
-                       error, reference, applied, key, constants, observe, obs):
-    """One control step of every env of the batch, chunks of envs spread over threads."""
-    n_envs = state.shape[1]
+def task_step_parallel(sim, task, scales, state, action, noise, out):
+    """One control step of every env of the batch, chunks of envs spread over threads
+    (arguments as :func:`task_step_serial`)."""
+    sim, task, scales = SimArrays(*sim), TaskParams(*task), ObservationScales(*scales)
+    state, out = TaskState(*state), StepOutputs(*out)  # named again (see the module doc)
+    n_envs = sim.state.shape[1]
     for chunk in prange((n_envs + CHUNK_ENVS - 1) // CHUNK_ENVS):
         first = chunk * CHUNK_ENVS
-        _chunk_step(first, min(first + CHUNK_ENVS, n_envs), params, state, history, head,
-                    action, control_dt_s, n_substeps, outputs, i_max, references, step_count,
-                    prev_action, measured, noise, lag, out_rows, tracked_row, scale,
-                    effort_weight, chatter_weight, reward, error, reference, applied, key,
-                    constants, observe, obs)
-
-
-@njit(cache=True, inline="always")
-def _fill_observation_row(env, measured, references, step_count, normalize, ambient_pa,
-                          supply_pa, half_stroke_m, force_scale_n, reference_scale, obs):
-    """obs[env] = [p1, p2, x, f, ref(k), ..., ref(k+H)] in SI units or normalised.
-
-    Normalised: pressures (p - P_a)/(P_s - P_a), x/(L/2), f/force_scale, ref/reference_scale.
-    """
-    n_ref = references.shape[1]
-    n_channels = measured.shape[1]
-    if normalize:
-        span = supply_pa - ambient_pa
-        obs[env, 0] = (measured[env, 0] - ambient_pa) / span
-        obs[env, 1] = (measured[env, 1] - ambient_pa) / span
-        obs[env, 2] = measured[env, 2] / half_stroke_m
-        obs[env, 3] = measured[env, 3] / force_scale_n
-    else:
-        for ch in range(n_channels):
-            obs[env, ch] = measured[env, ch]
-    for j in range(obs.shape[1] - n_channels):
-        value = references[env, min(step_count[env] + j, n_ref - 1)]
-        obs[env, n_channels + j] = value / reference_scale if normalize else value
-
-
-@njit(cache=True)
-def fill_observation(measured, references, step_count, normalize, ambient_pa, supply_pa,
-                     half_stroke_m, force_scale_n, reference_scale, obs):
-    """Every env's observation row (``_fill_observation_row``), on one thread."""
-    for env in range(obs.shape[0]):
-        _fill_observation_row(env, measured, references, step_count, normalize, ambient_pa,
-                              supply_pa, half_stroke_m, force_scale_n, reference_scale, obs)
+        _chunk_step(first, min(first + CHUNK_ENVS, n_envs), sim, task, scales, state, action,
+                    noise, out)

@@ -15,14 +15,16 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
+from .. import ids
 from .. import params as P
 from ..physics import layout as L
-from ..references import make_reference, ReferenceSpec
+from ..physics.derived import force_scale_n
+from ..references import ArrayReference, ReferenceSpec, make_reference
 from ..simulator import BatchSimulator
 from . import task_kernel
+from .observation import (OBSERVED_CHANNELS, fill_observation, observation_dim,
+                          observation_scales)
 
-OBSERVED_CHANNELS = ("p1", "p2", "x", "f")
-DEFAULT_EPISODE_STEPS = 2000  # the registered max_episode_steps: 2 s at the 1 ms control period
 REFERENCE_BLOCK_ENVS = 256  # episodes whose references an autoreset generates together
 _CHANNEL_OUTPUT = {"p1": L.O_P1, "p2": L.O_P2, "x": L.O_X, "f": L.O_F}
 
@@ -32,7 +34,7 @@ class TaskSpec:
     """What a task tracks and how it scores it."""
 
     name: str
-    piston_mode: str  # "fixed" or "free" (configs/load.yaml)
+    piston_mode: str  # a key of ids.PISTON_MODE_CODES: "fixed" or "free"
     tracked: str  # "f" or "x"
     reference: dict  # default reference spec, in units of `reference_scale` (see scale_of)
     # rod modes a parameter file (e.g. a fitted rig) or a keyword may bring instead
@@ -42,7 +44,7 @@ class TaskSpec:
 
 
 FORCE_TRACK = TaskSpec(
-    name="ForceTrack", piston_mode="fixed", tracked="f",
+    name=ids.FORCE_TRACK, piston_mode="fixed", tracked="f",
     # a fitted compliant load cell (identification's load_cell_compliance) is the spring mode
     rod_modes=("fixed", "spring"),
     reference={"kind": "mixture", "choices": [
@@ -56,7 +58,7 @@ FORCE_TRACK = TaskSpec(
     extra_defaults={"fixed_position_m": 0.0},
 )
 POSITION_TRACK = TaskSpec(
-    name="PositionTrack", piston_mode="free", tracked="x", rod_modes=("free",),
+    name=ids.POSITION_TRACK, piston_mode="free", tracked="x", rod_modes=("free",),
     reference={"kind": "mixture", "choices": [
         {"kind": "random_step", "amplitude": 0.6, "hold_min_s": 0.2, "hold_max_s": 0.6},
         {"kind": "multisine", "amplitude": 0.6, "frequencies_hz": [0.5, 1.0, 2.0]},
@@ -65,6 +67,7 @@ POSITION_TRACK = TaskSpec(
     description="rod free, no load; track a piston position reference (m)",
 )
 TASKS = {t.name: t for t in (FORCE_TRACK, POSITION_TRACK)}
+assert tuple(TASKS) == ids.TASK_IDS  # the registered task names
 
 
 def scale_of(task: TaskSpec, param: dict) -> float:
@@ -80,11 +83,8 @@ def scale_of(task: TaskSpec, param: dict) -> float:
 
 def force_scale(param: dict) -> float:
     """The force the cylinder can hold in both directions, (P_s - P_a) min(A1, A2) (N)."""
-    a1 = 0.25 * np.pi * param["bore_diameter_m"] ** 2
-    ar = 0.25 * np.pi * param["rod_diameter_m"] ** 2
-    push = (param["supply_pressure_pa"] - param["ambient_pressure_pa"]) * a1
-    pull = (param["supply_pressure_pa"] - param["ambient_pressure_pa"]) * (a1 - ar)
-    return float(min(push, pull))
+    return float(force_scale_n(param["supply_pressure_pa"], param["ambient_pressure_pa"],
+                               param["bore_diameter_m"], param["rod_diameter_m"]))
 
 
 def scale_spec(spec: dict, scale: float) -> dict:
@@ -104,8 +104,8 @@ def scale_spec(spec: dict, scale: float) -> dict:
 class EnvOptions:
     """Options of a tracking env beyond the physical parameters (all keyword arguments)."""
 
-    reference_steps: int = DEFAULT_EPISODE_STEPS  # reference length; held at its end
-    preview_steps: int = 10
+    reference_steps: int = ids.EPISODE_STEPS  # reference length; held at its end
+    preview_steps: int = ids.ENV_PREVIEW_STEPS
     reference: dict | ReferenceSpec | None = None  # in the tracked channel's SI unit
     normalize_observation: bool = False
     effort_weight: float = 0.0
@@ -142,7 +142,7 @@ def _rod_mode(task: TaskSpec, cylinder: str, params, overrides: dict) -> str:
     fitted with the rod free, used for force tracking) gives way to the task's with a
     warning, never silently.
     """
-    names = L.DISCRETE_PARAMETERS["piston_mode"]
+    names = ids.PISTON_MODE_NAMES
     if "piston_mode" in overrides:
         value = overrides["piston_mode"]
         mode = names.get(value, value) if not isinstance(value, str) else value
@@ -210,11 +210,21 @@ class TaskCore:
                      if self.options.sensor_lag_s > 0 else 0.0)
         self._out_rows = np.array([_CHANNEL_OUTPUT[c] for c in OBSERVED_CHANNELS])
         self._tracked_row = _CHANNEL_OUTPUT[task.tracked]
-        self.obs_dim = len(OBSERVED_CHANNELS) + 1 + self.options.preview_steps
-        # the arguments of task_kernel._fill_observation_row after step_count
-        self._observation_scales = (bool(self.options.normalize_observation), float(self.pa),
-                                    float(self.ps), float(self.half_stroke),
-                                    float(self.force_scale), float(self.scale))
+        self.obs_dim = observation_dim(self.options.preview_steps)
+        self.observation_scales = observation_scales(
+            base, self.force_scale, self.scale, self.options.normalize_observation)
+        self._task_params = task_kernel.TaskParams(
+            float(self.i_max), float(self.options.effort_weight),
+            float(self.options.chatter_weight), float(self._lag), self._out_rows,
+            int(self._tracked_row))
+        # the arrays above, updated in place by the task step
+        self._task_state = task_kernel.TaskState(self.references, self.step_count,
+                                                 self.prev_action, self.measured)
+        # the fixed arguments of the task step, as the plain tuples it takes
+        self._step_fixed = (tuple(self._task_params), tuple(self.observation_scales),
+                            tuple(self._task_state))
+        self._step_outputs = tuple(task_kernel.StepOutputs(
+            self.last_reward, self.last_error, self.last_reference, self.last_applied, None))
 
     # -- parameters ----------------------------------------------------------------------
     @staticmethod
@@ -242,18 +252,51 @@ class TaskCore:
         return checked
 
     # -- episodes ------------------------------------------------------------------------
-    def reset_envs(self, envs: np.ndarray, rngs: list) -> None:
-        """Start new episodes in ``envs``; ``rngs[i]`` is env i's own generator."""
+    def episode_reference(self, value, field: str = "reference") -> ReferenceSpec:
+        """A reference for one episode: a spec (``ReferenceSpec`` or dict, in the tracked
+        channel's SI unit) or samples one control period apart from step 0 (held at the
+        end). ``field`` names the value in errors."""
+        if isinstance(value, (ReferenceSpec, Mapping)):
+            try:
+                return make_reference(value)
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"{field} = {value!r} is not allowed: {exc}") from None
+        try:
+            values = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            values = None
+        if values is None or values.ndim != 1 or values.size == 0 \
+                or not np.all(np.isfinite(values)):
+            raise ValueError(f"{field} = {value!r} is not allowed: must be a reference spec "
+                             "(a ReferenceSpec or a dict with a 'kind') or a non-empty 1-D "
+                             "array of finite samples, one per control period")
+        return ArrayReference(values, self.dt)
+
+    def reset_envs(self, envs: np.ndarray, rngs: list,
+                   references: list[ReferenceSpec | None] | None = None) -> None:
+        """Start new episodes in ``envs``; ``rngs[i]`` is env i's own generator.
+
+        ``references[j]`` (if given and not None) is the reference of env ``envs[j]``'s new
+        episode instead of ``reference_spec``, drawn from the same generator at the same
+        point, so the episode is the one of an env made with that ``reference``.
+        """
         n_ref = self.references.shape[1]
         if self._randomization:
             columns = []
             for env in envs:
-                drawn = {n: rngs[env].uniform(lo, hi) for n, (lo, hi) in self._randomization.items()}
+                drawn = {n: rngs[env].uniform(lo, hi)
+                         for n, (lo, hi) in self._randomization.items()}
                 columns.append(P.load_parameters(self.cylinder, params=self.base_params, **drawn))
             self.sim.set_params(envs, P.parameter_array(columns))
         self.sim.reset(envs)
-        for first in range(0, len(envs), REFERENCE_BLOCK_ENVS):  # temporaries stay in cache
-            block = envs[first:first + REFERENCE_BLOCK_ENVS]
+        own = envs
+        if references is not None:
+            given = np.array([spec is not None for spec in references], dtype=bool)
+            for env, spec in zip(envs[given], (s for s in references if s is not None)):
+                self.references[env] = spec.generate(n_ref, self.dt, rngs[env])
+            own = envs[~given]
+        for first in range(0, len(own), REFERENCE_BLOCK_ENVS):  # temporaries stay in cache
+            block = own[first:first + REFERENCE_BLOCK_ENVS]
             self.references[block] = self.reference_spec.generate_rows(
                 n_ref, self.dt, [rngs[env] for env in block])
         self.step_count[envs] = 0
@@ -266,7 +309,8 @@ class TaskCore:
         self._noise[:] = 0.0
         if self._noise_on:
             for env in envs:
-                self._noise[env] = self._noise_std * rngs[env].standard_normal(len(OBSERVED_CHANNELS))
+                self._noise[env] = self._noise_std * rngs[env].standard_normal(
+                    len(OBSERVED_CHANNELS))
         return self._noise
 
     def _add_noise(self, envs, rngs):
@@ -296,15 +340,10 @@ class TaskCore:
         self._last_action = coil_current_a
         noise = self._draw_noise(range(self.n_envs), rngs) if self._noise_on else self._noise
         obs = np.empty((self.n_envs, self.obs_dim), dtype=np.float32)
-        sim.call_step_kernel(
-            task_kernel.task_step_serial, task_kernel.task_step_parallel,
-            (sim.params, sim.state, sim.history, sim.head, coil_current_a, sim.control_dt_s,
-             sim.n_substeps, sim.outputs, self.i_max, self.references, self.step_count,
-             self.prev_action, self.measured, noise, self._lag, self._out_rows,
-             self._tracked_row, self.scale, self.options.effort_weight,
-             self.options.chatter_weight, self.last_reward, self.last_error,
-             self.last_reference, self.last_applied, sim.constants_key, sim.constants,
-             self._observation_scales, obs))
+        out = self._step_outputs[:-1] + (obs,)  # StepOutputs with this step's obs
+        sim.call_step_kernel(task_kernel.task_step_serial, task_kernel.task_step_parallel,
+                             (tuple(task_kernel.sim_arrays(sim)), *self._step_fixed,
+                              coil_current_a, noise, out))
         sim.advance_clock()
         return obs, self.last_reward
 
@@ -326,8 +365,8 @@ class TaskCore:
     def observation(self) -> np.ndarray:
         """[p1, p2, x, f, ref(k), ref(k+1..k+H)] per env, float32 (SI or normalised)."""
         obs = np.empty((self.n_envs, self.obs_dim), dtype=np.float32)
-        task_kernel.fill_observation(self.measured, self.references, self.step_count,
-                                     *self._observation_scales, obs)
+        fill_observation(self.measured, self.references, self.step_count,
+                         self.observation_scales, obs)
         return obs
 
     def observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
