@@ -5,15 +5,15 @@ environments, recording replay, the paper's experiments, identification).
 """
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 
 import numba
 import numpy as np
 
 from .physics import kernel
 from .physics import layout as L
+from .physics.derived import tube_delay_s
 from .physics.piston import MODE_FIXED
-from .physics.tube import sound_speed
 
 INITIAL_STATE_KEYS = ("p1", "p2", "x", "v", "x_s")
 # parameters that set the tube delay tau = L_t / c (Eq. 31) or the transmission line: a
@@ -37,10 +37,28 @@ class BatchSimulator:
     ``self.params`` is read-only: change parameters with ``set_params`` (whole columns) or
     ``set_parameter`` (one parameter, e.g. a drifting supply pressure during a run), which
     check the values and mark the kernel's cached constants of those environments stale.
+
+    Attributes
+    ----------
+    state : array (N_STATE, n_envs), rows ``layout.S_*``.
+    outputs : array (N_OUTPUT, n_envs) after the last step, rows ``layout.O_*``.
+    history : the tube-delay ring buffer (slots, N_HISTORY, n_envs); ``head`` its newest slot.
+    time_s : array (n_envs,), simulated time since each environment's reset.
     """
 
+    params: np.ndarray
+    n_envs: int
+    control_dt_s: float
+    n_substeps: int
+    parallel: bool
+    state: np.ndarray
+    outputs: np.ndarray
+    history: np.ndarray
+    head: int
+    time_s: np.ndarray
+
     def __init__(self, params: np.ndarray, control_dt_s: float = 1e-3, n_substeps: int = 20,
-                 parallel: bool | None = None):
+                 parallel: bool | None = None) -> None:
         params = np.array(params, dtype=np.float64, order="C", ndmin=2)
         if params.shape[0] != L.N_PARAMS:
             raise ValueError(f"params has {params.shape[0]} rows, expected {L.N_PARAMS} "
@@ -72,13 +90,13 @@ class BatchSimulator:
 
     # -- parameters ----------------------------------------------------------------------
     def delays_s(self) -> np.ndarray:
-        """Tube delay tau = L_t / c of each environment (Eq. 31)."""
+        """Tube delay tau = L_t / c of each environment (Eq. 31), s."""
         p = self.params
-        c = np.array([sound_speed(p[L.P_HEAT_CAPACITY_RATIO, i], p[L.P_GAS_CONSTANT_J_PER_KG_K, i],
-                                  p[L.P_TEMPERATURE_K, i]) for i in range(self.n_envs)])
-        return p[L.P_TUBE_LENGTH_M] / c
+        return np.array([tube_delay_s(p[L.P_TUBE_LENGTH_M, i], p[L.P_HEAT_CAPACITY_RATIO, i],
+                                      p[L.P_GAS_CONSTANT_J_PER_KG_K, i], p[L.P_TEMPERATURE_K, i])
+                         for i in range(self.n_envs)], dtype=np.float64)
 
-    def _check_tube_waves(self, envs) -> None:
+    def _check_tube_waves(self, envs: Iterable[int]) -> None:
         """The transmission line (``tube_waves = 1``) reads waves sent at least one substep ago."""
         substep_s = self.control_dt_s / self.n_substeps
         delays = self.delays_s()
@@ -89,7 +107,7 @@ class BatchSimulator:
                     f"tube_waves = 1 (transmission line) of environment {env} needs a tube delay "
                     f"L_t/c of at least one substep ({substep_s:g} s); tube_length_m = {length:g} "
                     f"gives {delays[env]:g} s: use a tube of at least "
-                    f"{length * substep_s / delays[env] if delays[env] > 0 else float('inf'):.3g} m "
+                    f"{length * substep_s / delays[env] if delays[env] > 0 else np.inf:.3g} m "
                     f"or more substeps, or tube_waves = 0")
 
     def _slots_needed(self) -> int:
@@ -210,7 +228,8 @@ class BatchSimulator:
 
     # -- stepping ------------------------------------------------------------------------
     def step(self, coil_current_a: np.ndarray) -> np.ndarray:
-        """Advance all environments by one control period; returns ``outputs[O_*, env]`` (a view)."""
+        """Advance all environments by one control period; returns ``outputs[O_*, env]``
+        (a view)."""
         coil_current_a = self._check_currents(coil_current_a, (self.n_envs,))
         self.call_step_kernel(kernel.step_serial, kernel.step_parallel,
                               (self.params, self.state, self.history, self.head,
@@ -219,7 +238,8 @@ class BatchSimulator:
         self.advance_clock()
         return self.outputs
 
-    def call_step_kernel(self, serial, parallel, args: tuple) -> None:
+    def call_step_kernel(self, serial: Callable[..., None], parallel: Callable[..., None],
+                         args: tuple) -> None:
         """``parallel(*args)`` when this batch runs on threads (``self.parallel`` and more
         than one Numba thread), its chunks handed to the threads one at a time
         (``kernel.PARALLEL_CHUNKS_PER_HANDOUT``), else ``serial(*args)`` (on one thread the
@@ -243,7 +263,8 @@ class BatchSimulator:
         return a
 
     def advance_clock(self, n_steps: int = 1) -> None:
-        """Move the ring-buffer head and the clocks after the kernel advanced ``n_steps`` periods."""
+        """Move the ring-buffer head and the clocks after the kernel advanced ``n_steps``
+        control periods."""
         self.head = (self.head + n_steps * self.n_substeps) % self.history.shape[0]
         self.time_s += n_steps * self.control_dt_s
 

@@ -12,7 +12,8 @@
 
 The experiment settings below are the paper's (Sec. 2.3, Sec. 4) except where marked
 as a choice; every model parameter comes from ``configs/`` through ``load_parameters``.
-All results are simulated: nothing here is measured data.
+All results are simulated: nothing here is measured data. The figures are drawn by
+:mod:`pneumatic_env.studies.paper_figures` (the ``plots`` extra).
 """
 from __future__ import annotations
 
@@ -24,9 +25,16 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
+from pneumatic_env.ids import CYLINDER_IDS
 from pneumatic_env.params import DEFAULT_CYLINDER, load_parameters
-from pneumatic_env.physics.flow import flow_constants, orifice_mass_flow, subsonic_reduced_flow
-from pneumatic_env.physics.tube import reynolds_number, sound_speed, tube_attenuation, tube_resistance
+from pneumatic_env.physics.derived import orifice_gas_constants, piston_areas_m2, tube_delay_s
+from pneumatic_env.physics.flow import orifice_mass_flow
+from pneumatic_env.physics.tube import (
+    reynolds_number,
+    sound_speed,
+    tube_attenuation,
+    tube_resistance,
+)
 from pneumatic_env.physics.valve import orifice_area, steady_spool_position
 from pneumatic_env.replay import simulate_currents
 
@@ -37,7 +45,7 @@ __all__ = [
     "clamped_step_runs", "step_metrics", "free_sine_runs", "tube_response", "reproduce",
 ]
 
-CYLINDERS = ("numatics-0750D02-03A", "airpel-E16D3.0N")
+CYLINDERS = (CYLINDER_IDS["Numatics"], CYLINDER_IDS["Airpel"])  # the paper's two
 
 # (b) Sec. 4, Figs. 15-16: piston fixed at mid-stroke, 0.5 A coil step, 0.5 m and 2 m tubes.
 STEP_CURRENT_A = 0.5
@@ -137,7 +145,8 @@ def free_sine_scenario(cylinder: str, duration_s: float = SINE_DURATION_S,
 
 
 def run_scenario(scenario: Scenario, substeps: int | None = None, **overrides) -> dict:
-    """Simulate a scenario (rows at t_k, row 0 the initial state); ``overrides`` change parameters."""
+    """Simulate a scenario (rows at t_k, row 0 the initial state); ``overrides`` change
+    parameters."""
     return simulate_currents(scenario.parameters(**overrides), scenario.coil_current_a,
                              scenario.control_dt_s, substeps=substeps)
 
@@ -146,11 +155,8 @@ def run_scenario(scenario: Scenario, substeps: int | None = None, **overrides) -
 
 def _flow_args(p: dict) -> tuple:
     """Constant arguments of ``orifice_mass_flow`` after the pressures (Eqs. 40, 52)."""
-    k, gas = p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"]
-    c1, c2, p_cr = flow_constants(k, gas)
-    r_lin = p["flow_linear_ratio"]
-    slope = subsonic_reduced_flow(r_lin, k, c2) / (1.0 - r_lin)
-    return 1.0 / math.sqrt(p["temperature_k"]), k, c1, c2, p_cr, r_lin, slope
+    return orifice_gas_constants(p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"],
+                                 p["temperature_k"], p["flow_linear_ratio"])
 
 
 def _area(p: dict, spool_m: float) -> float:
@@ -195,7 +201,8 @@ def valve_flow_vs_downstream(params: dict, current_a: float, downstream_pa) -> n
 
 
 def valve_numbers(params: dict) -> dict:
-    """Spool displacement at 0.5 A (Eq. 46), full-open area (Eq. 44) and its choked flow (Eq. 39)."""
+    """Spool displacement at 0.5 A (Eq. 46), full-open area (Eq. 44) and its choked flow
+    (Eq. 39)."""
     p = params
     full_area = p["holes_per_path"] * math.pi * p["hole_radius_m"] ** 2
     fully_open_spool = p["spool_half_width_m"] + p["hole_radius_m"]  # x_e = 2 R_h
@@ -242,7 +249,7 @@ def _crossing(t, y, level) -> float:
 
 def steady_force_n(params: dict) -> float:
     """Clamped rod, chamber 1 at supply, chamber 2 at ambient: F = (P_s - P_a) A1 (Eq. 1)."""
-    a1 = 0.25 * math.pi * params["bore_diameter_m"] ** 2
+    a1, _, _ = piston_areas_m2(params["bore_diameter_m"], params["rod_diameter_m"])
     return (params["supply_pressure_pa"] - params["ambient_pressure_pa"]) * a1
 
 
@@ -259,7 +266,7 @@ def step_metrics(runs: dict) -> dict:
         params = {L: clamped_step_scenario(L, coupling).params for L in STEP_TUBES_M}
         rise = {L: first_rise_s(runs[(coupling, L)], params[L]) for L in STEP_TUBES_M}
         final = {L: time_to_final_force_s(runs[(coupling, L)], params[L]) for L in STEP_TUBES_M}
-        tau = {L: L / _sound_speed(params[L]) for L in STEP_TUBES_M}
+        tau = {L: _tube_delay_s(L, params[L]) for L in STEP_TUBES_M}
         out[coupling] = {
             "first_rise_s": {str(L): rise[L] for L in STEP_TUBES_M},
             "extra_delay_s": rise[long_] - rise[short],
@@ -281,6 +288,11 @@ def _half_range_at_end(run: dict, name: str) -> float:
 
 def _sound_speed(p: dict) -> float:
     return sound_speed(p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"], p["temperature_k"])
+
+
+def _tube_delay_s(length_m: float, p: dict) -> float:
+    return tube_delay_s(length_m, p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"],
+                        p["temperature_k"])
 
 
 # --------------------------------------------------------------------------- (c) free sine
@@ -326,8 +338,9 @@ def tube_response(params: dict | None = None, duration_s: float = TUBE_DURATION_
     p = load_parameters(DEFAULT_CYLINDER) if params is None else params
     gas_rt = p["gas_constant_j_per_kg_k"] * p["temperature_k"]
     c = _sound_speed(p)
-    tau = length_m / c
-    diameter, mu, re_t = p["tube_inner_diameter_m"], p["air_viscosity_pa_s"], p["reynolds_turbulent"]
+    tau = _tube_delay_s(length_m, p)
+    diameter, mu = p["tube_inner_diameter_m"], p["air_viscosity_pa_s"]
+    re_t = p["reynolds_turbulent"]
     omega = 2.0 * np.pi * frequency_hz
 
     def inlet(t):
@@ -354,7 +367,8 @@ def tube_response(params: dict | None = None, duration_s: float = TUBE_DURATION_
         b1[-1] = 0.0
         a1[0] = 2.0 * h_new - b1[0]
         s1 = source(a1, b1)
-        a[1:], b[:-1] = a[:-1] + 0.5 * dt * (s0[:-1] + s1[1:]), b[1:] + 0.5 * dt * (s0[1:] + s1[:-1])
+        a[1:], b[:-1] = (a[:-1] + 0.5 * dt * (s0[:-1] + s1[1:]),
+                         b[1:] + 0.5 * dt * (s0[1:] + s1[:-1]))
         b[-1] = 0.0
         a[0] = 2.0 * h_new - b[0]
         outlet[n + 1] = 0.5 * (a[-1] + b[-1])
@@ -375,121 +389,6 @@ def tube_response(params: dict | None = None, duration_s: float = TUBE_DURATION_
         "amplitude_ratio_wave": float(np.abs(outlet)[steady].max() / amplitude_kg_s),
         "mean_pressure_pa": mean_pressure_pa,
     }
-
-
-# --------------------------------------------------------------------------- figures
-
-def _pyplot():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
-def _figure_valve(plt, params, out: Path) -> list[Path]:
-    flows = valve_flow_vs_current(params)
-    numbers = valve_numbers(params)
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    ax.plot(flows["current_a"], 1e3 * flows["chamber1_kg_s"], label="supply -> chamber 1 (A_in)")
-    ax.plot(flows["current_a"], 1e3 * flows["chamber2_kg_s"], "--",
-            label="supply -> chamber 2 (A_ex)")
-    ax.axhline(1e3 * numbers["choked_flow_full_open_kg_s"], color="k", lw=0.6, ls=":",
-               label="choked flow, fully open")
-    ax.set(xlabel="coil current i_c [A]", ylabel="mass flow [g/s]",
-           title="Valve flow vs coil current, chamber at ambient (cf. Fig. 7)")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    paths = [out / "valve_flow_vs_current.png"]
-    fig.tight_layout()
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    downstream = np.linspace(params["ambient_pressure_pa"], params["supply_pressure_pa"], 400)
-    for i in DOWNSTREAM_CURRENTS_A:
-        ax.plot(1e-5 * downstream, 1e3 * valve_flow_vs_downstream(params, i, downstream),
-                label=f"i_c = {i:g} A")
-    p_cr = flow_constants(params["heat_capacity_ratio"], params["gas_constant_j_per_kg_k"])[2]
-    ax.axvline(1e-5 * p_cr * params["supply_pressure_pa"], color="k", lw=0.6, ls=":",
-               label="P_cr P_s (choked below)")
-    ax.set(xlabel="downstream pressure [bar abs]", ylabel="mass flow [g/s]",
-           title=f"Valve flow vs downstream pressure, upstream "
-                 f"{1e-5 * params['supply_pressure_pa']:g} bar (cf. Fig. 9)")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    paths.append(out / "valve_flow_vs_downstream.png")
-    fig.tight_layout()
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
-    return paths
-
-
-def _figure_step(plt, runs, out: Path) -> list[Path]:
-    fig, axes = plt.subplots(2, 2, figsize=(10, 6.5), sharex=True)
-    styles = {"command": "-", "literal": "--"}
-    for col, L in enumerate(STEP_TUBES_M):
-        for coupling in COUPLINGS:
-            r = runs[(coupling, L)]
-            t_ms = 1e3 * r["t"]
-            ls = styles[coupling]
-            axes[0, col].plot(t_ms, 1e-5 * r["p1"], ls, color="C0", label=f"p1, {coupling}")
-            axes[0, col].plot(t_ms, 1e-5 * r["p2"], ls, color="C1", label=f"p2, {coupling}")
-            axes[1, col].plot(t_ms, r["f"], ls, color="C2", label=f"force, {coupling}")
-        axes[0, col].set(title=f"{L:g} m tubes", ylabel="pressure [bar abs]")
-        axes[1, col].set(xlabel="time after the 0.5 A step [ms]", ylabel="force [N]")
-        for ax in axes[:, col]:
-            ax.grid(alpha=0.3)
-            ax.legend(fontsize=7)
-    fig.suptitle("Clamped rod at mid-stroke, 0.5 A coil step (cf. Figs. 15-16); "
-                 "solid: command coupling (default), dashed: literal Eq. 55")
-    fig.tight_layout()
-    path = out / "clamped_step.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return [path]
-
-
-def _figure_sine(plt, runs, out: Path) -> list[Path]:
-    fig, axes = plt.subplots(len(CYLINDERS), 1, figsize=(8, 6), sharex=True)
-    for ax, cylinder in zip(axes, CYLINDERS):
-        r = runs[cylinder]
-        ax.plot(r["t"], 1e3 * r["x"], color="C0", label="piston position x")
-        ax.set(ylabel="x [mm]", title=cylinder)
-        ax.grid(alpha=0.3)
-        twin = ax.twinx()
-        twin.step(r["t"], r["i_c"], where="post", color="C3", lw=0.8, label="coil current")
-        twin.set_ylabel("i_c [A]", color="C3")
-        ax.legend(loc="upper left", fontsize=8)
-    axes[-1].set_xlabel("time [s]")
-    fig.suptitle(f"Free rod, no load, {SINE_AMPLITUDE_A:g} A {SINE_FREQUENCY_HZ:g} Hz "
-                 "sinusoidal coil current (cf. Figs. 17-18)")
-    fig.tight_layout()
-    path = out / "free_sine.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return [path]
-
-
-def _figure_tube(plt, tube, out: Path) -> list[Path]:
-    fig, ax = plt.subplots(figsize=(8, 4.2))
-    t_ms = 1e3 * tube["t"]
-    ax.plot(t_ms, 1e3 * tube["inlet_kg_s"], color="k", lw=0.8, label="inlet flow")
-    ax.plot(t_ms, 1e3 * tube["outlet_eq31_kg_s"], color="C0",
-            label="outlet, Eq. 31 (R_t by Reynolds number)")
-    ax.plot(t_ms, 1e3 * tube["outlet_eq31_laminar_kg_s"], ":", color="C0",
-            label="outlet, Eq. 31 with laminar R_t (Eq. 33)")
-    ax.plot(t_ms, 1e3 * tube["outlet_wave_kg_s"], "--", color="C3",
-            label="outlet, Eqs. 19-20 (characteristics, R_t by Reynolds number)")
-    ax.set(xlabel="time [ms]", ylabel="mass flow [g/s]",
-           title=f"{TUBE_LENGTH_M:g} m x 3.2 mm tube, {TUBE_FLOW_FREQUENCY_HZ:g} Hz inlet flow, "
-                 f"P = {1e-5 * tube['mean_pressure_pa']:g} bar (cf. Fig. 3)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)
-    fig.tight_layout()
-    path = out / "tube_outlet_flow.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return [path]
 
 
 # --------------------------------------------------------------------------- table
@@ -574,11 +473,8 @@ def reproduce(out_dir: str | Path, quick: bool = False, figures: bool = True) ->
     }
     files = []
     if figures:
-        plt = _pyplot()
-        files += _figure_valve(plt, params, out)
-        files += _figure_step(plt, step_runs, out)
-        files += _figure_sine(plt, sine_runs, out)
-        files += _figure_tube(plt, tube, out)
+        from .paper_figures import write_figures  # matplotlib: the plots extra
+        files += write_figures(params, step_runs, sine_runs, tube, out)
     (out / "table.json").write_text(json.dumps(_jsonable(table), indent=2) + "\n")
     lines = ["| quantity | value | unit | paper / expected |", "|---|---|---|---|"]
     lines += [f"| {a} | {b} | {c} | {d} |" for a, b, c, d in _table_rows(table)]

@@ -279,6 +279,7 @@ def _all_configurations(coupling):
     return sets
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("coupling", ["command", "literal"])
 def test_random_rollouts_stay_physical(coupling):
     """Every cylinder x tube length x rod mode, 2 s of random currents in one batch: finite,
@@ -434,6 +435,7 @@ def test_kernel_is_deterministic_and_batches_are_independent():
         assert np.array_equal(alone[:, :, 0], batch[:, :, j]), j
 
 
+@pytest.mark.slow
 def test_step_by_step_serial_and_parallel_equal_rollout(numba_threads):
     sets = _mixed_sets()
     currents = _random_currents(np.random.default_rng(8), 200, len(sets))

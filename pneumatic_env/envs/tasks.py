@@ -22,6 +22,7 @@ from ..physics.derived import force_scale_n
 from ..references import ArrayReference, ReferenceSpec, make_reference
 from ..simulator import BatchSimulator
 from . import task_kernel
+from .features import FeatureConfig, FeatureState
 from .observation import (OBSERVED_CHANNELS, fill_observation, observation_dim,
                           observation_scales)
 
@@ -115,6 +116,13 @@ class EnvOptions:
     sensor_lag_s: float = 0.0
     control_dt_s: float | None = None
     substeps: int | None = None
+    # observation features after the base layout (envs.features; off by default)
+    action_history: int = 0
+    measurement_history: int = 0
+    tracking_error: bool = False
+    error_integral_tau_s: float = 0.2
+    error_integral_leaky: bool = True
+    relative_preview: bool = False
 
     def validate(self) -> None:
         def bad(name, value, allowed):
@@ -132,6 +140,7 @@ class EnvOptions:
                 bad("sensor_noise key", channel, f"must be one of {list(OBSERVED_CHANNELS)}")
             if not (np.isfinite(std) and std >= 0):
                 bad(f"sensor_noise['{channel}']", std, "must be a finite number >= 0")
+        FeatureConfig.from_options(self).validate()
 
 
 def _rod_mode(task: TaskSpec, cylinder: str, params, overrides: dict) -> str:
@@ -210,9 +219,15 @@ class TaskCore:
                      if self.options.sensor_lag_s > 0 else 0.0)
         self._out_rows = np.array([_CHANNEL_OUTPUT[c] for c in OBSERVED_CHANNELS])
         self._tracked_row = _CHANNEL_OUTPUT[task.tracked]
-        self.obs_dim = observation_dim(self.options.preview_steps)
+        self.base_obs_dim = observation_dim(self.options.preview_steps)
         self.observation_scales = observation_scales(
             base, self.force_scale, self.scale, self.options.normalize_observation)
+        self.feature_config = FeatureConfig.from_options(self.options)
+        self.features = (FeatureState(self.feature_config, n_envs, self.options.preview_steps,
+                                      self.observation_scales, control_dt, task.tracked)
+                         if self.feature_config.enabled else None)
+        self.obs_dim = self.base_obs_dim + (self.features.dim if self.features else 0)
+        self._si_scales = self.observation_scales._replace(normalize=False)
         self._task_params = task_kernel.TaskParams(
             float(self.i_max), float(self.options.effort_weight),
             float(self.options.chatter_weight), float(self._lag), self._out_rows,
@@ -273,12 +288,15 @@ class TaskCore:
         return ArrayReference(values, self.dt)
 
     def reset_envs(self, envs: np.ndarray, rngs: list,
-                   references: list[ReferenceSpec | None] | None = None) -> None:
+                   references: list[ReferenceSpec | None] | None = None,
+                   start_steps: np.ndarray | None = None) -> None:
         """Start new episodes in ``envs``; ``rngs[i]`` is env i's own generator.
 
         ``references[j]`` (if given and not None) is the reference of env ``envs[j]``'s new
         episode instead of ``reference_spec``, drawn from the same generator at the same
         point, so the episode is the one of an env made with that ``reference``.
+        ``start_steps[j]`` (default 0): the step count env ``envs[j]`` starts at (its
+        reference is read from that sample on).
         """
         n_ref = self.references.shape[1]
         if self._randomization:
@@ -299,10 +317,12 @@ class TaskCore:
             block = own[first:first + REFERENCE_BLOCK_ENVS]
             self.references[block] = self.reference_spec.generate_rows(
                 n_ref, self.dt, [rngs[env] for env in block])
-        self.step_count[envs] = 0
+        self.step_count[envs] = 0 if start_steps is None else start_steps
         self.prev_action[envs] = 0.0
         self.measured[envs] = self.sim.outputs[self._out_rows][:, envs].T
         self._add_noise(envs, rngs)
+        if self.features is not None:
+            self.features.reset(envs, self._base_observation(self._si_scales)[envs])
 
     def _draw_noise(self, envs, rngs) -> np.ndarray:
         """Sensor noise for ``envs``, drawn from each env's own generator (zeros when off)."""
@@ -339,12 +359,17 @@ class TaskCore:
         sim = self.sim
         self._last_action = coil_current_a
         noise = self._draw_noise(range(self.n_envs), rngs) if self._noise_on else self._noise
-        obs = np.empty((self.n_envs, self.obs_dim), dtype=np.float32)
+        obs = np.empty((self.n_envs, self.base_obs_dim), dtype=np.float32)
         out = self._step_outputs[:-1] + (obs,)  # StepOutputs with this step's obs
         sim.call_step_kernel(task_kernel.task_step_serial, task_kernel.task_step_parallel,
                              (tuple(task_kernel.sim_arrays(sim)), *self._step_fixed,
                               coil_current_a, noise, out))
         sim.advance_clock()
+        if self.features is not None:
+            si = (self._base_observation(self._si_scales)
+                  if self.options.normalize_observation else obs)
+            self.features.update(si, self.last_applied)
+            obs = np.concatenate([obs, self.features.values], axis=1)
         return obs, self.last_reward
 
     def info(self, env: int | None = None) -> dict:
@@ -363,10 +388,16 @@ class TaskCore:
                 "exhaust_mass_kg": float(o[L.O_EXHAUST, env])}
 
     def observation(self) -> np.ndarray:
-        """[p1, p2, x, f, ref(k), ref(k+1..k+H)] per env, float32 (SI or normalised)."""
-        obs = np.empty((self.n_envs, self.obs_dim), dtype=np.float32)
-        fill_observation(self.measured, self.references, self.step_count,
-                         self.observation_scales, obs)
+        """[p1, p2, x, f, ref(k), ref(k+1..k+H)] per env, float32 (SI or normalised), then
+        the features of the last step or reset (``envs.features``) when any is on."""
+        obs = self._base_observation(self.observation_scales)
+        if self.features is not None:
+            obs = np.concatenate([obs, self.features.values], axis=1)
+        return obs
+
+    def _base_observation(self, scales) -> np.ndarray:
+        obs = np.empty((self.n_envs, self.base_obs_dim), dtype=np.float32)
+        fill_observation(self.measured, self.references, self.step_count, scales, obs)
         return obs
 
     def observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:

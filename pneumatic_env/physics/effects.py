@@ -1,12 +1,14 @@
 """Effects beyond the paper's model (docs/effects.md); each is off at its neutral value.
 
-The kernel decides once per control period (``kernel.env_constants``) which effects are
+The kernel decides once per control period (``constants.env_constants``) which effects are
 on; the functions here are called only for those, or reduce exactly to the paper's
 quantity at the neutral value. The ISO 6358 flow law is in ``flow.py``.
 """
 import math
 
 from numba import njit
+
+from .derived import circle_area_m2
 
 
 @njit(cache=True)
@@ -17,7 +19,7 @@ def dead_volume_with_tube(dead_volume_m3, tube_volume_fraction, tube_inner_diame
     The paper leaves the tube's own air out of the chamber volume (docs/model.md); f = 0
     is the paper's model, f = 1 counts the whole tube as chamber volume.
     """
-    tube_volume = 0.25 * math.pi * tube_inner_diameter_m * tube_inner_diameter_m * tube_length_m
+    tube_volume = circle_area_m2(tube_inner_diameter_m) * tube_length_m
     return dead_volume_m3 + tube_volume_fraction * tube_volume
 
 

@@ -105,9 +105,64 @@ EFFECT_NEUTRAL_VALUES = {
     "lugre_damping_n_s_per_m": 0.0,
 }
 
-_g = globals()
-for _i, _name in enumerate(PARAMETER_NAMES):
-    _g["P_" + _name.upper()] = _i
+# Parameter rows: P_<NAME> is the row of ``name`` in PARAMETER_NAMES (written out so that
+# editors and type checkers resolve them; ``_check_rows`` at the end keeps them in step).
+P_GAS_CONSTANT_J_PER_KG_K = 0
+P_HEAT_CAPACITY_RATIO = 1
+P_TEMPERATURE_K = 2
+P_AMBIENT_PRESSURE_PA = 3
+P_SUPPLY_PRESSURE_PA = 4
+P_AIR_VISCOSITY_PA_S = 5
+P_ALPHA_IN = 6
+P_ALPHA_OUT = 7
+P_ALPHA_MOTION = 8
+P_SPOOL_MASS_KG = 9
+P_SPOOL_DAMPING_N_S_PER_M = 10
+P_SPOOL_SPRING_N_PER_M = 11
+P_COIL_FORCE_N_PER_A = 12
+P_COIL_CURRENT_MAX_A = 13
+P_DISCHARGE_COEFFICIENT = 14
+P_HOLE_RADIUS_M = 15
+P_SPOOL_HALF_WIDTH_M = 16
+P_HOLES_PER_PATH = 17
+P_TUBE_LENGTH_M = 18
+P_TUBE_INNER_DIAMETER_M = 19
+P_REYNOLDS_TURBULENT = 20
+P_TUBE_COUPLING = 21
+P_BORE_DIAMETER_M = 22
+P_ROD_DIAMETER_M = 23
+P_STROKE_M = 24
+P_DEAD_VOLUME_CAP_M3 = 25
+P_DEAD_VOLUME_ROD_M3 = 26
+P_PISTON_MASS_KG = 27
+P_STATIC_FRICTION_N = 28
+P_DYNAMIC_FRICTION_N = 29
+P_VISCOUS_FRICTION_N_S_PER_M = 30
+P_LEAKAGE_AREA_M2 = 31
+P_PISTON_MODE = 32
+P_FIXED_POSITION_M = 33
+P_LOAD_MASS_KG = 34
+P_LOAD_FORCE_N = 35
+P_SPRING_STIFFNESS_N_PER_M = 36
+P_SPRING_REST_POSITION_M = 37
+P_FLOW_LINEAR_RATIO = 38
+P_TUBE_VOLUME_FRACTION = 39
+P_ROD_SEAL_LEAK_AREA_M2 = 40
+P_VALVE_NULL_LEAK_AREA_M2 = 41
+P_EXHAUST_DISCHARGE_RATIO = 42
+P_FLOW_LAW = 43
+P_ISO_CRITICAL_RATIO_B = 44
+P_SUPPLY_RESISTANCE_PA_S_PER_KG = 45
+P_COIL_TIME_CONSTANT_S = 46
+P_COIL_LAG_SHAPE = 47
+P_WALL_HEAT_TRANSFER_W_PER_K = 48
+P_STRIBECK_VELOCITY_M_PER_S = 49
+P_SPOOL_COULOMB_FRICTION_N = 50
+P_TUBE_WAVES = 51
+P_EXHAUST_VENT_AREA_M2 = 52
+P_EXHAUST_VOLUME_M3 = 53
+P_LUGRE_STIFFNESS_N_PER_M = 54
+P_LUGRE_DAMPING_N_S_PER_M = 55
 N_PARAMS = len(PARAMETER_NAMES)
 PARAMETER_INDEX = {name: row for row, name in enumerate(PARAMETER_NAMES)}  # name -> row
 
@@ -139,8 +194,21 @@ STATE_NAMES = (
     "bristle_deflection_m",  # LuGre friction's mean bristle deflection z (0 unless
     # lugre_stiffness_n_per_m > 0)
 )
-for _i, _name in enumerate(STATE_NAMES):
-    _g["S_" + _name.upper()] = _i
+# State rows: S_<NAME> is the row of ``name`` in STATE_NAMES (written out, as above).
+S_SPOOL_POSITION_M = 0
+S_SPOOL_VELOCITY_M_PER_S = 1
+S_P1_PA = 2
+S_P2_PA = 3
+S_PISTON_POSITION_M = 4
+S_PISTON_VELOCITY_M_PER_S = 5
+S_EXHAUST_MASS_KG = 6
+S_T1_K = 7
+S_T2_K = 8
+S_COIL_CURRENT_A = 9
+S_SPOOL_PLAY_CURRENT_A = 10
+S_COIL_FORCE_CURRENT_A = 11
+S_EXHAUST_NODE_PA = 12
+S_BRISTLE_DEFLECTION_M = 13
 N_STATE = len(STATE_NAMES)
 S_X_S = S_SPOOL_POSITION_M
 S_V_S = S_SPOOL_VELOCITY_M_PER_S
@@ -171,4 +239,25 @@ OUTPUT_NAMES = ("p1_pa", "p2_pa", "piston_position_m", "force_n", "piston_veloci
 O_P1, O_P2, O_X, O_F, O_V, O_X_S, O_EXHAUST = range(7)
 N_OUTPUT = len(OUTPUT_NAMES)
 
-del _g, _i, _name
+
+def _check_rows(namespace: dict) -> None:
+    """Every written-out row constant matches its table: ``P_<NAME>`` is the row of
+    ``name`` in PARAMETER_NAMES and ``S_<NAME>`` in STATE_NAMES, one constant per name and
+    no other; the H_* and O_* rows count their tables in order."""
+    for prefix, names in (("P_", PARAMETER_NAMES), ("S_", STATE_NAMES)):
+        written = {key: value for key, value in namespace.items()
+                   if key.startswith(prefix) and key[len(prefix):] in
+                   {name.upper() for name in names}}
+        expected = {prefix + name.upper(): row for row, name in enumerate(names)}
+        if written != expected:
+            wrong = sorted(set(expected.items()) ^ set(written.items()))
+            raise AssertionError(f"layout: row constants {wrong} disagree with the table "
+                                 f"of {prefix}* names")
+    for rows, names in (((H_X_S, H_P1, H_P2, H_WAVE_VALVE_1, H_WAVE_VALVE_2, H_WAVE_CHAMBER_1,
+                          H_WAVE_CHAMBER_2), HISTORY_NAMES),
+                        ((O_P1, O_P2, O_X, O_F, O_V, O_X_S, O_EXHAUST), OUTPUT_NAMES)):
+        if rows != tuple(range(len(names))):
+            raise AssertionError(f"layout: rows {rows} do not count {names} in order")
+
+
+_check_rows(globals())

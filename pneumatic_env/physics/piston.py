@@ -17,7 +17,8 @@ def external_force(mode, piston_position_m, load_force_n, spring_stiffness_n_per
                    spring_rest_position_m):
     """F_L of Eq. 1 (positive resists extension): a constant force, plus the spring's push."""
     if mode == MODE_SPRING:
-        return load_force_n + spring_stiffness_n_per_m * (piston_position_m - spring_rest_position_m)
+        return load_force_n + spring_stiffness_n_per_m * (piston_position_m
+                                                          - spring_rest_position_m)
     return load_force_n
 
 

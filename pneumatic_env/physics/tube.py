@@ -30,7 +30,8 @@ def viscous_scale(tube_inner_diameter_m, air_viscosity_pa_s):
 
 @njit(cache=True, forceinline=True, error_model="numpy")
 def tube_resistance(reynolds, tube_inner_diameter_m, air_viscosity_pa_s, reynolds_turbulent):
-    """Tube resistance R_t (Pa s / m^2): laminar Eq. 33 below ``reynolds_turbulent``, else Eq. 35."""
+    """Tube resistance R_t (Pa s / m^2): laminar Eq. 33 below ``reynolds_turbulent``, else
+    Eq. 35."""
     return scaled_tube_resistance(reynolds, viscous_scale(tube_inner_diameter_m,
                                                           air_viscosity_pa_s), reynolds_turbulent)
 

@@ -1,0 +1,378 @@
+"""The kernel's batch path: chunks of ``CHUNK_ENVS`` environments running the paper's
+model advance one RK4 substep at a time in single loops over the chunk that LLVM compiles
+to SIMD code (``advance_chunk``); a lane whose substep is stiff or crosses a piston event
+is redone by the general path, and environments with other effects on take
+``general_path.advance_env``. The step functions (``step_serial``, ``step_parallel``,
+``rollout_serial``) run the chunks of a batch.
+"""
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from . import layout as L
+from .constants import (
+    C_BASE_ONLY,
+    C_DELAY_SUBSTEPS,
+    C_SPOOL_PLAY_BAND,
+    CHUNK_ENVS,
+    load_constants,
+    refresh_constants,
+)
+from .effects import spool_play_current
+from .general_path import (
+    OUTPUT_STATE_ROWS,
+    STIFFNESS_LIMIT,
+    _close_substep,
+    _split_substep,
+    advance_env,
+    refinement,
+    stiffness_ratio,
+)
+from .piston import (
+    MODE_FIXED,
+    end_of_substep,
+    event_fraction,
+    external_force,
+    motion_direction,
+    output_force,
+    pneumatic_force,
+)
+from .right_hand_side import N_RK, ring_slot, rk4_base_substep
+from .vecmath import _float_to_bits
+
+# The parallel steps run inside BatchSimulator.call_step_kernel, which has the threads
+# take chunks one at a time as each gets free (dynamic scheduling, numba's
+# ``parallel_chunksize``) rather than split them evenly up front: a core slowed by other
+# processes then takes fewer chunks instead of holding the others up at the region's end.
+PARALLEL_CHUNKS_PER_HANDOUT = 1
+
+# Rows of the batch path's work array, a flat array of N_WORK rows of CHUNK_ENVS lanes: the
+# RK4 state rows, the state at the substep's start, the inputs of one substep and the
+# lanes the general path redoes. The vectorised loops update the rows in place. Rows are
+# CHUNK_ENVS apart, a compile-time constant, so LLVM can prove the lanes independent (with
+# run-time row strides it gives up on the aliasing checks).
+W_START = N_RK  # the RK4 state at the substep's start: N_RK rows
+W_SPOOL_DELAYED = 2 * N_RK  # x_s(t - tau) at the substep's start, middle and end: 3 rows
+W_CURRENT = W_SPOOL_DELAYED + 3
+W_DIRECTION = W_CURRENT + 1
+W_REDO = W_DIRECTION + 1  # 1.0 where the general path redoes the substep (stiff, or an event)
+N_WORK = W_REDO + 1
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _work_rows(work, first_row, j):
+    """The RK4 state tuple in rows ``first_row ..`` of lane ``j`` of the flat work array."""
+    i = first_row * CHUNK_ENVS + j
+    k = CHUNK_ENVS
+    return (work[i], work[i + k], work[i + 2 * k], work[i + 3 * k], work[i + 4 * k],
+            work[i + 5 * k], work[i + 6 * k], work[i + 7 * k], work[i + 8 * k])
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _set_work_rows(work, first_row, j, y):
+    """Store the state tuple ``y`` in rows ``first_row ..`` of lane ``j`` (row by row: a
+    run-time tuple index would not vectorise)."""
+    i = first_row * CHUNK_ENVS + j
+    k = CHUNK_ENVS
+    work[i], work[i + k], work[i + 2 * k] = y[0], y[1], y[2]
+    work[i + 3 * k], work[i + 4 * k], work[i + 5 * k] = y[3], y[4], y[5]
+    work[i + 6 * k], work[i + 7 * k], work[i + 8 * k] = y[6], y[7], y[8]
+
+
+@njit(cache=True, error_model="numpy")
+def _begin_substeps(constants, work, n_lanes, h):
+    """Before a vectorised substep, for every lane of a chunk: keep the state at the
+    substep's start, set the piston's direction over the substep (``motion_direction``;
+    0 with the rod fixed), and mark the lane for the general path where ``refinement``
+    would split the substep (stiff flow). A loop LLVM vectorises."""
+    for j in range(n_lanes):
+        c = load_constants(constants, j)
+        y = _work_rows(work, 0, j)
+        _set_work_rows(work, W_START, j, y)
+        applied = (pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
+                   - external_force(c.mode, y[4], c.load_force, c.spring_k, c.spring_rest))
+        direction = motion_direction(y[4], y[5], applied, c.stick_threshold, c.half_stroke)
+        work[W_DIRECTION * CHUNK_ENVS + j] = 0.0 if c.mode == MODE_FIXED else direction
+        stiff = stiffness_ratio(c, y, h) > STIFFNESS_LIMIT  # refinement(c, y, h) > 1
+        work[W_REDO * CHUNK_ENVS + j] = 1.0 if stiff else 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def _base_substeps_vectorised(constants, work, n_lanes, h):
+    """RK4 substep of ``base_derivatives`` for every lane of a chunk; a loop LLVM vectorises.
+
+    ``error_model="numpy"`` lets a division by zero give inf instead of raising, so the
+    divisions do not stop vectorisation.
+    """
+    for j in range(n_lanes):
+        c = load_constants(constants, j)
+        out = rk4_base_substep(c, _work_rows(work, 0, j), work[W_CURRENT * CHUNK_ENVS + j],
+                               work[W_DIRECTION * CHUNK_ENVS + j],
+                               work[W_SPOOL_DELAYED * CHUNK_ENVS + j],
+                               work[(W_SPOOL_DELAYED + 1) * CHUNK_ENVS + j],
+                               work[(W_SPOOL_DELAYED + 2) * CHUNK_ENVS + j], h)
+        _set_work_rows(work, 0, j, out)
+
+
+@njit(cache=True, error_model="numpy")
+def _end_substeps(constants, work, n_lanes):
+    """After a vectorised substep, for every lane of a chunk: mark the lane for the general
+    path where the sliding piston met an event (a stop or a velocity reversal,
+    ``event_fraction``), and apply the end stops (``end_of_substep``). A loop LLVM
+    vectorises."""
+    k = CHUNK_ENVS
+    for j in range(n_lanes):
+        c = load_constants(constants, j)
+        direction = work[W_DIRECTION * k + j]
+        x0, v0 = work[(W_START + L.S_X) * k + j], work[(W_START + L.S_V) * k + j]
+        x, v = work[L.S_X * k + j], work[L.S_V * k + j]
+        event = direction != 0.0 and event_fraction(x0, v0, x, v, direction,
+                                                    c.half_stroke) >= 0.0
+        work[W_REDO * k + j] = 1.0 if event else work[W_REDO * k + j]
+        work[L.S_X * k + j], work[L.S_V * k + j] = end_of_substep(x, v, c.half_stroke)
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _delay_slots(head_sub, stage, delay_substeps, n_slots):
+    """Where the batch path reads x_s(t - tau) at substep fraction ``stage / 2`` (0, 1/2,
+    1; at or before head + 1): (query, lower slot, upper slot, weight of the upper)."""
+    query = 0.5 * stage - delay_substeps
+    base = math.floor(query)
+    lower_slot = head_sub + int(base)  # in [-n_slots, n_slots)
+    lower_slot = lower_slot + n_slots if lower_slot < 0 else lower_slot
+    upper_slot = lower_slot + 1
+    upper_slot = 0 if upper_slot == n_slots else upper_slot
+    return query, lower_slot, upper_slot, query - base
+
+
+@njit(cache=True, error_model="numpy")
+def _same_delay(constants, n_lanes):
+    """Whether every lane of a chunk has the same tube delay (one tube length: the usual
+    case), so that its delayed reads share their ring slots."""
+    k = CHUNK_ENVS
+    delay = constants[C_DELAY_SUBSTEPS * k]
+    same = True
+    for j in range(1, n_lanes):
+        same &= constants[C_DELAY_SUBSTEPS * k + j] == delay
+    return same
+
+
+@njit(cache=True, error_model="numpy")
+def _interpolate_row(work, lower_row, upper_row, n_lanes, row, weight, at_start):
+    """Work row ``row`` of every lane from two rows of the ring buffer, ``lower_row +
+    weight * (upper_row - lower_row)``, or the substep's start (``at_start``: a delay of
+    exactly one substep). A loop LLVM vectorises."""
+    k = CHUNK_ENVS
+    for j in range(n_lanes):
+        lower = lower_row[j]
+        interpolated = lower + weight * (upper_row[j] - lower)
+        work[row * k + j] = work[W_START * k + j] if at_start else interpolated
+
+
+@njit(cache=True, error_model="numpy")
+def _delayed_spool_rows(constants, work, history, first, n_lanes, head_sub, same_delay):
+    """For every lane of a chunk, the delayed spool position x_s(t - tau) at the substep's
+    start, middle and end (``delayed_value`` with a delay of at least one substep, as
+    ``base_model_only`` requires). With ``same_delay`` (``_same_delay``) the lanes read the
+    same ring slots, contiguous rows (``_interpolate_row``); otherwise each lane its own
+    (branch-free, so no lane waits on a mispredicted branch; gathers, which LLVM keeps
+    scalar)."""
+    n_slots = history.shape[0]
+    k = CHUNK_ENVS
+    stop = first + n_lanes
+    if same_delay:
+        for stage in range(3):
+            query, lower_slot, upper_slot, weight = _delay_slots(
+                head_sub, stage, constants[C_DELAY_SUBSTEPS * k], n_slots)
+            _interpolate_row(work, history[lower_slot, L.H_X_S, first:stop],
+                             history[upper_slot, L.H_X_S, first:stop], n_lanes,
+                             W_SPOOL_DELAYED + stage, weight, query >= 0.0)
+        return
+    for j in range(n_lanes):
+        delay_substeps = constants[C_DELAY_SUBSTEPS * k + j]
+        x_s = work[W_START * k + j]
+        for stage in range(3):
+            query, lower_slot, upper_slot, weight = _delay_slots(head_sub, stage,
+                                                                 delay_substeps, n_slots)
+            lower = history[lower_slot, L.H_X_S, first + j]
+            upper = history[upper_slot, L.H_X_S, first + j]
+            interpolated = lower + weight * (upper - lower)
+            # a query at head + 1 (a delay of exactly one substep) is the start's own value
+            work[(W_SPOOL_DELAYED + stage) * k + j] = x_s if query >= 0.0 else interpolated
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _any_lane_set(work, row, n_lanes):
+    """Whether any lane of work row ``row`` (0.0 or 1.0 flags) is set: an OR of their bits,
+    a reduction LLVM vectorises, so the lanes are scanned one by one only when one is."""
+    bits = 0
+    for j in range(n_lanes):
+        bits |= _float_to_bits(work[row * CHUNK_ENVS + j])
+    return bits != 0
+
+
+@njit(cache=True, error_model="numpy")
+def _copy_fast_lanes(constants, work, n_lanes, work_row, target_row, keep_redone):
+    """Copy row ``work_row`` of a chunk's lanes into ``target_row`` (one row of the chunk's
+    state, outputs or delay history at one ring slot) for the lanes of the batch path;
+    the lanes of ``advance_env`` keep theirs, and so do the lanes the general path redid
+    when ``keep_redone`` (it wrote their history itself). A loop LLVM vectorises (one row
+    per loop: with more rows written, it would not check their aliasing at run time)."""
+    k = CHUNK_ENVS
+    for j in range(n_lanes):
+        # both entries loaded and bitwise logic: no branch, so no conditional load
+        kept, advanced = target_row[j], work[work_row * k + j]
+        keep = ((constants[C_BASE_ONLY * k + j] == 0.0)
+                | (keep_redone & (work[W_REDO * k + j] != 0.0)))
+        target_row[j] = kept if keep else advanced
+
+
+@njit(cache=True, error_model="numpy")
+def _fast_commands(constants, work, n_lanes, command_row, play_row):
+    """The held command of each batch-path lane of a chunk as the spool sees it through
+    its play (``spool_command``), into row ``W_CURRENT``; ``play_row`` is the chunk's
+    state row ``spool_play_current_a`` (the lanes of ``advance_env`` keep theirs). A loop
+    LLVM vectorises."""
+    k = CHUNK_ENVS
+    for j in range(n_lanes):
+        held = play_row[j]
+        played = spool_play_current(held, command_row[j], constants[C_SPOOL_PLAY_BAND * k + j])
+        play_row[j] = held if constants[C_BASE_ONLY * k + j] == 0.0 else played
+        work[W_CURRENT * k + j] = played
+
+
+@njit(cache=True, error_model="numpy")
+def _fast_output_forces(constants, work, n_lanes, force_row):
+    """The force output (Eq. 1, ``output_force``) of each batch-path lane of a chunk into
+    ``force_row`` (the chunk's outputs row ``O_F``; the lanes of ``advance_env`` keep
+    theirs). A loop LLVM vectorises."""
+    k = CHUNK_ENVS
+    for j in range(n_lanes):
+        c = load_constants(constants, j)
+        y = _work_rows(work, 0, j)
+        force = output_force(c.mode, pneumatic_force(y[2], y[3], c.area_cap, c.area_rod,
+                                                     c.rod_area, c.ambient_pa),
+                             y[4], c.spring_k, c.spring_rest)
+        kept = force_row[j]
+        force_row[j] = kept if constants[C_BASE_ONLY * k + j] == 0.0 else force
+
+
+@njit(cache=True)
+def chunk_work(state, first, stop):
+    """A new work array for environments ``first .. stop-1`` (one chunk): their RK4 state
+    rows, the other rows zero."""
+    work = np.zeros(N_WORK * CHUNK_ENVS)
+    for row in range(N_RK):
+        work[row * CHUNK_ENVS:row * CHUNK_ENVS + stop - first] = state[row, first:stop]
+    return work
+
+
+@njit(cache=True)
+def prepare_substep(constants, work, history, first, n_lanes, head_sub, same_delay, h):
+    """The inputs of a chunk's RK4 loop for the substep after ring slot ``head_sub``: the
+    start state, direction and stiff lanes (``_begin_substeps``), then the delayed spool
+    positions (``_delayed_spool_rows``)."""
+    _begin_substeps(constants, work, n_lanes, h)
+    _delayed_spool_rows(constants, work, history, first, n_lanes, head_sub, same_delay)
+
+
+@njit(cache=True)
+def advance_chunk(params, state, history, first, stop, head, coil_current_a, control_dt_s,
+                  n_substeps, outputs, key, constants):
+    """Advance environments ``first .. stop-1`` by one control period; write their outputs.
+
+    ``first`` is a multiple of ``CHUNK_ENVS``; ``key``, ``constants`` are the cache of
+    ``constants_cache``. Environments where ``base_model_only`` holds advance together:
+    per substep, one vectorised loop keeps the start state and finds the piston's
+    direction and the stiff lanes (``_begin_substeps``), the delayed spool positions are
+    read (``_delayed_spool_rows``), one vectorised RK4 substep
+    (``_base_substeps_vectorised``) advances every lane, and one vectorised loop finds the
+    lanes whose piston met an event and applies the stops (``_end_substeps``). A lane
+    whose substep needs splitting (stiff flow, ``refinement``) or crosses a piston event
+    is redone from the substep's start by the general path (``_split_substep``). Other
+    environments take ``advance_env``. Either way an environment's result does not depend
+    on the rest of the batch.
+    """
+    n = stop - first
+    h = control_dt_s / n_substeps
+    n_slots = history.shape[0]
+    chunk_constants = constants[first // CHUNK_ENVS]
+    refresh_constants(params, first, stop, h, key, chunk_constants)
+    fast = chunk_constants[C_BASE_ONLY * CHUNK_ENVS:]
+    for j in range(n):
+        env = first + j
+        if fast[j] == 0.0:
+            advance_env(params, state, history, env, head, coil_current_a[env], control_dt_s,
+                        n_substeps, outputs)
+    # lanes advance_env advanced are computed below too, and ignored
+    work = chunk_work(state, first, stop)
+    _fast_commands(chunk_constants, work, n, coil_current_a[first:stop],
+                   state[L.S_PLAY, first:stop])
+    same_delay = _same_delay(chunk_constants, n)
+    for sub in range(n_substeps):
+        head_sub = ring_slot(head + sub, n_slots)
+        prepare_substep(chunk_constants, work, history, first, n, head_sub, same_delay, h)
+        _base_substeps_vectorised(chunk_constants, work, n, h)
+        _end_substeps(chunk_constants, work, n)
+        slot = ring_slot(head_sub + 1, n_slots)
+        for row, channel in ((L.S_X_S, L.H_X_S), (L.S_P1, L.H_P1), (L.S_P2, L.H_P2)):
+            _copy_fast_lanes(chunk_constants, work, n, row, history[slot, channel, first:stop],
+                             True)
+        for j in range(n if _any_lane_set(work, W_REDO, n) else 0):
+            if fast[j] != 0.0 and work[W_REDO * CHUNK_ENVS + j] != 0.0:
+                env = first + j
+                c = load_constants(chunk_constants, j)
+                y0 = _work_rows(work, W_START, j)
+                current = work[W_CURRENT * CHUNK_ENVS + j]
+                y, _ = _split_substep(c, history, env, head_sub, h, current,
+                                      (current, current), y0, refinement(c, y0, h),
+                                      c.ambient_pa, 0.0)
+                _set_work_rows(work, 0, j, _close_substep(c, history, env, slot, y))
+    # the batch path's lanes: state and outputs as _store_state writes them
+    for row in range(N_RK):
+        _copy_fast_lanes(chunk_constants, work, n, row, state[row, first:stop], False)
+    for row in (L.S_COIL, L.S_COIL_FORCE):  # no coil lag on the batch path
+        _copy_fast_lanes(chunk_constants, work, n, W_CURRENT, state[row, first:stop], False)
+    for output_row, row in OUTPUT_STATE_ROWS:
+        _copy_fast_lanes(chunk_constants, work, n, row, outputs[output_row, first:stop], False)
+    _fast_output_forces(chunk_constants, work, n, outputs[L.O_F, first:stop])
+
+
+@njit(cache=True)
+def step_serial(params, state, history, head, coil_current_a, control_dt_s, n_substeps, outputs,
+                key, constants):
+    """Advance every environment of the batch by one control period on one thread."""
+    n_envs = state.shape[1]
+    for first in range(0, n_envs, CHUNK_ENVS):
+        advance_chunk(params, state, history, first, min(first + CHUNK_ENVS, n_envs), head,
+                      coil_current_a, control_dt_s, n_substeps, outputs, key, constants)
+
+
+@njit(cache=True, parallel=True)
+def step_parallel(params, state, history, head, coil_current_a, control_dt_s, n_substeps,
+                  outputs, key, constants):
+    """Advance every environment of the batch by one control period, chunks in parallel
+    (``BatchSimulator.call_step_kernel`` hands them out)."""
+    n_envs = state.shape[1]
+    for chunk in prange((n_envs + CHUNK_ENVS - 1) // CHUNK_ENVS):
+        first = chunk * CHUNK_ENVS
+        advance_chunk(params, state, history, first, min(first + CHUNK_ENVS, n_envs), head,
+                      coil_current_a, control_dt_s, n_substeps, outputs, key, constants)
+
+
+@njit(cache=True)
+def rollout_serial(params, state, history, head, coil_current_a, control_dt_s, n_substeps,
+                   outputs, key, constants):
+    """Run a whole open-loop current sequence ``coil_current_a[step, env]`` in one call.
+
+    ``outputs[step, O_*, env]`` receives the outputs after each control period.
+    """
+    for step in range(coil_current_a.shape[0]):
+        step_serial(params, state, history, head + step * n_substeps, coil_current_a[step],
+                    control_dt_s, n_substeps, outputs[step], key, constants)
+
+
+def history_slots(max_delay_s, control_dt_s, n_substeps):
+    """Ring-buffer length for delays up to ``max_delay_s`` (a whole number of substeps + 2)."""
+    return int(np.ceil(max_delay_s / (control_dt_s / n_substeps))) + 2
