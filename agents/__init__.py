@@ -13,6 +13,7 @@
 SB3 and torch are imported only by ``sb3``, ``train`` and the export side of
 ``policy``.
 """
+
 from pathlib import Path
 
 from pneumatic_env._numba_cache import LIBRARY_ROOT, invalidate_stale_numba_cache
@@ -24,5 +25,10 @@ from .base import Controller, ControllerContext, ZeroController  # noqa: E402
 from .pid import PIDController  # noqa: E402
 from .sliding_mode import SlidingModeController  # noqa: E402
 
-__all__ = ["Controller", "ControllerContext", "ZeroController", "PIDController",
-           "SlidingModeController"]
+__all__ = [
+    "Controller",
+    "ControllerContext",
+    "ZeroController",
+    "PIDController",
+    "SlidingModeController",
+]

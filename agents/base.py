@@ -6,6 +6,7 @@ A controller sees only the observation ``[p1, p2, x, f, ref(k), ref(k+1..k+H)]``
 ``act`` maps observations of shape ``(n, obs_dim)`` to coil currents ``(n,)`` in A, keeping
 one internal state (integrator, filters, predictor buffers) per row.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -13,13 +14,31 @@ from dataclasses import dataclass
 import numpy as np
 
 from pneumatic_env import params as P
-from pneumatic_env.envs.observation import (OBS_F, OBS_P1, OBS_P2, OBS_REF, OBS_X,
-                                            ObservationScales, observation_dim,
-                                            observation_scales, observation_to_si)
+from pneumatic_env.envs.observation import (
+    OBS_F,
+    OBS_P1,
+    OBS_P2,
+    OBS_REF,
+    OBS_X,
+    ObservationScales,
+    observation_dim,
+    observation_scales,
+    observation_to_si,
+)
 from pneumatic_env.physics.derived import valve_currents_a
 
-__all__ = ["OBS_P1", "OBS_P2", "OBS_X", "OBS_F", "OBS_REF", "ControllerContext", "Controller",
-           "ZeroController", "check_gain", "valve_currents"]
+__all__ = [
+    "OBS_P1",
+    "OBS_P2",
+    "OBS_X",
+    "OBS_F",
+    "OBS_REF",
+    "ControllerContext",
+    "Controller",
+    "ZeroController",
+    "check_gain",
+    "valve_currents",
+]
 
 
 @dataclass(frozen=True)
@@ -38,10 +57,14 @@ class ControllerContext:
         """From a single env (any wrappers) or a native vector env, by their read-only
         properties."""
         e = env.unwrapped
-        return cls(base_params=dict(e.base_params), dt_s=e.control_dt_s,
-                   preview_steps=e.preview_steps, scale_n=e.reference_scale,
-                   normalize_observation=e.normalize_observation,
-                   force_scale_n=e.force_scale_n)
+        return cls(
+            base_params=dict(e.base_params),
+            dt_s=e.control_dt_s,
+            preview_steps=e.preview_steps,
+            scale_n=e.reference_scale,
+            normalize_observation=e.normalize_observation,
+            force_scale_n=e.force_scale_n,
+        )
 
     @property
     def i_max_a(self) -> float:
@@ -54,8 +77,12 @@ class ControllerContext:
     @property
     def observation_scales(self) -> ObservationScales:
         """The env's ``observation_scales`` (``pneumatic_env.envs.observation``)."""
-        return observation_scales(self.base_params, self.force_scale_n or self.scale_n,
-                                  self.scale_n, self.normalize_observation)
+        return observation_scales(
+            self.base_params,
+            self.force_scale_n or self.scale_n,
+            self.scale_n,
+            self.normalize_observation,
+        )
 
     def param_array(self) -> np.ndarray:
         """The (N_PARAMS, 1) parameter column for the jitted model functions."""
@@ -69,17 +96,29 @@ def valve_currents(params: dict) -> tuple[float, float]:
     (x_s = K_fc i / (2 k_s)) turns both spool positions into currents
     (``pneumatic_env.physics.derived.valve_currents_a``).
     """
-    return valve_currents_a(params["spool_half_width_m"], params["hole_radius_m"],
-                            params["spool_spring_n_per_m"], params["coil_force_n_per_a"])
+    return valve_currents_a(
+        params["spool_half_width_m"],
+        params["hole_radius_m"],
+        params["spool_spring_n_per_m"],
+        params["coil_force_n_per_a"],
+    )
 
 
 def check_gain(owner: str, name: str, value, *, ge: float | None = 0.0, gt: float | None = None):
     """A gain as float or float array, finite and within bounds; clear error otherwise."""
     arr = np.asarray(value, dtype=np.float64)
-    rule = (f"must be a finite number > {gt:g}" if gt is not None
-            else f"must be a finite number >= {ge:g}" if ge is not None else "must be finite")
-    if not np.all(np.isfinite(arr)) or (gt is not None and np.any(arr <= gt)) or \
-            (ge is not None and np.any(arr < ge)):
+    rule = (
+        f"must be a finite number > {gt:g}"
+        if gt is not None
+        else f"must be a finite number >= {ge:g}"
+        if ge is not None
+        else "must be finite"
+    )
+    if (
+        not np.all(np.isfinite(arr))
+        or (gt is not None and np.any(arr <= gt))
+        or (ge is not None and np.any(arr < ge))
+    ):
         raise ValueError(f"{owner}: {name} = {value!r} is not allowed: {rule}")
     return arr if arr.ndim else float(arr)
 
@@ -100,8 +139,10 @@ class Controller:
 
     @property
     def env_options(self) -> dict:
-        return {"preview_steps": self.context.preview_steps,
-                "normalize_observation": self.context.normalize_observation}
+        return {
+            "preview_steps": self.context.preview_steps,
+            "normalize_observation": self.context.normalize_observation,
+        }
 
     def reset(self, envs=None) -> None:
         """Forget the state of every env (``envs=None``) or of the listed env indices."""
@@ -118,10 +159,12 @@ class Controller:
         if o.ndim == 1:
             o = o[None, :]
         if o.ndim != 2 or o.shape[1] != self.context.obs_dim:
-            raise ValueError(f"{type(self).__name__}.act: observation has shape "
-                             f"{np.shape(obs)}, expected (n, {self.context.obs_dim}) or "
-                             f"({self.context.obs_dim},) = [p1, p2, x, f, ref, "
-                             f"{self.context.preview_steps} preview samples]")
+            raise ValueError(
+                f"{type(self).__name__}.act: observation has shape "
+                f"{np.shape(obs)}, expected (n, {self.context.obs_dim}) or "
+                f"({self.context.obs_dim},) = [p1, p2, x, f, ref, "
+                f"{self.context.preview_steps} preview samples]"
+            )
         if self.n_envs != o.shape[0]:
             self.n_envs = o.shape[0]
             self._allocate(self.n_envs)

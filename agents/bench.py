@@ -9,6 +9,7 @@ Output: results.csv, results.md, results.json and PNG plots in ``--out``; :func:
 merges several result directories into one Markdown table. The suite file is read by
 ``agents/suite.py`` (re-exported here).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -31,29 +32,64 @@ from .base import Controller, ControllerContext
 from .registry import resolve_controller
 from .suite import BenchTask, Suite, load_suite, parse_variant
 
-__all__ = ["Suite", "BenchTask", "load_suite", "parse_variant", "make_env", "closed_loop",
-           "frequency_response", "bandwidth", "error_bandwidth", "task_metrics",
-           "resolve_controller",
-           "run_suite", "write_results", "read_results", "leaderboard", "METRIC_COLUMNS",
-           "CSV_COLUMNS", "add_arguments", "run"]
+__all__ = [
+    "Suite",
+    "BenchTask",
+    "load_suite",
+    "parse_variant",
+    "make_env",
+    "closed_loop",
+    "frequency_response",
+    "bandwidth",
+    "error_bandwidth",
+    "task_metrics",
+    "resolve_controller",
+    "run_suite",
+    "write_results",
+    "read_results",
+    "leaderboard",
+    "METRIC_COLUMNS",
+    "CSV_COLUMNS",
+    "add_arguments",
+    "run",
+]
 
-METRIC_COLUMNS = ("rms_error_n", "rms_error_pct", "peak_error_n", "peak_error_pct",
-                  "bandwidth_hz", "bandwidth_lower_bound", "error_bandwidth_hz",
-                  "error_bandwidth_lower_bound", "effort_rms_a", "chatter_rms_a", "air_mg")
-CSV_COLUMNS = ("suite_version", "controller", "variant", "task", "duration_s",
-               "force_scale_n") + METRIC_COLUMNS
+METRIC_COLUMNS = (
+    "rms_error_n",
+    "rms_error_pct",
+    "peak_error_n",
+    "peak_error_pct",
+    "bandwidth_hz",
+    "bandwidth_lower_bound",
+    "error_bandwidth_hz",
+    "error_bandwidth_lower_bound",
+    "effort_rms_a",
+    "chatter_rms_a",
+    "air_mg",
+)
+CSV_COLUMNS = (
+    "suite_version",
+    "controller",
+    "variant",
+    "task",
+    "duration_s",
+    "force_scale_n",
+) + METRIC_COLUMNS
 
 
 def make_env(variant: str, n_envs: int, n_steps: int, task: str = ids.FORCE_TRACK, **options):
     """The native vector env of ``variant`` with ``n_envs`` envs and ``n_steps``-step episodes."""
-    return gym.make_vec(parse_variant(variant, task), num_envs=n_envs,
-                        max_episode_steps=int(n_steps), **options)
+    return gym.make_vec(
+        parse_variant(variant, task), num_envs=n_envs, max_episode_steps=int(n_steps), **options
+    )
 
 
 # --------------------------------------------------------------------------- running
 
-def closed_loop(env, controller: Controller, references: Sequence[dict], seeds: Sequence[int],
-                n_steps: int) -> dict:
+
+def closed_loop(
+    env, controller: Controller, references: Sequence[dict], seeds: Sequence[int], n_steps: int
+) -> dict:
     """Run ``controller`` on the vector ``env``, env i tracking ``references[i]`` (scale units).
 
     Env i is reset with ``seeds[i]`` and ``options={"reference": ...}`` (its reference in SI),
@@ -63,18 +99,22 @@ def closed_loop(env, controller: Controller, references: Sequence[dict], seeds: 
     """
     n = env.num_envs
     if len(references) != n or len(seeds) != n:
-        raise ValueError(f"closed_loop: {len(references)} references and {len(seeds)} seeds "
-                         f"for {n} envs")
+        raise ValueError(
+            f"closed_loop: {len(references)} references and {len(seeds)} seeds for {n} envs"
+        )
     limit = getattr(env, "max_episode_steps", None)
     if limit is not None and n_steps > limit:
-        raise ValueError(f"closed_loop: n_steps = {n_steps} is longer than the env's episodes "
-                         f"({limit} steps): make the env with max_episode_steps >= n_steps")
+        raise ValueError(
+            f"closed_loop: n_steps = {n_steps} is longer than the env's episodes "
+            f"({limit} steps): make the env with max_episode_steps >= n_steps"
+        )
     scale = env.unwrapped.reference_scale
-    obs, _ = env.reset(seed=[int(s) for s in seeds],
-                       options={"reference": [scale_spec(spec, scale) for spec in references]})
+    obs, _ = env.reset(
+        seed=[int(s) for s in seeds],
+        options={"reference": [scale_spec(spec, scale) for spec in references]},
+    )
     controller.reset()
-    out = {k: np.empty((n_steps, n)) for k in ("force_n", "reference_n", "current_a",
-                                               "exhaust_kg")}
+    out = {k: np.empty((n_steps, n)) for k in ("force_n", "reference_n", "current_a", "exhaust_kg")}
     for k in range(n_steps):
         action = controller.act(obs)
         obs, _, _, _, info = env.step(np.asarray(action, dtype=np.float64).reshape(n, 1))
@@ -87,8 +127,15 @@ def closed_loop(env, controller: Controller, references: Sequence[dict], seeds: 
 
 # --------------------------------------------------------------------------- metrics
 
-def frequency_response(reference: np.ndarray, output: np.ndarray, dt_s: float, f_lo_hz: float,
-                       f_hi_hz: float, bins_per_octave: float = 6.0):
+
+def frequency_response(
+    reference: np.ndarray,
+    output: np.ndarray,
+    dt_s: float,
+    f_lo_hz: float,
+    f_hi_hz: float,
+    bins_per_octave: float = 6.0,
+):
     """Closed-loop frequency response from a chirp: band-averaged H1 estimate.
 
     With R, Y the FFTs of the mean-removed reference and output, each log-frequency band
@@ -147,21 +194,31 @@ def error_bandwidth(freqs_hz: np.ndarray, response: np.ndarray, level: float = 1
 def task_metrics(force_n, reference_n, current_a, exhaust_kg, scale_n: float) -> dict:
     """Tracking, effort, chatter and air metrics of one task (arrays over its steps)."""
     e = np.asarray(force_n) - np.asarray(reference_n)
-    rms, peak = float(np.sqrt(np.mean(e ** 2))), float(np.max(np.abs(e)))
+    rms, peak = float(np.sqrt(np.mean(e**2))), float(np.max(np.abs(e)))
     i = np.asarray(current_a)
-    return {"rms_error_n": rms, "rms_error_pct": 100 * rms / scale_n, "peak_error_n": peak,
-            "peak_error_pct": 100 * peak / scale_n,
-            "effort_rms_a": float(np.sqrt(np.mean(i ** 2))),
-            "chatter_rms_a": float(np.sqrt(np.mean(np.diff(i) ** 2))) if i.size > 1 else 0.0,
-            "air_mg": 1e6 * float(exhaust_kg[-1])}
+    return {
+        "rms_error_n": rms,
+        "rms_error_pct": 100 * rms / scale_n,
+        "peak_error_n": peak,
+        "peak_error_pct": 100 * peak / scale_n,
+        "effort_rms_a": float(np.sqrt(np.mean(i**2))),
+        "chatter_rms_a": float(np.sqrt(np.mean(np.diff(i) ** 2))) if i.size > 1 else 0.0,
+        "air_mg": 1e6 * float(exhaust_kg[-1]),
+    }
 
 
 # --------------------------------------------------------------------------- controllers
 
 # --------------------------------------------------------------------------- suite run
 
-def run_suite(controller: str, variants: Sequence[str] | None = None, suite: Suite | None = None,
-              config: str | None = None, progress: Callable[[str], None] | None = None):
+
+def run_suite(
+    controller: str,
+    variants: Sequence[str] | None = None,
+    suite: Suite | None = None,
+    config: str | None = None,
+    progress: Callable[[str], None] | None = None,
+):
     """Run every task on every variant; returns (rows for the CSV, traces per variant)."""
     suite = suite or load_suite()
     variants = list(variants or suite.variants)
@@ -177,34 +234,54 @@ def run_suite(controller: str, variants: Sequence[str] | None = None, suite: Sui
         ctrl = cspec.build(ControllerContext.from_env(env))
         if progress:
             progress(f"{cspec.name} on {variant}: {len(suite.tasks)} tasks, {n_steps} steps")
-        tr = closed_loop(env, ctrl, [t.reference for t in suite.tasks],
-                         [t.seed for t in suite.tasks], n_steps)
+        tr = closed_loop(
+            env, ctrl, [t.reference for t in suite.tasks], [t.seed for t in suite.tasks], n_steps
+        )
         env.close()
         traces[variant] = {"dt_s": dt, "scale_n": scale, "steps": steps, **tr}
         for i, task in enumerate(suite.tasks):
             k = steps[i]
-            m = task_metrics(tr["force_n"][:k, i], tr["reference_n"][:k, i],
-                             tr["current_a"][:k, i], tr["exhaust_kg"][:k, i], scale)
+            m = task_metrics(
+                tr["force_n"][:k, i],
+                tr["reference_n"][:k, i],
+                tr["current_a"][:k, i],
+                tr["exhaust_kg"][:k, i],
+                scale,
+            )
             for key in ("bandwidth", "error_bandwidth"):
                 m[f"{key}_hz"], m[f"{key}_lower_bound"] = math.nan, ""
             if task.name == suite.bandwidth_task:
                 ref = task.reference
                 kk = min(k, int(round(ref["duration_s"] / dt)))
-                f, H = frequency_response(tr["reference_n"][:kk, i], tr["force_n"][:kk, i],
-                                          dt, ref["f0_hz"], ref["f1_hz"],
-                                          suite.bins_per_octave)
+                f, H = frequency_response(
+                    tr["reference_n"][:kk, i],
+                    tr["force_n"][:kk, i],
+                    dt,
+                    ref["f0_hz"],
+                    ref["f1_hz"],
+                    suite.bins_per_octave,
+                )
                 bw, lower = bandwidth(f, H, suite.bandwidth_level)
                 m["bandwidth_hz"], m["bandwidth_lower_bound"] = bw, bool(lower)
                 bw, lower = error_bandwidth(f, H, suite.bandwidth_level)
                 m["error_bandwidth_hz"], m["error_bandwidth_lower_bound"] = bw, bool(lower)
                 traces[variant]["response"] = (f, H)
-            rows.append({"suite_version": suite.version, "controller": cspec.name,
-                         "variant": variant, "task": task.name, "duration_s": task.duration_s,
-                         "force_scale_n": scale, **m})
+            rows.append(
+                {
+                    "suite_version": suite.version,
+                    "controller": cspec.name,
+                    "variant": variant,
+                    "task": task.name,
+                    "duration_s": task.duration_s,
+                    "force_scale_n": scale,
+                    **m,
+                }
+            )
     return rows, traces
 
 
 # --------------------------------------------------------------------------- output
+
 
 def _fmt(value, digits=2) -> str:
     if isinstance(value, str):
@@ -237,26 +314,55 @@ def results_markdown(rows: list[dict], command: str = "", suite: Suite | None = 
     parts = [f"# Benchmark results: {ctrl} (suite {version})", ""]
     if command:
         parts += [f"Command: `{command}`", ""]
-    parts += ["Errors in N and in % of the force scale; effort = RMS coil current, chatter = "
-              "RMS of the current's step-to-step change, air = exhaust mass over the task; "
-              "bandwidth = -3 dB of |F/r|, error bw = frequency where |1 - F/r| reaches -3 dB, "
-              "both estimated from the chirp (docs/benchmark.md).", ""]
-    header = ["task", "RMS err (N)", "RMS err (%)", "peak err (N)", "peak err (%)",
-              "bandwidth (Hz)", "error bw (Hz)", "effort (A)", "chatter (A)", "air (mg)"]
+    parts += [
+        "Errors in N and in % of the force scale; effort = RMS coil current, chatter = "
+        "RMS of the current's step-to-step change, air = exhaust mass over the task; "
+        "bandwidth = -3 dB of |F/r|, error bw = frequency where |1 - F/r| reaches -3 dB, "
+        "both estimated from the chirp (docs/benchmark.md).",
+        "",
+    ]
+    header = [
+        "task",
+        "RMS err (N)",
+        "RMS err (%)",
+        "peak err (N)",
+        "peak err (%)",
+        "bandwidth (Hz)",
+        "error bw (Hz)",
+        "effort (A)",
+        "chatter (A)",
+        "air (mg)",
+    ]
     for variant in dict.fromkeys(r["variant"] for r in rows):
         sel = [r for r in rows if r["variant"] == variant]
         parts += [f"## {variant} (force scale {float(sel[0]['force_scale_n']):.1f} N)", ""]
-        parts.append(markdown_table(header, [
-            [r["task"], _fmt(r["rms_error_n"]), _fmt(r["rms_error_pct"]), _fmt(r["peak_error_n"]),
-             _fmt(r["peak_error_pct"]), _bandwidth_text(r), _bandwidth_text(r, "error_bandwidth"),
-             _fmt(r["effort_rms_a"], 3),
-             _fmt(r["chatter_rms_a"], 4), _fmt(r["air_mg"], 1)] for r in sel]))
+        parts.append(
+            markdown_table(
+                header,
+                [
+                    [
+                        r["task"],
+                        _fmt(r["rms_error_n"]),
+                        _fmt(r["rms_error_pct"]),
+                        _fmt(r["peak_error_n"]),
+                        _fmt(r["peak_error_pct"]),
+                        _bandwidth_text(r),
+                        _bandwidth_text(r, "error_bandwidth"),
+                        _fmt(r["effort_rms_a"], 3),
+                        _fmt(r["chatter_rms_a"], 4),
+                        _fmt(r["air_mg"], 1),
+                    ]
+                    for r in sel
+                ],
+            )
+        )
         parts.append("")
     return "\n".join(parts)
 
 
-def write_results(out: str | Path, rows: list[dict], traces: dict, suite: Suite,
-                  command: str = "") -> list[Path]:
+def write_results(
+    out: str | Path, rows: list[dict], traces: dict, suite: Suite, command: str = ""
+) -> list[Path]:
     """results.csv, results.md, results.json and the plots; returns the written paths."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -265,14 +371,22 @@ def write_results(out: str | Path, rows: list[dict], traces: dict, suite: Suite,
         w = csv.DictWriter(fh, fieldnames=CSV_COLUMNS)
         w.writeheader()
         for r in rows:  # NaN (no bandwidth outside the chirp task) as an empty cell
-            w.writerow({k: "" if isinstance(r[k], float) and math.isnan(r[k]) else r[k]
-                        for k in CSV_COLUMNS})
+            w.writerow(
+                {
+                    k: "" if isinstance(r[k], float) and math.isnan(r[k]) else r[k]
+                    for k in CSV_COLUMNS
+                }
+            )
     written.append(out / "results.csv")
     (out / "results.md").write_text(results_markdown(rows, command, suite), encoding="utf-8")
     written.append(out / "results.md")
-    meta = {"suite_version": suite.version, "suite_path": suite.path, "command": command,
-            "controller": rows[0]["controller"] if rows else "",
-            "variants": list(traces)}
+    meta = {
+        "suite_version": suite.version,
+        "suite_path": suite.path,
+        "command": command,
+        "controller": rows[0]["controller"] if rows else "",
+        "variants": list(traces),
+    }
     (out / "results.json").write_text(json.dumps(meta, indent=2), encoding="utf-8")
     written.append(out / "results.json")
     written += _plots(out, traces, suite, meta["controller"])
@@ -281,8 +395,10 @@ def write_results(out: str | Path, rows: list[dict], traces: dict, suite: Suite,
 
 def _plots(out: Path, traces: dict, suite: Suite, controller: str) -> list[Path]:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     written = []
     names = [t.name for t in suite.tasks]
     for key, title in (("sine_task", "sine"), ("chirp_task", "chirp")):
@@ -311,8 +427,9 @@ def _plots(out: Path, traces: dict, suite: Suite, controller: str) -> list[Path]
         for variant, tr in traces.items():
             if "response" in tr:
                 f, H = tr["response"]
-                ax.semilogx(f, 20 * np.log10(np.maximum(np.abs(H), 1e-6)), marker=".",
-                            label=variant)
+                ax.semilogx(
+                    f, 20 * np.log10(np.maximum(np.abs(H), 1e-6)), marker=".", label=variant
+                )
         ax.axhline(20 * np.log10(suite.bandwidth_level), color="k", ls=":", lw=1)
         ax.set_xlabel("f (Hz)")
         ax.set_ylabel("|F/r| (dB)")
@@ -340,17 +457,37 @@ def read_results(path: str | Path) -> list[dict]:
             raise ValueError(f"{path}: missing column(s) {missing}")
         rows = []
         for r in reader:
-            for k in ("duration_s", "force_scale_n", "rms_error_n", "rms_error_pct",
-                      "peak_error_n", "peak_error_pct", "bandwidth_hz", "error_bandwidth_hz",
-                      "effort_rms_a", "chatter_rms_a", "air_mg"):
+            for k in (
+                "duration_s",
+                "force_scale_n",
+                "rms_error_n",
+                "rms_error_pct",
+                "peak_error_n",
+                "peak_error_pct",
+                "bandwidth_hz",
+                "error_bandwidth_hz",
+                "effort_rms_a",
+                "chatter_rms_a",
+                "air_mg",
+            ):
                 r[k] = float(r[k]) if r[k] != "" else math.nan
             rows.append(r)
     return rows
 
 
-LEADERBOARD_HEADER = ("variant", "controller", "mean RMS err (%)", "steps RMS (%)",
-                      "sine 10 Hz RMS (%)", "sines peak err (%)", "bandwidth (Hz)",
-                      "error bw (Hz)", "mean effort (A)", "mean chatter (A)", "air (mg)")
+LEADERBOARD_HEADER = (
+    "variant",
+    "controller",
+    "mean RMS err (%)",
+    "steps RMS (%)",
+    "sine 10 Hz RMS (%)",
+    "sines peak err (%)",
+    "bandwidth (Hz)",
+    "error bw (Hz)",
+    "mean effort (A)",
+    "mean chatter (A)",
+    "air (mg)",
+)
 
 
 def leaderboard(paths: Sequence[str | Path]) -> str:
@@ -375,35 +512,59 @@ def leaderboard(paths: Sequence[str | Path]) -> str:
 
         bw = next((r for r in sel if not math.isnan(r["bandwidth_hz"])), {})
         sine_peaks = [r["peak_error_pct"] for r in sel if r["task"].startswith("sine")]
-        table.append((key[0], key[1], float(np.mean([r["rms_error_pct"] for r in sel])),
-                      mean_of(lambda t: t.startswith("step")), mean_of(lambda t: t == "sine_10hz"),
-                      max(sine_peaks) if sine_peaks else math.nan, _bandwidth_text(bw),
-                      _bandwidth_text(bw, "error_bandwidth"),
-                      float(np.mean([r["effort_rms_a"] for r in sel])),
-                      float(np.mean([r["chatter_rms_a"] for r in sel])),
-                      float(np.sum([r["air_mg"] for r in sel]))))
+        table.append(
+            (
+                key[0],
+                key[1],
+                float(np.mean([r["rms_error_pct"] for r in sel])),
+                mean_of(lambda t: t.startswith("step")),
+                mean_of(lambda t: t == "sine_10hz"),
+                max(sine_peaks) if sine_peaks else math.nan,
+                _bandwidth_text(bw),
+                _bandwidth_text(bw, "error_bandwidth"),
+                float(np.mean([r["effort_rms_a"] for r in sel])),
+                float(np.mean([r["chatter_rms_a"] for r in sel])),
+                float(np.sum([r["air_mg"] for r in sel])),
+            )
+        )
     order = list(dict.fromkeys(r["variant"] for r in rows))
     table.sort(key=lambda t: (order.index(t[0]), t[2]))
-    body = [[v, c, _fmt(m), _fmt(s), _fmt(s10), _fmt(p), bw, ebw, _fmt(e, 3), _fmt(ch, 4),
-             _fmt(a, 0)] for v, c, m, s, s10, p, bw, ebw, e, ch, a in table]
+    body = [
+        [v, c, _fmt(m), _fmt(s), _fmt(s10), _fmt(p), bw, ebw, _fmt(e, 3), _fmt(ch, 4), _fmt(a, 0)]
+        for v, c, m, s, s10, p, bw, ebw, e, ch, a in table
+    ]
     title = f"Suite {versions[0]}" if versions else "Suite"
     return f"{title}\n\n" + markdown_table(LEADERBOARD_HEADER, body)
 
 
 # --------------------------------------------------------------------------- CLI
 
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--controller", help="pid | sliding_mode | zero | path to a trained "
-                        "policy (.npz export or SB3 .zip)")
-    parser.add_argument("--variants", nargs="+", metavar="VARIANT",
-                        help="subset of the suite's variants, e.g. Numatics-0.5m Airpel-2m")
-    parser.add_argument("--config", help="controller config YAML (default: "
-                        "configs/agents/<controller>-<variant>.yaml or <controller>.yaml)")
+    parser.add_argument(
+        "--controller",
+        help="pid | sliding_mode | zero | path to a trained policy (.npz export or SB3 .zip)",
+    )
+    parser.add_argument(
+        "--variants",
+        nargs="+",
+        metavar="VARIANT",
+        help="subset of the suite's variants, e.g. Numatics-0.5m Airpel-2m",
+    )
+    parser.add_argument(
+        "--config",
+        help="controller config YAML (default: "
+        "configs/agents/<controller>-<variant>.yaml or <controller>.yaml)",
+    )
     parser.add_argument("--suite", help="suite file (default configs/benchmark.yaml)")
     parser.add_argument("--out", help="output directory (default runs/bench/<controller>)")
-    parser.add_argument("--leaderboard", nargs="+", metavar="RESULTS",
-                        help="instead of running: merge these result dirs/CSVs into one "
-                        "Markdown table (written to --out if given, else printed)")
+    parser.add_argument(
+        "--leaderboard",
+        nargs="+",
+        metavar="RESULTS",
+        help="instead of running: merge these result dirs/CSVs into one "
+        "Markdown table (written to --out if given, else printed)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -420,10 +581,18 @@ def run(args: argparse.Namespace) -> int:
     suite = load_suite(args.suite)
     name = Path(args.controller).stem if Path(args.controller).suffix else args.controller
     out = Path(args.out or Path("runs") / "bench" / name)
-    command = "pneumatic-env bench " + " ".join(shlex.quote(a) for a in sys.argv[2:]) \
-        if len(sys.argv) > 1 and sys.argv[1] == "bench" else ""
-    rows, traces = run_suite(args.controller, args.variants, suite, args.config,
-                             progress=lambda msg: print(msg, flush=True))
+    command = (
+        "pneumatic-env bench " + " ".join(shlex.quote(a) for a in sys.argv[2:])
+        if len(sys.argv) > 1 and sys.argv[1] == "bench"
+        else ""
+    )
+    rows, traces = run_suite(
+        args.controller,
+        args.variants,
+        suite,
+        args.config,
+        progress=lambda msg: print(msg, flush=True),
+    )
     for p in write_results(out, rows, traces, suite, command):
         print(f"wrote {p}")
     return 0

@@ -12,19 +12,26 @@ booleans may be given bare (``algo: ppo``). :func:`load_agent_config` returns th
 with every entry replaced by its value and refuses a bare number, so no tuning constant
 enters the code without a unit and a source.
 """
+
 from __future__ import annotations
 
 import os
-from pathlib import Path
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 import yaml
 
-from pneumatic_env.params import ConfigError, read_yaml, config_dir  # YAML 1.2 floats, cached
+from pneumatic_env.params import ConfigError, config_dir, read_yaml  # YAML 1.2 floats, cached
 
-__all__ = ["ConfigError", "agent_config_dir", "agent_config_path", "load_agent_config",
-           "write_agent_config", "is_entry"]
+__all__ = [
+    "ConfigError",
+    "agent_config_dir",
+    "agent_config_path",
+    "load_agent_config",
+    "write_agent_config",
+    "is_entry",
+]
 
 _ENTRY_KEYS = {"value", "unit", "source"}
 
@@ -38,12 +45,15 @@ def _strip(node: Any, where: str) -> Any:
     if is_entry(node):
         extra = sorted(set(map(str, node)) - _ENTRY_KEYS)
         if extra:
-            raise ConfigError(f"{where} has unknown key {extra[0]!r}; an entry has exactly the "
-                              "keys value, unit, source")
+            raise ConfigError(
+                f"{where} has unknown key {extra[0]!r}; an entry has exactly the "
+                "keys value, unit, source"
+            )
         for key in ("unit", "source"):
             if not isinstance(node.get(key), str) or not node[key].strip():
-                raise ConfigError(f"{where} is missing {key!r}: every value needs a non-empty "
-                                  f"{key} string")
+                raise ConfigError(
+                    f"{where} is missing {key!r}: every value needs a non-empty {key} string"
+                )
         return node["value"]
     if isinstance(node, Mapping):
         return {str(k): _strip(v, f"{where}.{k}") for k, v in node.items()}
@@ -51,8 +61,10 @@ def _strip(node: Any, where: str) -> Any:
         return node
     if isinstance(node, list) and all(isinstance(v, (str, bool)) for v in node):
         return list(node)
-    raise ConfigError(f"{where} = {node!r} is not allowed: a number (or list of numbers) must be "
-                      "an entry with value, unit and source")
+    raise ConfigError(
+        f"{where} = {node!r} is not allowed: a number (or list of numbers) must be "
+        "an entry with value, unit and source"
+    )
 
 
 def agent_config_dir() -> Path:

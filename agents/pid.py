@@ -12,6 +12,7 @@ flow, i.e. the force *rate* (Eq. 14 with dV = 0). ``k_ff`` maps the reference sl
 current. i_db and i_sat follow from the valve geometry (``base.valve_currents``).
 Gains come from ``configs/agents/pid-<variant>.yaml`` (written by ``agents/tune_pid.py``).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -20,9 +21,16 @@ from .base import OBS_F, Controller, ControllerContext, check_gain, valve_curren
 
 __all__ = ["PIDController", "PID_GAINS"]
 
-PID_GAINS = ("kp_a_per_n", "ki_a_per_n_s", "kd_a_s_per_n", "derivative_filter_s",
-             "rate_feedforward_a_s_per_n", "reference_lead_s", "antiwindup_tracking_s",
-             "deadband_ramp_a")
+PID_GAINS = (
+    "kp_a_per_n",
+    "ki_a_per_n_s",
+    "kd_a_s_per_n",
+    "derivative_filter_s",
+    "rate_feedforward_a_s_per_n",
+    "reference_lead_s",
+    "antiwindup_tracking_s",
+    "deadband_ramp_a",
+)
 
 
 class PIDController(Controller):
@@ -30,9 +38,20 @@ class PIDController(Controller):
 
     name = "pid"
 
-    def __init__(self, context: ControllerContext, *, kp_a_per_n, ki_a_per_n_s, kd_a_s_per_n,
-                 derivative_filter_s, rate_feedforward_a_s_per_n, reference_lead_s,
-                 antiwindup_tracking_s, deadband_ramp_a, deadband_compensation):
+    def __init__(
+        self,
+        context: ControllerContext,
+        *,
+        kp_a_per_n,
+        ki_a_per_n_s,
+        kd_a_s_per_n,
+        derivative_filter_s,
+        rate_feedforward_a_s_per_n,
+        reference_lead_s,
+        antiwindup_tracking_s,
+        deadband_ramp_a,
+        deadband_compensation,
+    ):
         super().__init__(context)
         own = "PIDController"
         self.kp = check_gain(own, "kp_a_per_n", kp_a_per_n)
@@ -40,15 +59,16 @@ class PIDController(Controller):
         self.kd = check_gain(own, "kd_a_s_per_n", kd_a_s_per_n)
         self.tf = check_gain(own, "derivative_filter_s", derivative_filter_s)
         self.kff = check_gain(own, "rate_feedforward_a_s_per_n", rate_feedforward_a_s_per_n)
-        self.tt = check_gain(own, "antiwindup_tracking_s", antiwindup_tracking_s, ge=None,
-                             gt=0.0)
+        self.tt = check_gain(own, "antiwindup_tracking_s", antiwindup_tracking_s, ge=None, gt=0.0)
         self.i_ramp = check_gain(own, "deadband_ramp_a", deadband_ramp_a, ge=None, gt=0.0)
         lead = check_gain(own, "reference_lead_s", reference_lead_s)
         self.lead_steps = np.rint(np.asarray(lead) / context.dt_s).astype(np.int64)
         if np.any(self.lead_steps + 1 > context.preview_steps):
-            raise ValueError(f"{own}: reference_lead_s = {reference_lead_s!r} needs "
-                             f"{int(np.max(self.lead_steps)) + 1} preview steps, the env gives "
-                             f"{context.preview_steps}: raise preview_steps")
+            raise ValueError(
+                f"{own}: reference_lead_s = {reference_lead_s!r} needs "
+                f"{int(np.max(self.lead_steps)) + 1} preview steps, the env gives "
+                f"{context.preview_steps}: raise preview_steps"
+            )
         i_db, i_full = valve_currents(context.base_params)
         self.i_db = i_db if deadband_compensation else 0.0
         self.i_sat = min(i_full, context.i_max_a)

@@ -10,6 +10,7 @@ observation normalisation, current scale). ``NumpyPolicy`` evaluates it with num
 Deterministic actions, as SB3's ``predict(obs, deterministic=True)``: PPO's Gaussian mean
 clipped to [-1, 1]; SAC's mean squashed by tanh. Both are then scaled to amperes.
 """
+
 from __future__ import annotations
 
 import json
@@ -22,18 +23,28 @@ from .base import Controller, ControllerContext
 
 __all__ = ["export_policy", "NumpyPolicy", "PolicyController", "load_policy_spec"]
 
-_ACTIVATIONS = {"Tanh": np.tanh, "ReLU": lambda x: np.maximum(x, 0.0),
-                "Identity": lambda x: x, "ELU": lambda x: np.where(x > 0, x, np.expm1(x))}
+_ACTIVATIONS = {
+    "Tanh": np.tanh,
+    "ReLU": lambda x: np.maximum(x, 0.0),
+    "Identity": lambda x: x,
+    "ELU": lambda x: np.where(x > 0, x, np.expm1(x)),
+}
 
 
 def _layers(modules) -> list[tuple[np.ndarray, np.ndarray, str]]:
     """(W, b, activation after it) for a sequence of torch Linear/activation modules."""
     import torch.nn as nn
+
     layers: list = []
     for m in modules:
         if isinstance(m, nn.Linear):
-            layers.append([m.weight.detach().cpu().numpy().astype(np.float64),
-                           m.bias.detach().cpu().numpy().astype(np.float64), "Identity"])
+            layers.append(
+                [
+                    m.weight.detach().cpu().numpy().astype(np.float64),
+                    m.bias.detach().cpu().numpy().astype(np.float64),
+                    "Identity",
+                ]
+            )
         elif type(m).__name__ in _ACTIVATIONS:
             if not layers:
                 raise ValueError(f"activation {type(m).__name__} before any Linear layer")
@@ -41,14 +52,16 @@ def _layers(modules) -> list[tuple[np.ndarray, np.ndarray, str]]:
         elif isinstance(m, (nn.Flatten, nn.Sequential)) and not list(m.children()):
             continue
         else:
-            raise ValueError(f"cannot export layer {m!r}: only Linear and "
-                             f"{sorted(_ACTIVATIONS)} are supported")
+            raise ValueError(
+                f"cannot export layer {m!r}: only Linear and {sorted(_ACTIVATIONS)} are supported"
+            )
     return [tuple(layer) for layer in layers]
 
 
 def _actor(model) -> tuple[list, str]:
     """Layers of the deterministic actor and the output transform ('clip' or 'tanh')."""
     from stable_baselines3 import PPO, SAC
+
     policy = model.policy
     if isinstance(model, PPO):
         modules = list(policy.mlp_extractor.policy_net) + [policy.action_net]
@@ -59,21 +72,34 @@ def _actor(model) -> tuple[list, str]:
     raise ValueError(f"export_policy supports PPO and SAC models, got {type(model).__name__}")
 
 
-def export_policy(model, path: str | Path, *, env_id: str, preview_steps: int,
-                  normalize_observation: bool, action_scale_a: float, extra: dict | None = None
-                  ) -> Path:
+def export_policy(
+    model,
+    path: str | Path,
+    *,
+    env_id: str,
+    preview_steps: int,
+    normalize_observation: bool,
+    action_scale_a: float,
+    extra: dict | None = None,
+) -> Path:
     """Write the actor of an SB3 PPO/SAC ``model`` to ``path`` (.npz); returns the path.
 
     The policy must act in [-1, 1] (``pneumatic_env.agents.sb3.SB3VecEnv(normalize_action=True)``);
     ``action_scale_a`` turns that into amperes.
     """
     layers, output = _actor(model)
-    meta = {"format": "pneumatic_env-mlp-v1", "algo": type(model).__name__.lower(),
-            "env_id": env_id, "preview_steps": int(preview_steps),
-            "normalize_observation": bool(normalize_observation),
-            "action_scale_a": float(action_scale_a), "output": output,
-            "activations": [a for _, _, a in layers],
-            "obs_dim": int(layers[0][0].shape[1]), **(extra or {})}
+    meta = {
+        "format": "pneumatic_env-mlp-v1",
+        "algo": type(model).__name__.lower(),
+        "env_id": env_id,
+        "preview_steps": int(preview_steps),
+        "normalize_observation": bool(normalize_observation),
+        "action_scale_a": float(action_scale_a),
+        "output": output,
+        "activations": [a for _, _, a in layers],
+        "obs_dim": int(layers[0][0].shape[1]),
+        **(extra or {}),
+    }
     arrays = {}
     for i, (w, b, _) in enumerate(layers):
         arrays[f"w{i}"], arrays[f"b{i}"] = w, b
@@ -91,15 +117,19 @@ class NumpyPolicy:
             raise FileNotFoundError(f"policy file {str(path)!r} does not exist")
         with np.load(path, allow_pickle=False) as data:
             if "meta" not in data:
-                raise ValueError(f"{path}: not an exported policy (no 'meta' entry); write it "
-                                 "with pneumatic_env.agents.policy.export_policy")
+                raise ValueError(
+                    f"{path}: not an exported policy (no 'meta' entry); write it "
+                    "with pneumatic_env.agents.policy.export_policy"
+                )
             self.meta = json.loads(str(data["meta"]))
             n = len(self.meta["activations"])
-            self.layers = [(data[f"w{i}"], data[f"b{i}"], self.meta["activations"][i])
-                           for i in range(n)]
+            self.layers = [
+                (data[f"w{i}"], data[f"b{i}"], self.meta["activations"][i]) for i in range(n)
+            ]
         if self.meta.get("output") not in ("clip", "tanh"):
-            raise ValueError(f"{path}: output = {self.meta.get('output')!r} is not allowed: "
-                             "'clip' or 'tanh'")
+            raise ValueError(
+                f"{path}: output = {self.meta.get('output')!r} is not allowed: 'clip' or 'tanh'"
+            )
         self.path = path
 
     @property
@@ -110,8 +140,10 @@ class NumpyPolicy:
         """The policy's action in [-1, 1], shape (n, act_dim)."""
         x = np.atleast_2d(np.asarray(obs, dtype=np.float64))
         if x.shape[1] != self.obs_dim:
-            raise ValueError(f"{self.path}: observation has {x.shape[1]} entries, the policy "
-                             f"takes {self.obs_dim}")
+            raise ValueError(
+                f"{self.path}: observation has {x.shape[1]} entries, the policy "
+                f"takes {self.obs_dim}"
+            )
         for w, b, act in self.layers:
             x = _ACTIVATIONS[act](x @ w.T + b)
         return np.tanh(x) if self.meta["output"] == "tanh" else np.clip(x, -1.0, 1.0)
@@ -128,13 +160,17 @@ class PolicyController(Controller):
     def __init__(self, context: ControllerContext, policy: NumpyPolicy):
         super().__init__(context)
         if context.obs_dim != policy.obs_dim:
-            raise ValueError(f"{policy.path}: the policy takes {policy.obs_dim} observation "
-                             f"entries, the env gives {context.obs_dim} (preview_steps = "
-                             f"{context.preview_steps})")
+            raise ValueError(
+                f"{policy.path}: the policy takes {policy.obs_dim} observation "
+                f"entries, the env gives {context.obs_dim} (preview_steps = "
+                f"{context.preview_steps})"
+            )
         if context.normalize_observation != policy.meta["normalize_observation"]:
-            raise ValueError(f"{policy.path}: trained with normalize_observation = "
-                             f"{policy.meta['normalize_observation']}, the env has "
-                             f"{context.normalize_observation}")
+            raise ValueError(
+                f"{policy.path}: trained with normalize_observation = "
+                f"{policy.meta['normalize_observation']}, the env has "
+                f"{context.normalize_observation}"
+            )
         self.policy = policy
         self.name = policy.path.stem
 
@@ -148,6 +184,7 @@ class PolicyController(Controller):
 def load_policy_spec(path: str | Path):
     """Bench controller spec for ``model.npz`` or ``model.zip`` (uses the sibling ``.npz``)."""
     from .registry import ControllerSpec
+
     path = Path(path)
     npz = path if path.suffix == ".npz" else path.with_suffix(".npz")
     if not npz.is_file():
@@ -157,9 +194,15 @@ def load_policy_spec(path: str | Path):
             raise FileNotFoundError(f"no trained policy at {str(path)!r}")
     policy = NumpyPolicy(npz)
     name = f"{policy.meta.get('algo', 'policy')}:{npz.parent.name}/{npz.stem}"
-    spec = ControllerSpec(name, {"preview_steps": policy.meta["preview_steps"],
-                                 "normalize_observation": policy.meta["normalize_observation"]},
-                          lambda ctx: PolicyController(ctx, policy), str(npz))
+    spec = ControllerSpec(
+        name,
+        {
+            "preview_steps": policy.meta["preview_steps"],
+            "normalize_observation": policy.meta["normalize_observation"],
+        },
+        lambda ctx: PolicyController(ctx, policy),
+        str(npz),
+    )
     return spec
 
 
@@ -171,11 +214,14 @@ def export_from_zip(path: str | Path) -> Path:
     written by ``pneumatic-env train`` in the same directory.
     """
     from stable_baselines3 import PPO, SAC
+
     path = Path(path)
     info_path = path.parent / "train.json"
     if not info_path.is_file():
-        raise FileNotFoundError(f"{info_path} is missing: it holds the env settings of the "
-                                f"model; re-run pneumatic-env train or export by hand")
+        raise FileNotFoundError(
+            f"{info_path} is missing: it holds the env settings of the "
+            f"model; re-run pneumatic-env train or export by hand"
+        )
     info = json.loads(info_path.read_text())
     cls = {"ppo": PPO, "sac": SAC}[info["algo"]]
     model = cls.load(path, device="cpu")

@@ -1,5 +1,6 @@
 """Controllers by name: how ``pneumatic-env bench`` (and anything else) builds a controller
 for a variant from its name, its config under ``configs/agents/`` or a trained policy file."""
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -29,10 +30,12 @@ def _variant_key(variant: str) -> str:
     return variant.lower()
 
 
-def _classical(name: str, variant: str, config: str | None,
-               preview_steps: int | None) -> ControllerSpec:
+def _classical(
+    name: str, variant: str, config: str | None, preview_steps: int | None
+) -> ControllerSpec:
     from .pid import PIDController
     from .sliding_mode import SlidingModeController
+
     classes = {"pid": PIDController, "sliding_mode": SlidingModeController}
     if config is None:
         per_variant = agent_config_path(f"{name}-{_variant_key(variant)}")
@@ -43,15 +46,25 @@ def _classical(name: str, variant: str, config: str | None,
     gains = cfg.get("gains")
     if not isinstance(gains, dict):
         raise ConfigError(f"{config}: missing the 'gains' mapping")
-    preview = int(cfg["preview_steps"] if "preview_steps" in cfg
-                  else suite_preview_steps() if preview_steps is None else preview_steps)
+    preview = int(
+        cfg["preview_steps"]
+        if "preview_steps" in cfg
+        else suite_preview_steps()
+        if preview_steps is None
+        else preview_steps
+    )
     cls = classes[name]
-    return ControllerSpec(name, {"preview_steps": preview, "normalize_observation": False},
-                          lambda ctx: cls(ctx, **gains), str(config))
+    return ControllerSpec(
+        name,
+        {"preview_steps": preview, "normalize_observation": False},
+        lambda ctx: cls(ctx, **gains),
+        str(config),
+    )
 
 
-def resolve_controller(spec: str, variant: str, config: str | None = None,
-                       preview_steps: int | None = None) -> ControllerSpec:
+def resolve_controller(
+    spec: str, variant: str, config: str | None = None, preview_steps: int | None = None
+) -> ControllerSpec:
     """``pid``, ``sliding_mode``, ``zero``, or a trained policy (``.npz`` export, SB3 ``.zip``).
 
     ``preview_steps``: the preview a classical controller gets unless its config sets one;
@@ -62,12 +75,16 @@ def resolve_controller(spec: str, variant: str, config: str | None = None,
         return _classical(spec, variant, config, preview_steps)
     if spec == "zero":
         preview_steps = suite_preview_steps() if preview_steps is None else preview_steps
-        return ControllerSpec("zero", {"preview_steps": preview_steps,
-                                       "normalize_observation": False}, ZeroController)
+        return ControllerSpec(
+            "zero", {"preview_steps": preview_steps, "normalize_observation": False}, ZeroController
+        )
     path = Path(spec)
     if path.suffix in (".npz", ".zip"):
         from .policy import load_policy_spec
+
         return load_policy_spec(path)
-    raise ValueError(f"controller = {spec!r} is not allowed: use one of {list(names)} or a path "
-                     "to a trained policy (.npz from pneumatic_env.agents.policy.export_policy, "
-                     "or SB3 .zip)")
+    raise ValueError(
+        f"controller = {spec!r} is not allowed: use one of {list(names)} or a path "
+        "to a trained policy (.npz from pneumatic_env.agents.policy.export_policy, "
+        "or SB3 .zip)"
+    )

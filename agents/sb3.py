@@ -12,6 +12,7 @@ With ``normalize_action=True`` (default) the policy acts in [-1, 1] and the adap
 to the env's current range; SAC's squashing and PPO's clipping both work in that box.
 The adapter also times the env (``env_time_s``) for throughput reports.
 """
+
 from __future__ import annotations
 
 import time
@@ -32,16 +33,21 @@ class SB3VecEnv(VecEnv):
     def __init__(self, venv: gym.vector.VectorEnv, normalize_action: bool = True):
         mode = venv.metadata.get("autoreset_mode")
         if mode != AutoresetMode.SAME_STEP:
-            raise ValueError(f"SB3VecEnv needs a vector env with autoreset_mode = SAME_STEP "
-                             f"(final observation in info['final_obs']); got {mode!r}")
+            raise ValueError(
+                f"SB3VecEnv needs a vector env with autoreset_mode = SAME_STEP "
+                f"(final observation in info['final_obs']); got {mode!r}"
+            )
         space = venv.single_action_space
         if not isinstance(space, gym.spaces.Box):
             raise ValueError(f"SB3VecEnv supports Box action spaces, got {space!r}")
         self.venv = venv
         self.normalize_action = bool(normalize_action)
         self._low, self._high = space.low.astype(np.float64), space.high.astype(np.float64)
-        action_space = (gym.spaces.Box(-1.0, 1.0, shape=space.shape, dtype=np.float32)
-                        if self.normalize_action else space)
+        action_space = (
+            gym.spaces.Box(-1.0, 1.0, shape=space.shape, dtype=np.float32)
+            if self.normalize_action
+            else space
+        )
         self.env_time_s = 0.0
         self.env_steps = 0
         self._actions: np.ndarray | None = None
@@ -50,8 +56,9 @@ class SB3VecEnv(VecEnv):
     # -- actions -----------------------------------------------------------------------------
     def to_env_action(self, actions: np.ndarray) -> np.ndarray:
         """Policy actions (n, dim) -> env actions (coil currents in A)."""
-        a = np.asarray(actions, dtype=np.float64).reshape((self.num_envs,) +
-                                                          self.venv.single_action_space.shape)
+        a = np.asarray(actions, dtype=np.float64).reshape(
+            (self.num_envs,) + self.venv.single_action_space.shape
+        )
         if self.normalize_action:
             a = self._low + 0.5 * (np.clip(a, -1.0, 1.0) + 1.0) * (self._high - self._low)
         return a
@@ -62,8 +69,10 @@ class SB3VecEnv(VecEnv):
         if all(s is None for s in seeds):
             seed = None
         elif any(s is None for s in seeds):
-            raise ValueError(f"SB3VecEnv.reset: seeds {seeds} mix None and integers; give all "
-                             "or none (seed(s) sets all)")
+            raise ValueError(
+                f"SB3VecEnv.reset: seeds {seeds} mix None and integers; give all "
+                "or none (seed(s) sets all)"
+            )
         else:
             seed = [int(s) for s in seeds]
         options = self._options[0] if self._options and self._options[0] else None
@@ -132,8 +141,10 @@ class SB3VecEnv(VecEnv):
 
     def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
         if indices is not None and sorted(self._indices(indices)) != list(range(self.num_envs)):
-            raise ValueError(f"SB3VecEnv.set_attr({attr_name!r}): the native vector env shares "
-                             "its attributes; set them for all envs (indices=None)")
+            raise ValueError(
+                f"SB3VecEnv.set_attr({attr_name!r}): the native vector env shares "
+                "its attributes; set them for all envs (indices=None)"
+            )
         setattr(self.venv, attr_name, value)
 
     def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs):
@@ -147,8 +158,13 @@ class SB3VecEnv(VecEnv):
         return [None for _ in range(self.num_envs)]
 
 
-def make_sb3_vec_env(env_id: str, num_envs: int, episode_steps: int | None = None,
-                     normalize_action: bool = True, **env_kwargs) -> SB3VecEnv:
+def make_sb3_vec_env(
+    env_id: str,
+    num_envs: int,
+    episode_steps: int | None = None,
+    normalize_action: bool = True,
+    **env_kwargs,
+) -> SB3VecEnv:
     """``gym.make_vec(env_id, num_envs)`` (native vector env) wrapped for SB3.
 
     ``episode_steps`` sets the episode length (default the registered ``ids.EPISODE_STEPS``).

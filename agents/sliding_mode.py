@@ -19,6 +19,7 @@ functions (orifice area, orifice flow, tube attenuation, chamber pressure rate);
 simulator may add beyond the paper (configs/effects.yaml) are model error to it. It reads only
 the observation [p1, p2, x, f, ref, preview] and the parameters.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -33,8 +34,14 @@ from pneumatic_env.simulator import PARALLEL_MIN_ENVS
 
 from .base import OBS_F, OBS_P1, OBS_P2, OBS_X, Controller, ControllerContext, check_gain
 
-__all__ = ["SlidingModeController", "force_rate", "invert_force_rate", "model_constants",
-           "model_delay_s", "PARALLEL_MIN_ROWS"]
+__all__ = [
+    "SlidingModeController",
+    "force_rate",
+    "invert_force_rate",
+    "model_constants",
+    "model_delay_s",
+    "PARALLEL_MIN_ROWS",
+]
 
 #: From this many rows the model inversion runs on Numba's threads (row by row the same
 #: numbers; the benchmark's 9 rows stay serial), as the env's step from
@@ -45,8 +52,34 @@ PARALLEL_MIN_ROWS = PARALLEL_MIN_ENVS
 
 # Nominal model constants of the controller (the paper's model, Eqs. 14, 30, 39, 44), one
 # float64 vector so the jitted functions take a single array.
-(_RT, _INV_SQRT_T, _K, _C1, _C2, _PCR, _LIN_R, _LIN_SLOPE, _PS, _PA, _MU, _A_IN, _A_OUT, _CF,
- _RH, _PW, _NH, _TAU, _DT, _RE_T, _A1, _A2, _HALF, _V01, _V02, _N_MODEL) = range(26)
+(
+    _RT,
+    _INV_SQRT_T,
+    _K,
+    _C1,
+    _C2,
+    _PCR,
+    _LIN_R,
+    _LIN_SLOPE,
+    _PS,
+    _PA,
+    _MU,
+    _A_IN,
+    _A_OUT,
+    _CF,
+    _RH,
+    _PW,
+    _NH,
+    _TAU,
+    _DT,
+    _RE_T,
+    _A1,
+    _A2,
+    _HALF,
+    _V01,
+    _V02,
+    _N_MODEL,
+) = range(26)
 
 
 def model_constants(params: dict) -> np.ndarray:
@@ -54,15 +87,28 @@ def model_constants(params: dict) -> np.ndarray:
     p = params
     gas, temp = p["gas_constant_j_per_kg_k"], p["temperature_k"]
     inv_sqrt_t, k, c1, c2, pcr, lin, slope = orifice_gas_constants(
-        p["heat_capacity_ratio"], gas, temp, p["flow_linear_ratio"])
+        p["heat_capacity_ratio"], gas, temp, p["flow_linear_ratio"]
+    )
     a1, a2, _ = piston_areas_m2(p["bore_diameter_m"], p["rod_diameter_m"])
     m = np.empty(_N_MODEL)
-    m[[_RT, _INV_SQRT_T, _K, _C1, _C2, _PCR, _LIN_R]] = (gas * temp, inv_sqrt_t, k, c1, c2,
-                                                         pcr, lin)
+    m[[_RT, _INV_SQRT_T, _K, _C1, _C2, _PCR, _LIN_R]] = (
+        gas * temp,
+        inv_sqrt_t,
+        k,
+        c1,
+        c2,
+        pcr,
+        lin,
+    )
     m[_LIN_SLOPE] = slope
-    m[[_PS, _PA, _MU, _A_IN, _A_OUT, _CF]] = (p["supply_pressure_pa"], p["ambient_pressure_pa"],
-                                             p["air_viscosity_pa_s"], p["alpha_in"],
-                                             p["alpha_out"], p["discharge_coefficient"])
+    m[[_PS, _PA, _MU, _A_IN, _A_OUT, _CF]] = (
+        p["supply_pressure_pa"],
+        p["ambient_pressure_pa"],
+        p["air_viscosity_pa_s"],
+        p["alpha_in"],
+        p["alpha_out"],
+        p["discharge_coefficient"],
+    )
     m[[_RH, _PW, _NH]] = p["hole_radius_m"], p["spool_half_width_m"], p["holes_per_path"]
     m[_TAU] = model_delay_s(p)[0]
     m[[_DT, _RE_T]] = p["tube_inner_diameter_m"], p["reynolds_turbulent"]
@@ -74,8 +120,19 @@ def model_constants(params: dict) -> np.ndarray:
 @njit(cache=True)
 def _path_flow(m, area, p_from, p_to, p_chamber):
     """Valve path flow (Eq. 39, signed from -> to) attenuated by its tube (Eq. 30)."""
-    q = orifice_mass_flow(area, m[_CF], p_from, p_to, m[_INV_SQRT_T], m[_K], m[_C1], m[_C2],
-                          m[_PCR], m[_LIN_R], m[_LIN_SLOPE])
+    q = orifice_mass_flow(
+        area,
+        m[_CF],
+        p_from,
+        p_to,
+        m[_INV_SQRT_T],
+        m[_K],
+        m[_C1],
+        m[_C2],
+        m[_PCR],
+        m[_LIN_R],
+        m[_LIN_SLOPE],
+    )
     return q * tube_attenuation(q, p_chamber, m[_RT], m[_TAU], m[_DT], m[_MU], m[_RE_T])
 
 
@@ -89,15 +146,33 @@ def force_rate(m, p1, p2, x, spool_m):
     """
     area_a = orifice_area(spool_m, m[_RH], m[_PW], m[_NH])
     area_b = orifice_area(-spool_m, m[_RH], m[_PW], m[_NH])
-    s1 = _path_flow(m, area_a, m[_PS], p1, p1)   # supply -> 1
-    e1 = _path_flow(m, area_b, p1, m[_PA], p1)   # 1 -> exhaust
-    s2 = _path_flow(m, area_b, m[_PS], p2, p2)   # supply -> 2
-    e2 = _path_flow(m, area_a, p2, m[_PA], p2)   # 2 -> exhaust
+    s1 = _path_flow(m, area_a, m[_PS], p1, p1)  # supply -> 1
+    e1 = _path_flow(m, area_b, p1, m[_PA], p1)  # 1 -> exhaust
+    s2 = _path_flow(m, area_b, m[_PS], p2, p2)  # supply -> 2
+    e2 = _path_flow(m, area_a, p2, m[_PA], p2)  # 2 -> exhaust
     v1, v2 = chamber_volumes(x, m[_HALF], m[_A1], m[_A2], m[_V01], m[_V02])
-    dp1 = pressure_rate(p1, v1, 0.0, max(s1, 0.0) + max(-e1, 0.0),
-                        max(-s1, 0.0) + max(e1, 0.0), m[_RT], m[_A_IN], m[_A_OUT], 0.0)
-    dp2 = pressure_rate(p2, v2, 0.0, max(s2, 0.0) + max(-e2, 0.0),
-                        max(-s2, 0.0) + max(e2, 0.0), m[_RT], m[_A_IN], m[_A_OUT], 0.0)
+    dp1 = pressure_rate(
+        p1,
+        v1,
+        0.0,
+        max(s1, 0.0) + max(-e1, 0.0),
+        max(-s1, 0.0) + max(e1, 0.0),
+        m[_RT],
+        m[_A_IN],
+        m[_A_OUT],
+        0.0,
+    )
+    dp2 = pressure_rate(
+        p2,
+        v2,
+        0.0,
+        max(s2, 0.0) + max(-e2, 0.0),
+        max(-s2, 0.0) + max(e2, 0.0),
+        m[_RT],
+        m[_A_IN],
+        m[_A_OUT],
+        0.0,
+    )
     return m[_A1] * dp1 - m[_A2] * dp2
 
 
@@ -139,8 +214,9 @@ def _invert_one(m, p1, p2, x, fdot_des, openings, blend, refine_iterations):
 
 
 @njit(cache=True)
-def invert_force_rate(m, p1, p2, x, fdot_des, openings, blend, spool_out, rate_out,
-                      refine_iterations=4):
+def invert_force_rate(
+    m, p1, p2, x, fdot_des, openings, blend, spool_out, rate_out, refine_iterations=4
+):
     """Spool positions (m) giving the force rates ``fdot_des`` (N/s), and the model's rate there.
 
     ``openings``: grid of effective openings x_e in [0, 2 R_h] (Eq. 43) searched for the first
@@ -149,17 +225,20 @@ def invert_force_rate(m, p1, p2, x, fdot_des, openings, blend, spool_out, rate_o
     moves linearly through the overlap instead of jumping across it.
     """
     for i in range(p1.size):
-        spool_out[i], rate_out[i] = _invert_one(m, p1[i], p2[i], x[i], fdot_des[i], openings,
-                                                blend, refine_iterations)
+        spool_out[i], rate_out[i] = _invert_one(
+            m, p1[i], p2[i], x[i], fdot_des[i], openings, blend, refine_iterations
+        )
 
 
 @njit(cache=True, parallel=True)
-def invert_force_rate_parallel(m, p1, p2, x, fdot_des, openings, blend, spool_out, rate_out,
-                               refine_iterations=4):
+def invert_force_rate_parallel(
+    m, p1, p2, x, fdot_des, openings, blend, spool_out, rate_out, refine_iterations=4
+):
     """:func:`invert_force_rate` with the rows spread over Numba's threads."""
     for i in prange(p1.size):
-        spool_out[i], rate_out[i] = _invert_one(m, p1[i], p2[i], x[i], fdot_des[i], openings,
-                                                blend, refine_iterations)
+        spool_out[i], rate_out[i] = _invert_one(
+            m, p1[i], p2[i], x[i], fdot_des[i], openings, blend, refine_iterations
+        )
 
 
 @njit(cache=True)
@@ -176,9 +255,15 @@ def _force_rates_parallel(m, p1, p2, x, spool, out):
 
 def model_delay_s(params: dict) -> tuple[float, float]:
     """(tube delay L/c of Eq. 31, spool time constant c_s/(2 k_s) of Eq. 38) in s."""
-    return (tube_delay_s(params["tube_length_m"], params["heat_capacity_ratio"],
-                         params["gas_constant_j_per_kg_k"], params["temperature_k"]),
-            params["spool_damping_n_s_per_m"] / (2.0 * params["spool_spring_n_per_m"]))
+    return (
+        tube_delay_s(
+            params["tube_length_m"],
+            params["heat_capacity_ratio"],
+            params["gas_constant_j_per_kg_k"],
+            params["temperature_k"],
+        ),
+        params["spool_damping_n_s_per_m"] / (2.0 * params["spool_spring_n_per_m"]),
+    )
 
 
 class SlidingModeController(Controller):
@@ -186,38 +271,57 @@ class SlidingModeController(Controller):
 
     name = "sliding_mode"
 
-    def __init__(self, context: ControllerContext, *, lambda_integral_per_s, reaching_gain_per_s,
-                 switching_gain_n_per_s, boundary_layer_n, deadband_blend_n_per_s,
-                 extra_lead_s, predictor, opening_grid_points):
+    def __init__(
+        self,
+        context: ControllerContext,
+        *,
+        lambda_integral_per_s,
+        reaching_gain_per_s,
+        switching_gain_n_per_s,
+        boundary_layer_n,
+        deadband_blend_n_per_s,
+        extra_lead_s,
+        predictor,
+        opening_grid_points,
+    ):
         super().__init__(context)
         own = "SlidingModeController"
         self.lam = check_gain(own, "lambda_integral_per_s", lambda_integral_per_s)
         self.k_r = check_gain(own, "reaching_gain_per_s", reaching_gain_per_s)
         self.eta = check_gain(own, "switching_gain_n_per_s", switching_gain_n_per_s)
         self.phi = check_gain(own, "boundary_layer_n", boundary_layer_n, ge=None, gt=0.0)
-        self.blend = float(check_gain(own, "deadband_blend_n_per_s", deadband_blend_n_per_s,
-                                      ge=None, gt=0.0))
+        self.blend = float(
+            check_gain(own, "deadband_blend_n_per_s", deadband_blend_n_per_s, ge=None, gt=0.0)
+        )
         extra = check_gain(own, "extra_lead_s", extra_lead_s)
         pred = np.asarray(predictor)
         if pred.dtype != bool:
-            raise ValueError(f"{own}: predictor = {predictor!r} is not allowed: true or false "
-                             "(or an array of them, one per env)")
+            raise ValueError(
+                f"{own}: predictor = {predictor!r} is not allowed: true or false "
+                "(or an array of them, one per env)"
+            )
         if int(opening_grid_points) != opening_grid_points or opening_grid_points < 3:
-            raise ValueError(f"{own}: opening_grid_points = {opening_grid_points!r} is not "
-                             "allowed: an integer >= 3")
+            raise ValueError(
+                f"{own}: opening_grid_points = {opening_grid_points!r} is not "
+                "allowed: an integer >= 3"
+            )
         p = context.base_params
         if p["spool_half_width_m"] < p["hole_radius_m"]:
-            raise ValueError(f"{own}: spool_half_width_m = {p['spool_half_width_m']} < "
-                             f"hole_radius_m = {p['hole_radius_m']}: the inversion assumes an "
-                             "overlapped (closed-centre) valve")
+            raise ValueError(
+                f"{own}: spool_half_width_m = {p['spool_half_width_m']} < "
+                f"hole_radius_m = {p['hole_radius_m']}: the inversion assumes an "
+                "overlapped (closed-centre) valve"
+            )
         tube_s, spool_s = model_delay_s(p)
         self.delay_s = tube_s + spool_s
         self.d = int(np.rint(self.delay_s / context.dt_s))  # prediction horizon (steps)
         self.lead = self.d + np.rint(np.asarray(extra) / context.dt_s).astype(np.int64)
         if np.any(self.lead + 1 > context.preview_steps):
-            raise ValueError(f"{own}: the delay {self.delay_s * 1e3:.1f} ms + extra_lead_s = "
-                             f"{extra_lead_s!r} needs {int(np.max(self.lead)) + 1} preview steps, "
-                             f"the env gives {context.preview_steps}: raise preview_steps")
+            raise ValueError(
+                f"{own}: the delay {self.delay_s * 1e3:.1f} ms + extra_lead_s = "
+                f"{extra_lead_s!r} needs {int(np.max(self.lead)) + 1} preview steps, "
+                f"the env gives {context.preview_steps}: raise preview_steps"
+            )
         self.predictor = pred
         self.openings = np.linspace(0.0, 2.0 * p["hole_radius_m"], int(opening_grid_points))
         self.model = model_constants(p)
@@ -249,16 +353,25 @@ class SlidingModeController(Controller):
         fdot = rdot - self.lam * e - self.k_r * s - self.eta * np.clip(s / self.phi, -1.0, 1.0)
         spool, rate = np.empty(n), np.empty(n)
         invert = invert_force_rate_parallel if n >= PARALLEL_MIN_ROWS else invert_force_rate
-        invert(self.model, np.ascontiguousarray(obs[:, OBS_P1]),
-               np.ascontiguousarray(obs[:, OBS_P2]), np.ascontiguousarray(obs[:, OBS_X]),
-               np.ascontiguousarray(fdot), self.openings, self.blend, spool, rate)
+        invert(
+            self.model,
+            np.ascontiguousarray(obs[:, OBS_P1]),
+            np.ascontiguousarray(obs[:, OBS_P2]),
+            np.ascontiguousarray(obs[:, OBS_X]),
+            np.ascontiguousarray(fdot),
+            self.openings,
+            self.blend,
+            spool,
+            rate,
+        )
         i_max = self.context.i_max_a
         current = np.clip(spool * self.i_per_m, -i_max, i_max)
         return current, rate, integral, e
 
     def _act(self, obs):
         current, rate, self.integral, self.last_error = self._compute(
-            obs, self.integral, self.pending.sum(axis=1))
+            obs, self.integral, self.pending.sum(axis=1)
+        )
         if self.d > 0:
             self.pending[:, self.head] = rate
             self.head = (self.head + 1) % self.d
@@ -277,12 +390,24 @@ class SlidingModeController(Controller):
         if self.d == 0:
             return
         o = self.observation_si(self._rows(obs))
-        spool = np.clip(np.asarray(current, dtype=np.float64).reshape(-1),
-                        -self.context.i_max_a, self.context.i_max_a) / self.i_per_m
+        spool = (
+            np.clip(
+                np.asarray(current, dtype=np.float64).reshape(-1),
+                -self.context.i_max_a,
+                self.context.i_max_a,
+            )
+            / self.i_per_m
+        )
         rate = np.empty(o.shape[0])
         rates = _force_rates_parallel if o.shape[0] >= PARALLEL_MIN_ROWS else _force_rates
-        rates(self.model, np.ascontiguousarray(o[:, OBS_P1]), np.ascontiguousarray(o[:, OBS_P2]),
-              np.ascontiguousarray(o[:, OBS_X]), np.ascontiguousarray(spool), rate)
+        rates(
+            self.model,
+            np.ascontiguousarray(o[:, OBS_P1]),
+            np.ascontiguousarray(o[:, OBS_P2]),
+            np.ascontiguousarray(o[:, OBS_X]),
+            np.ascontiguousarray(spool),
+            rate,
+        )
         self.pending[:, (self.head - 1) % self.d] = rate
 
     def peek(self, obs, rows):

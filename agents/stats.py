@@ -13,6 +13,7 @@ seed, one column per benchmark task. Computed with NumPy in the way rliable does
 * the paired ratio: per run, the mean over tasks of ``X / Y`` (task by task, Y a
   deterministic baseline or the mean of its runs); "X beats Y" needs its interval below 1.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -20,8 +21,15 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import stats
 
-__all__ = ["Estimate", "iqm", "iqm_estimate", "paired_ratio_estimate",
-           "probability_of_improvement", "improvement_estimate", "summarize"]
+__all__ = [
+    "Estimate",
+    "iqm",
+    "iqm_estimate",
+    "paired_ratio_estimate",
+    "probability_of_improvement",
+    "improvement_estimate",
+    "summarize",
+]
 
 DEFAULT_REPS = 2000
 CONFIDENCE = 0.95
@@ -48,8 +56,10 @@ def _scores(scores, name: str = "scores") -> np.ndarray:
     if a.ndim == 1:
         a = a[:, None]
     if a.ndim != 2 or a.shape[0] < 1 or a.shape[1] < 1:
-        raise ValueError(f"{name} has shape {a.shape}: expected (n_runs, n_tasks) with at least "
-                         "one run and one task")
+        raise ValueError(
+            f"{name} has shape {a.shape}: expected (n_runs, n_tasks) with at least "
+            "one run and one task"
+        )
     if not np.all(np.isfinite(a)):
         raise ValueError(f"{name} contains {a[~np.isfinite(a)][0]}: scores must be finite")
     return a
@@ -99,8 +109,9 @@ def improvement_estimate(x, y, reps: int = DEFAULT_REPS, seed: int = 0) -> Estim
     for rep in range(reps):
         ia = rng.integers(0, a.shape[0], size=a.shape)
         ib = rng.integers(0, b.shape[0], size=b.shape)
-        samples[rep] = probability_of_improvement(np.take_along_axis(a, ia, 0),
-                                                  np.take_along_axis(b, ib, 0))
+        samples[rep] = probability_of_improvement(
+            np.take_along_axis(a, ia, 0), np.take_along_axis(b, ib, 0)
+        )
     return _interval(probability_of_improvement(a, b), samples, a.shape[0])
 
 
@@ -112,8 +123,9 @@ def paired_ratio_estimate(x, baseline, reps: int = DEFAULT_REPS, seed: int = 0) 
     b = _scores(baseline, "baseline")
     b = b.mean(axis=0) if b.shape[0] > 1 else b[0]
     if b.shape[0] != a.shape[1]:
-        raise ValueError(f"baseline has {b.shape[0]} tasks and x {a.shape[1]}: they must be "
-                         "the same")
+        raise ValueError(
+            f"baseline has {b.shape[0]} tasks and x {a.shape[1]}: they must be the same"
+        )
     if np.any(b <= 0):
         raise ValueError(f"baseline contains {b[b <= 0][0]}: errors must be > 0 for a ratio")
     per_run = (a / b).mean(axis=1)
@@ -126,8 +138,10 @@ def summarize(x, baseline, reps: int = DEFAULT_REPS, seed: int = 0) -> dict:
     """IQM of ``x`` and of ``baseline``, the paired ratio and the probability of improvement,
     each with its 95 % interval, and whether x beats the baseline (ratio interval below 1)."""
     ratio = paired_ratio_estimate(x, baseline, reps, seed)
-    return {"iqm": iqm_estimate(x, reps, seed).as_dict(),
-            "baseline_iqm": iqm_estimate(baseline, reps, seed).as_dict(),
-            "paired_ratio": ratio.as_dict(),
-            "probability_of_improvement": improvement_estimate(x, baseline, reps, seed).as_dict(),
-            "beats": bool(ratio.high < 1.0)}
+    return {
+        "iqm": iqm_estimate(x, reps, seed).as_dict(),
+        "baseline_iqm": iqm_estimate(baseline, reps, seed).as_dict(),
+        "paired_ratio": ratio.as_dict(),
+        "probability_of_improvement": improvement_estimate(x, baseline, reps, seed).as_dict(),
+        "beats": bool(ratio.high < 1.0),
+    }

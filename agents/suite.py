@@ -4,6 +4,7 @@
 (``Numatics-2m``) into its env id. The suite's ``preview_steps`` (20) is the benchmark's
 observation layout, a different fact from the env's default (``ids.ENV_PREVIEW_STEPS``, 10).
 """
+
 from __future__ import annotations
 
 import math
@@ -14,8 +15,14 @@ from pneumatic_env import ids
 from pneumatic_env.params import ConfigError, config_dir, read_yaml
 from pneumatic_env.references import make_reference
 
-__all__ = ["BenchTask", "Suite", "default_suite_path", "load_suite", "parse_variant",
-           "suite_preview_steps"]
+__all__ = [
+    "BenchTask",
+    "Suite",
+    "default_suite_path",
+    "load_suite",
+    "parse_variant",
+    "suite_preview_steps",
+]
 
 
 @dataclass(frozen=True)
@@ -61,8 +68,10 @@ def load_suite(path: str | Path | None = None) -> Suite:
             raise ConfigError(f"{where}: {owner} is missing {key!r}")
         value = mapping[key]
         if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
-            raise ConfigError(f"{where}: {owner}.{key} = {value!r} is not allowed: must be "
-                              f"{getattr(kind, '__name__', kind)}")
+            raise ConfigError(
+                f"{where}: {owner}.{key} = {value!r} is not allowed: must be "
+                f"{getattr(kind, '__name__', kind)}"
+            )
         return value
 
     version = str(need(data, "version", (str, int, float), "suite"))
@@ -82,8 +91,10 @@ def load_suite(path: str | Path | None = None) -> Suite:
         seed = need(t, "seed", int, owner)
         duration = float(need(t, "duration_s", (int, float), owner))
         if not (math.isfinite(duration) and duration > 0):
-            raise ConfigError(f"{where}: {owner}.duration_s = {duration!r} is not allowed: "
-                              "must be a finite number > 0")
+            raise ConfigError(
+                f"{where}: {owner}.duration_s = {duration!r} is not allowed: "
+                "must be a finite number > 0"
+            )
         ref = need(t, "reference", dict, owner)
         try:
             make_reference(ref)
@@ -92,21 +103,29 @@ def load_suite(path: str | Path | None = None) -> Suite:
         tasks.append(BenchTask(name, seed, duration, dict(ref)))
     bw_task = need(metrics, "bandwidth_task", str, "metrics")
     if bw_task not in names:
-        raise ConfigError(f"{where}: metrics.bandwidth_task = {bw_task!r} is not a task: "
-                          f"allowed {sorted(names)}")
+        raise ConfigError(
+            f"{where}: metrics.bandwidth_task = {bw_task!r} is not a task: allowed {sorted(names)}"
+        )
     if tasks[[t.name for t in tasks].index(bw_task)].reference.get("kind") != "chirp":
         raise ConfigError(f"{where}: metrics.bandwidth_task = {bw_task!r} must be a chirp task")
     plots = data.get("plots", {}) or {}
     for key, name in plots.items():
         if name not in names:
-            raise ConfigError(f"{where}: plots.{key} = {name!r} is not a task: "
-                              f"allowed {sorted(names)}")
-    return Suite(version=version, task=task, variants=variants, preview_steps=preview,
-                 tasks=tuple(tasks), bandwidth_task=bw_task,
-                 bins_per_octave=float(need(metrics, "bandwidth_bins_per_octave", (int, float),
-                                            "metrics")),
-                 bandwidth_level=float(need(metrics, "bandwidth_level", float, "metrics")),
-                 plot_tasks=dict(plots), path=str(path))
+            raise ConfigError(
+                f"{where}: plots.{key} = {name!r} is not a task: allowed {sorted(names)}"
+            )
+    return Suite(
+        version=version,
+        task=task,
+        variants=variants,
+        preview_steps=preview,
+        tasks=tuple(tasks),
+        bandwidth_task=bw_task,
+        bins_per_octave=float(need(metrics, "bandwidth_bins_per_octave", (int, float), "metrics")),
+        bandwidth_level=float(need(metrics, "bandwidth_level", float, "metrics")),
+        plot_tasks=dict(plots),
+        path=str(path),
+    )
 
 
 def parse_variant(variant: str, task: str = ids.FORCE_TRACK) -> str:

@@ -12,6 +12,7 @@ TensorBoard and CSV logs, ``model.zip`` (SB3), ``model.npz`` (the actor for
 ``pneumatic_env.agents.policy``, no torch needed), ``train.json`` (settings, throughput,
 evaluation) and ``learning_curve.png``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -44,8 +45,10 @@ def evaluate(act, env_id: str, seeds, episode_steps: int, **env_kwargs) -> np.nd
     references; returns the undiscounted episode returns, shape (len(seeds),).
     """
     import gymnasium as gym
-    env = gym.make_vec(env_id, num_envs=len(seeds), max_episode_steps=int(episode_steps),
-                       **env_kwargs)
+
+    env = gym.make_vec(
+        env_id, num_envs=len(seeds), max_episode_steps=int(episode_steps), **env_kwargs
+    )
     obs, _ = env.reset(seed=[int(s) for s in seeds])
     total = np.zeros(len(seeds))
     for _ in range(int(episode_steps)):
@@ -58,6 +61,7 @@ def evaluate(act, env_id: str, seeds, episode_steps: int, **env_kwargs) -> np.nd
 
 def _learning_curve(out: Path, title: str) -> Path | None:
     import csv
+
     path = out / "progress.csv"
     if not path.is_file():
         return None
@@ -70,8 +74,10 @@ def _learning_curve(out: Path, title: str) -> Path | None:
     if not xs:
         return None
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     fig, ax = plt.subplots(figsize=(6, 3.5))
     ax.plot(xs, ys, marker=".")
     ax.set_xlabel("env steps")
@@ -84,10 +90,20 @@ def _learning_curve(out: Path, title: str) -> Path | None:
     return png
 
 
-def train(algo: str, env_id: str, config: str | Path | dict, timesteps: int | None = None,
-          seed: int = 0, out: str | Path = "runs/train", env_kwargs: dict | None = None,
-          progress_bar: bool = True, eval_seeds=(9001, 9002, 9003, 9004), command: str = "",
-          verbose: int = 0, torch_threads: int | None = 1) -> dict:
+def train(
+    algo: str,
+    env_id: str,
+    config: str | Path | dict,
+    timesteps: int | None = None,
+    seed: int = 0,
+    out: str | Path = "runs/train",
+    env_kwargs: dict | None = None,
+    progress_bar: bool = True,
+    eval_seeds=(9001, 9002, 9003, 9004),
+    command: str = "",
+    verbose: int = 0,
+    torch_threads: int | None = 1,
+) -> dict:
     """Train, save and evaluate; returns the summary written to ``train.json``.
 
     ``torch_threads=1`` (default): the networks are small, and one torch thread leaves the
@@ -105,32 +121,39 @@ def train(algo: str, env_id: str, config: str | Path | dict, timesteps: int | No
         raise ValueError(f"algo = {algo!r} is not allowed: use one of {list(ALGOS)}")
     cfg = load_agent_config(config) if not isinstance(config, dict) else config
     if cfg.get("algo") != algo:
-        raise ConfigError(f"config {config if not isinstance(config, dict) else '<dict>'}: "
-                          f"algo = {cfg.get('algo')!r}, but --algo {algo}")
+        raise ConfigError(
+            f"config {config if not isinstance(config, dict) else '<dict>'}: "
+            f"algo = {cfg.get('algo')!r}, but --algo {algo}"
+        )
     for key in ("n_envs", "episode_steps", "total_timesteps", "hyperparameters"):
         if key not in cfg:
             raise ConfigError(f"config is missing {key!r}")
     kwargs = {**(cfg.get("env_kwargs") or {}), **(env_kwargs or {})}
     if not kwargs.get("normalize_observation", False):
-        raise ConfigError("env_kwargs.normalize_observation must be true for learning agents "
-                          "(the exported policy records it; observations span 1e5 Pa and 1 N)")
+        raise ConfigError(
+            "env_kwargs.normalize_observation must be true for learning agents "
+            "(the exported policy records it; observations span 1e5 Pa and 1 N)"
+        )
     timesteps = int(timesteps if timesteps is not None else cfg["total_timesteps"])
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     if torch_threads:
         import torch
+
         torch.set_num_threads(int(torch_threads))
     set_random_seed(seed)
     base = make_sb3_vec_env(env_id, int(cfg["n_envs"]), int(cfg["episode_steps"]), **kwargs)
     venv = VecMonitor(base)
     hp = dict(cfg["hyperparameters"])
     if cfg.get("normalize_reward", False):
-        venv = VecNormalize(venv, norm_obs=False, norm_reward=True,
-                            gamma=float(hp.get("gamma", 0.99)))
+        venv = VecNormalize(
+            venv, norm_obs=False, norm_reward=True, gamma=float(hp.get("gamma", 0.99))
+        )
     venv.seed(seed)
     cls = {"ppo": PPO, "sac": SAC}[algo]
-    model = cls(cfg.get("policy", "MlpPolicy"), venv, seed=seed, verbose=verbose, device="cpu",
-                **hp)
+    model = cls(
+        cfg.get("policy", "MlpPolicy"), venv, seed=seed, verbose=verbose, device="cpu", **hp
+    )
     model.set_logger(configure(str(out), ["csv", "tensorboard"] + (["stdout"] if verbose else [])))
     t0 = time.perf_counter()
     model.learn(total_timesteps=timesteps, progress_bar=progress_bar)
@@ -138,8 +161,12 @@ def train(algo: str, env_id: str, config: str | Path | dict, timesteps: int | No
     model.logger.close()  # flushes and closes progress.csv and the TensorBoard writer
     model.save(out / "model.zip")
     trained = base.venv.unwrapped
-    policy_env = {"env_id": env_id, "preview_steps": trained.preview_steps,
-                  "normalize_observation": True, "action_scale_a": trained.coil_current_max_a}
+    policy_env = {
+        "env_id": env_id,
+        "preview_steps": trained.preview_steps,
+        "normalize_observation": True,
+        "action_scale_a": trained.coil_current_max_a,
+    }
     export_policy(model, out / "model.npz", **policy_env)
     policy = NumpyPolicy(out / "model.npz")
     episode = int(cfg["episode_steps"])
@@ -148,13 +175,22 @@ def train(algo: str, env_id: str, config: str | Path | dict, timesteps: int | No
     zero = evaluate(lambda o: np.zeros(len(o)), env_id, eval_seeds, episode, **eval_kwargs)
     steps_done = int(model.num_timesteps)
     summary = {
-        "algo": algo, "env_id": env_id, "config": str(config) if not isinstance(config, dict)
-        else "<dict>", "seed": seed, "timesteps": steps_done, "command": command,
-        "n_envs": int(cfg["n_envs"]), "episode_steps": episode, "env_kwargs": _jsonable(kwargs),
-        "wall_s": wall, "env_time_s": base.env_time_s, "env_share": base.env_time_s / wall,
+        "algo": algo,
+        "env_id": env_id,
+        "config": str(config) if not isinstance(config, dict) else "<dict>",
+        "seed": seed,
+        "timesteps": steps_done,
+        "command": command,
+        "n_envs": int(cfg["n_envs"]),
+        "episode_steps": episode,
+        "env_kwargs": _jsonable(kwargs),
+        "wall_s": wall,
+        "env_time_s": base.env_time_s,
+        "env_share": base.env_time_s / wall,
         "env_steps_per_s": steps_done / wall,
         "env_only_steps_per_s": base.env_steps / base.env_time_s if base.env_time_s else None,
-        "eval_seeds": list(eval_seeds), "eval_return_mean": float(returns.mean()),
+        "eval_seeds": list(eval_seeds),
+        "eval_return_mean": float(returns.mean()),
         "eval_return_zero_current": float(zero.mean()),
         "policy_env": policy_env,
     }
@@ -176,30 +212,40 @@ def _jsonable(x):
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--algo", required=True, choices=ALGOS)
-    parser.add_argument("--env", required=True, help="env id, e.g. "
-                        "pneumatic_env/ForceTrack-Numatics-2m-v0")
-    parser.add_argument("--config", help="hyperparameter YAML (default configs/agents/"
-                        "<algo>-<variant>.yaml)")
+    parser.add_argument(
+        "--env", required=True, help="env id, e.g. pneumatic_env/ForceTrack-Numatics-2m-v0"
+    )
+    parser.add_argument(
+        "--config", help="hyperparameter YAML (default configs/agents/<algo>-<variant>.yaml)"
+    )
     parser.add_argument("--timesteps", type=int, help="env steps (default: the config's)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", help="output directory (default runs/<algo>-<variant>-s<seed>)")
-    parser.add_argument("--env-kwargs", default="{}", help="JSON merged into the config's "
-                        "env_kwargs, e.g. '{\"domain_randomization\": "
-                        "{\"supply_pressure_pa\": 0.1}}'")
+    parser.add_argument(
+        "--env-kwargs",
+        default="{}",
+        help="JSON merged into the config's "
+        'env_kwargs, e.g. \'{"domain_randomization": '
+        '{"supply_pressure_pa": 0.1}}\'',
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
     import gymnasium as gym
+
     import pneumatic_env  # noqa: F401  (registers the ids)
+
     if args.env not in gym.registry:
-        raise SystemExit(f"--env {args.env!r} is not registered: use one of "
-                         f"{pneumatic_env.registered_ids()}")
+        raise SystemExit(
+            f"--env {args.env!r} is not registered: use one of {pneumatic_env.registered_ids()}"
+        )
     variant = _variant_of(args.env)
     config = args.config or agent_config_path(f"{args.algo}-{variant}")
     if not Path(config).is_file():
-        raise SystemExit(f"no config {config}: write configs/agents/{args.algo}-{variant}.yaml "
-                         "or pass --config")
+        raise SystemExit(
+            f"no config {config}: write configs/agents/{args.algo}-{variant}.yaml or pass --config"
+        )
     try:
         extra = json.loads(args.env_kwargs)
     except json.JSONDecodeError as exc:
@@ -208,10 +254,21 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit(f"--env-kwargs must be a JSON object, got {args.env_kwargs!r}")
     out = args.out or f"runs/{args.algo}-{variant}-s{args.seed}"
     command = "pneumatic-env " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-    s = train(args.algo, args.env, config, args.timesteps, args.seed, out, extra,
-              progress_bar=not args.no_progress, command=command)
-    print(f"{s['timesteps']} steps in {s['wall_s']:.1f} s ({s['env_steps_per_s']:.0f} env steps/s, "
-          f"{100 * s['env_share']:.0f} % of wall time in the env); eval return "
-          f"{s['eval_return_mean']:.1f} (zero current {s['eval_return_zero_current']:.1f}); "
-          f"wrote {out}")
+    s = train(
+        args.algo,
+        args.env,
+        config,
+        args.timesteps,
+        args.seed,
+        out,
+        extra,
+        progress_bar=not args.no_progress,
+        command=command,
+    )
+    print(
+        f"{s['timesteps']} steps in {s['wall_s']:.1f} s ({s['env_steps_per_s']:.0f} env steps/s, "
+        f"{100 * s['env_share']:.0f} % of wall time in the env); eval return "
+        f"{s['eval_return_mean']:.1f} (zero current {s['eval_return_zero_current']:.1f}); "
+        f"wrote {out}"
+    )
     return 0

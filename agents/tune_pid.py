@@ -9,6 +9,7 @@ references (seeds and signals distinct from the benchmark's) and the objective
 reference runs as one env of a single native vector env per variant; the best combination is
 written to ``configs/agents/<controller>-<variant>.yaml``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -19,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pneumatic_env.params import read_yaml, load_numerics
+from pneumatic_env.params import load_numerics, read_yaml
 
 from .base import ControllerContext
 from .bench import closed_loop, load_suite, make_env, parse_variant
@@ -38,8 +39,9 @@ def grid_search(controller: str, variant: str, tuning: dict) -> dict:
     ``tuning`` is ``load_agent_config("tuning", raw=("references",))``.
     """
     if controller not in CONTROLLERS:
-        raise ValueError(f"controller = {controller!r} is not allowed: use one of "
-                         f"{sorted(CONTROLLERS)}")
+        raise ValueError(
+            f"controller = {controller!r} is not allowed: use one of {sorted(CONTROLLERS)}"
+        )
     parse_variant(variant)
     grid, fixed = tuning[controller]["grid"], tuning[controller]["fixed"]
     names = list(grid)
@@ -47,31 +49,51 @@ def grid_search(controller: str, variant: str, tuning: dict) -> dict:
     refs = tuning["references"]
     n_ref = len(refs)
     n_steps = int(round(tuning["duration_s"] / load_numerics()["control_dt_s"]))
-    env = make_env(variant, len(combos) * n_ref, n_steps, preview_steps=tuning["preview_steps"],
-                   normalize_observation=False)
+    env = make_env(
+        variant,
+        len(combos) * n_ref,
+        n_steps,
+        preview_steps=tuning["preview_steps"],
+        normalize_observation=False,
+    )
     ctx = ControllerContext.from_env(env)
     gains = {n: np.repeat(np.array([c[j] for c in combos]), n_ref) for j, n in enumerate(names)}
     ctrl = CONTROLLERS[controller](ctx, **{**fixed, **gains})
     t0 = time.perf_counter()
-    tr = closed_loop(env, ctrl, [r["reference"] for r in refs] * len(combos),
-                     [r["seed"] for r in refs] * len(combos), n_steps)
+    tr = closed_loop(
+        env,
+        ctrl,
+        [r["reference"] for r in refs] * len(combos),
+        [r["seed"] for r in refs] * len(combos),
+        n_steps,
+    )
     wall = time.perf_counter() - t0
     scale = env.unwrapped.reference_scale
     env.close()
     e = tr["force_n"] - tr["reference_n"]
-    rms_pct = (100 * np.sqrt(np.mean(e ** 2, axis=0)) / scale).reshape(len(combos), n_ref)
+    rms_pct = (100 * np.sqrt(np.mean(e**2, axis=0)) / scale).reshape(len(combos), n_ref)
     chatter = np.sqrt(np.mean(np.diff(tr["current_a"], axis=0) ** 2, axis=0)).reshape(
-        len(combos), n_ref)
+        len(combos), n_ref
+    )
     score = rms_pct.mean(axis=1) + tuning["chatter_penalty_pct_per_a"] * chatter.mean(axis=1)
     score = np.where(np.isfinite(score), score, np.inf)
     best = int(np.argmin(score))
-    return {"names": names, "combos": combos, "score": score, "rms_pct": rms_pct,
-            "chatter_a": chatter, "best": best, "wall_s": wall, "n_envs": len(combos) * n_ref,
-            "n_steps": n_steps}
+    return {
+        "names": names,
+        "combos": combos,
+        "score": score,
+        "rms_pct": rms_pct,
+        "chatter_a": chatter,
+        "best": best,
+        "wall_s": wall,
+        "n_envs": len(combos) * n_ref,
+        "n_steps": n_steps,
+    }
 
 
-def tuned_config(controller: str, variant: str, result: dict, tuning_path: Path,
-                 command: str) -> dict:
+def tuned_config(
+    controller: str, variant: str, result: dict, tuning_path: Path, command: str
+) -> dict:
     """The config tree for ``configs/agents/<controller>-<variant>.yaml`` (entries kept)."""
     raw = read_yaml(tuning_path)
     section = raw[controller]
@@ -79,36 +101,52 @@ def tuned_config(controller: str, variant: str, result: dict, tuning_path: Path,
     gains = {}
     for name, value in zip(result["names"], best):
         e = section["grid"][name]
-        gains[name] = {"value": value, "unit": e["unit"],
-                       "source": f"tuned: best of {e['value']} by `{command}` "
-                                 f"(configs/agents/tuning.yaml)"}
+        gains[name] = {
+            "value": value,
+            "unit": e["unit"],
+            "source": f"tuned: best of {e['value']} by `{command}` (configs/agents/tuning.yaml)",
+        }
     for name, e in section["fixed"].items():
-        gains[name] = {"value": e["value"], "unit": e["unit"],
-                       "source": f"fixed in configs/agents/tuning.yaml: {e['source']}"}
+        gains[name] = {
+            "value": e["value"],
+            "unit": e["unit"],
+            "source": f"fixed in configs/agents/tuning.yaml: {e['source']}",
+        }
     order = np.argsort(result["score"])
     return {
         "controller": controller,
         "variant": variant,
-        "preview_steps": {"value": raw["preview_steps"]["value"], "unit": "control periods",
-                          "source": "configs/agents/tuning.yaml preview_steps (observation layout "
-                                    "the gains were tuned with)"},
+        "preview_steps": {
+            "value": raw["preview_steps"]["value"],
+            "unit": "control periods",
+            "source": "configs/agents/tuning.yaml preview_steps (observation layout "
+            "the gains were tuned with)",
+        },
         "gains": gains,
         "tuning": {
-            "objective": {"value": round(float(result["score"][result["best"]]), 4),
-                          "unit": "%",
-                          "source": "J on the tuning set (configs/agents/tuning.yaml)"},
+            "objective": {
+                "value": round(float(result["score"][result["best"]]), 4),
+                "unit": "%",
+                "source": "J on the tuning set (configs/agents/tuning.yaml)",
+            },
             "runner_up_objective": {
                 "value": round(float(result["score"][order[1]]), 4) if len(order) > 1 else None,
-                "unit": "%", "source": "second-best J of the grid (how flat the optimum is)"},
-            "combinations": {"value": len(result["combos"]), "unit": "-",
-                             "source": "size of the grid searched"},
+                "unit": "%",
+                "source": "second-best J of the grid (how flat the optimum is)",
+            },
+            "combinations": {
+                "value": len(result["combos"]),
+                "unit": "-",
+                "source": "size of the grid searched",
+            },
         },
     }
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pneumatic_env.agents.tune_pid",
-                                     description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m pneumatic_env.agents.tune_pid", description=__doc__.split("\n")[0]
+    )
     parser.add_argument("--controller", default="pid", choices=sorted(CONTROLLERS))
     parser.add_argument("--variants", nargs="+", help="default: the benchmark suite's variants")
     parser.add_argument("--tuning", default="tuning", help="tuning config (configs/agents/...)")
@@ -122,18 +160,27 @@ def main(argv: list[str] | None = None) -> int:
         res = grid_search(args.controller, variant, tuning)
         best = res["best"]
         desc = ", ".join(f"{n}={v}" for n, v in zip(res["names"], res["combos"][best]))
-        print(f"{args.controller} {variant}: {len(res['combos'])} combinations x "
-              f"{res['rms_pct'].shape[1]} references ({res['n_envs']} envs, "
-              f"{res['wall_s']:.1f} s): best J = {res['score'][best]:.3f} % ({desc}); RMS % per "
-              f"reference {np.round(res['rms_pct'][best], 2).tolist()}", flush=True)
+        print(
+            f"{args.controller} {variant}: {len(res['combos'])} combinations x "
+            f"{res['rms_pct'].shape[1]} references ({res['n_envs']} envs, "
+            f"{res['wall_s']:.1f} s): best J = {res['score'][best]:.3f} % ({desc}); RMS % per "
+            f"reference {np.round(res['rms_pct'][best], 2).tolist()}",
+            flush=True,
+        )
         if not args.dry_run:
             path = agent_config_path(f"{args.controller}-{variant.lower()}")
-            cfg = tuned_config(args.controller, variant, res, tuning_path,
-                               f"{command} --variants {variant}")
-            write_agent_config(path, cfg, header=(
-                f"{args.controller} gains for {variant}: written by\n"
-                f"  {command} --variants {variant}\n"
-                "Do not edit by hand; change configs/agents/tuning.yaml and re-run."))
+            cfg = tuned_config(
+                args.controller, variant, res, tuning_path, f"{command} --variants {variant}"
+            )
+            write_agent_config(
+                path,
+                cfg,
+                header=(
+                    f"{args.controller} gains for {variant}: written by\n"
+                    f"  {command} --variants {variant}\n"
+                    "Do not edit by hand; change configs/agents/tuning.yaml and re-run."
+                ),
+            )
             print(f"  wrote {path}")
     return 0
 

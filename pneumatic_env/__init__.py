@@ -29,6 +29,7 @@ Only ``ids`` and Gymnasium load on import; the other names load their module on 
 (NumPy, Numba, SciPy, PyYAML), and nothing here imports torch, Matplotlib or
 Stable-Baselines3.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -38,8 +39,17 @@ import gymnasium as gym
 from gymnasium.envs.registration import register, registry
 
 from ._numba_cache import invalidate_stale_numba_cache
-from .ids import (CYLINDER_IDS, ENV_PREVIEW_STEPS, EPISODE_STEPS, TASK_IDS, TUBE_LENGTHS_M,
-                  EnvId, env_id, parse_env_id, registered_ids)
+from .ids import (
+    CYLINDER_IDS,
+    ENV_PREVIEW_STEPS,
+    EPISODE_STEPS,
+    TASK_IDS,
+    TUBE_LENGTHS_M,
+    EnvId,
+    env_id,
+    parse_env_id,
+    registered_ids,
+)
 
 invalidate_stale_numba_cache()  # before any jitted function is loaded from the cache
 
@@ -56,27 +66,55 @@ __version__ = "0.1.0"
 
 __all__ = [
     # ids
-    "registered_ids", "env_id", "parse_env_id", "EnvId", "CYLINDER_IDS", "TUBE_LENGTHS_M",
-    "TASK_IDS", "EPISODE_STEPS", "ENV_PREVIEW_STEPS",
+    "registered_ids",
+    "env_id",
+    "parse_env_id",
+    "EnvId",
+    "CYLINDER_IDS",
+    "TUBE_LENGTHS_M",
+    "TASK_IDS",
+    "EPISODE_STEPS",
+    "ENV_PREVIEW_STEPS",
     # environments
-    "make", "make_vec", "PneumaticTrackingEnv", "PneumaticTrackingVectorEnv", "TaskSpec",
-    "EnvOptions", "TASKS", "make_reference", "ReferenceSpec",
+    "make",
+    "make_vec",
+    "PneumaticTrackingEnv",
+    "PneumaticTrackingVectorEnv",
+    "TaskSpec",
+    "EnvOptions",
+    "TASKS",
+    "make_reference",
+    "ReferenceSpec",
     # parameters
-    "load_parameters", "parameter_info", "save_parameters", "ConfigError",
+    "load_parameters",
+    "parameter_info",
+    "save_parameters",
+    "ConfigError",
     # recordings and replay
-    "read_recording", "write_recording", "Recording", "simulate_recording",
+    "read_recording",
+    "write_recording",
+    "Recording",
+    "simulate_recording",
     # simulator
     "BatchSimulator",
 ]
 
 # public name -> the module that defines it, imported on first use
 _LAZY = {
-    "PneumaticTrackingEnv": "envs.env", "PneumaticTrackingVectorEnv": "envs.env",
-    "TaskSpec": "envs.tasks", "EnvOptions": "envs.tasks", "TASKS": "envs.tasks",
-    "make_reference": "references", "ReferenceSpec": "references",
-    "load_parameters": "params", "parameter_info": "params", "save_parameters": "params",
+    "PneumaticTrackingEnv": "envs.env",
+    "PneumaticTrackingVectorEnv": "envs.env",
+    "TaskSpec": "envs.tasks",
+    "EnvOptions": "envs.tasks",
+    "TASKS": "envs.tasks",
+    "make_reference": "references",
+    "ReferenceSpec": "references",
+    "load_parameters": "params",
+    "parameter_info": "params",
+    "save_parameters": "params",
     "ConfigError": "params",
-    "read_recording": "recording", "write_recording": "recording", "Recording": "recording",
+    "read_recording": "recording",
+    "write_recording": "recording",
+    "Recording": "recording",
     "simulate_recording": "replay",
     "BatchSimulator": "simulator",
 }
@@ -105,8 +143,9 @@ def make(task: str, cylinder: str, tube_length_m: float | str, **kwargs: Any) ->
     return gym.make(env_id(task, cylinder, tube_length_m), **kwargs)
 
 
-def make_vec(task: str, cylinder: str, tube_length_m: float | str, num_envs: int = 1,
-             **kwargs: Any) -> gym.vector.VectorEnv:
+def make_vec(
+    task: str, cylinder: str, tube_length_m: float | str, num_envs: int = 1, **kwargs: Any
+) -> gym.vector.VectorEnv:
     """``gym.make_vec(env_id(...), num_envs, **kwargs)``: the native vector env
     (``PneumaticTrackingVectorEnv``), ``num_envs`` actuators stepped in one jitted call."""
     return gym.make_vec(env_id(task, cylinder, tube_length_m), num_envs=num_envs, **kwargs)
@@ -122,8 +161,11 @@ def _register_all() -> None:
             entry_point="pneumatic_env.envs.env:PneumaticTrackingEnv",
             vector_entry_point="pneumatic_env.envs.env:PneumaticTrackingVectorEnv",
             max_episode_steps=EPISODE_STEPS,
-            kwargs={"task": parts.task, "cylinder": parts.cylinder_id,
-                    "tube_length_m": parts.tube_length_m},
+            kwargs={
+                "task": parts.task,
+                "cylinder": parts.cylinder_id,
+                "tube_length_m": parts.tube_length_m,
+            },
         )
 
 

@@ -8,6 +8,7 @@ when the digest differs from the one stored with its cache, its cache files are 
 its functions compile afresh. The library calls this for itself; ``pneumatic_env.agents``
 and ``pneumatic_env.studies`` call it for their folders (the library's sources included).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -30,8 +31,9 @@ def source_digest(roots: Sequence[Path] = (LIBRARY_ROOT,)) -> str:
     return h.hexdigest()
 
 
-def invalidate_stale_numba_cache(root: Path = LIBRARY_ROOT,
-                                 depends_on: Sequence[Path] = ()) -> bool:
+def invalidate_stale_numba_cache(
+    root: Path = LIBRARY_ROOT, depends_on: Sequence[Path] = ()
+) -> bool:
     """Delete the Numba cache files below ``root`` if a source below ``root`` or
     ``depends_on`` changed since the last call; True if it did."""
     root = Path(root).resolve()

@@ -10,16 +10,37 @@ a key of :data:`CYLINDER_IDS` (its value is the parameter file's name under
 ``configs/cylinders/``) and ``tube`` a key of :data:`TUBE_LENGTHS_M`. The cylinder-and-tube
 part, ``Numatics-2m``, is a *variant* (the benchmark's and the agent configs' name).
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
 
 __all__ = [
-    "CYLINDER_IDS", "CYLINDERS", "CYLINDER_ALIASES", "DEFAULT_CYLINDER", "TUBE_LENGTHS_M",
-    "FORCE_TRACK", "POSITION_TRACK", "TASK_IDS", "EPISODE_STEPS", "ENV_PREVIEW_STEPS",
-    "PISTON_MODE_CODES", "PISTON_MODE_NAMES", "MODE_FIXED", "MODE_FREE", "MODE_SPRING",
-    "ENV_NAMESPACE", "ENV_VERSION", "EnvId", "env_id", "parse_env_id", "registered_ids",
-    "variant_id", "split_variant", "cylinder_name", "tube_name",
+    "CYLINDER_IDS",
+    "CYLINDERS",
+    "CYLINDER_ALIASES",
+    "DEFAULT_CYLINDER",
+    "TUBE_LENGTHS_M",
+    "FORCE_TRACK",
+    "POSITION_TRACK",
+    "TASK_IDS",
+    "EPISODE_STEPS",
+    "ENV_PREVIEW_STEPS",
+    "PISTON_MODE_CODES",
+    "PISTON_MODE_NAMES",
+    "MODE_FIXED",
+    "MODE_FREE",
+    "MODE_SPRING",
+    "ENV_NAMESPACE",
+    "ENV_VERSION",
+    "EnvId",
+    "env_id",
+    "parse_env_id",
+    "registered_ids",
+    "variant_id",
+    "split_variant",
+    "cylinder_name",
+    "tube_name",
 ]
 
 # --------------------------------------------------------------------------- cylinders
@@ -28,11 +49,13 @@ __all__ = [
 CYLINDER_IDS = {"Numatics": "numatics-0750D02-03A", "Airpel": "airpel-E16D3.0N"}
 #: Config id -> short aliases the loaders accept (any case): the env-id name, lower case.
 CYLINDERS: dict[str, tuple[str, ...]] = {
-    config_id: (name.lower(),) for name, config_id in CYLINDER_IDS.items()}
+    config_id: (name.lower(),) for name, config_id in CYLINDER_IDS.items()
+}
 #: Lower-case config id or alias -> config id.
 CYLINDER_ALIASES: dict[str, str] = {
     **{config_id.lower(): config_id for config_id in CYLINDERS},
-    **{alias: config_id for config_id, aliases in CYLINDERS.items() for alias in aliases}}
+    **{alias: config_id for config_id, aliases in CYLINDERS.items() for alias in aliases},
+}
 DEFAULT_CYLINDER = CYLINDER_IDS["Numatics"]
 
 # --------------------------------------------------------------------------- tubes, tasks
@@ -143,8 +166,12 @@ def _variants() -> list[str]:
 def split_variant(variant: str) -> tuple[str, str]:
     """``"Numatics-2m"`` -> ``("Numatics", "2")``; names exactly as in env ids."""
     parts = str(variant).rsplit("-", 1)
-    if (len(parts) != 2 or parts[0] not in CYLINDER_IDS or not parts[1].endswith("m")
-            or parts[1][:-1] not in TUBE_LENGTHS_M):
+    if (
+        len(parts) != 2
+        or parts[0] not in CYLINDER_IDS
+        or not parts[1].endswith("m")
+        or parts[1][:-1] not in TUBE_LENGTHS_M
+    ):
         raise _not_allowed("variant", variant, _variants())
     return parts[0], parts[1][:-1]
 
@@ -153,13 +180,15 @@ def parse_env_id(id: str) -> EnvId:
     """``"pneumatic_env/ForceTrack-Numatics-2m-v0"`` -> ``EnvId("ForceTrack", "Numatics",
     "2")``; the inverse of :func:`env_id` (the namespace may be left out)."""
     text = str(id)
-    name = text[len(ENV_NAMESPACE) + 1:] if text.startswith(ENV_NAMESPACE + "/") else text
+    name = text[len(ENV_NAMESPACE) + 1 :] if text.startswith(ENV_NAMESPACE + "/") else text
     suffix = f"-v{ENV_VERSION}"
     task, _, variant = name.removesuffix(suffix).partition("-")
     if not name.endswith(suffix) or task not in TASK_IDS or variant not in _variants():
-        raise ValueError(f"env id = {id!r} is not allowed: use {ENV_NAMESPACE}/"
-                         f"{{task}}-{{cylinder}}-{{tube}}m-v{ENV_VERSION} with task in "
-                         f"{list(TASK_IDS)}, cylinder-tube in {_variants()}")
+        raise ValueError(
+            f"env id = {id!r} is not allowed: use {ENV_NAMESPACE}/"
+            f"{{task}}-{{cylinder}}-{{tube}}m-v{ENV_VERSION} with task in "
+            f"{list(TASK_IDS)}, cylinder-tube in {_variants()}"
+        )
     return EnvId(task, *split_variant(variant))
 
 

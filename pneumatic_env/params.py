@@ -33,15 +33,21 @@ import math
 import numbers
 import os
 import re
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import yaml
 
-from pneumatic_env.physics.layout import (CYLINDER_PARAMETERS, DISCRETE_PARAMETERS, N_PARAMS,
-                                          PARAMETER_NAMES)
+from pneumatic_env.ids import CYLINDERS, DEFAULT_CYLINDER
+from pneumatic_env.physics.layout import (
+    CYLINDER_PARAMETERS,
+    DISCRETE_PARAMETERS,
+    N_PARAMS,
+    PARAMETER_NAMES,
+)
 
 __all__ = [
     "CONFIG_DIR_ENV",
@@ -62,21 +68,25 @@ __all__ = [
 
 CONFIG_DIR_ENV = "PNEUMATIC_ENV_CONFIG_DIR"
 
-# Canonical cylinder names (file stems under configs/cylinders/) and their short aliases.
-CYLINDERS: dict[str, tuple[str, ...]] = {
-    "numatics-0750D02-03A": ("numatics",),
-    "airpel-E16D3.0N": ("airpel",),
-}
-DEFAULT_CYLINDER = "numatics-0750D02-03A"
+# CYLINDERS (canonical names, the file stems under configs/cylinders/, and their short
+# aliases) and DEFAULT_CYLINDER: pneumatic_env.ids
 
-BASE_FILES = ("air.yaml", "valve.yaml", "tube.yaml", "load.yaml", "numerics.yaml",
-              "effects.yaml")
+BASE_FILES = ("air.yaml", "valve.yaml", "tube.yaml", "load.yaml", "numerics.yaml", "effects.yaml")
 _PARAMETER_INDEX = {name: i for i, name in enumerate(PARAMETER_NAMES)}
 # Numerics settings in numerics.yaml that are not kernel parameter rows.
 NUMERICS_NAMES = ("control_dt_s", "substeps")
 
-_ENTRY_KEYS = {"value", "unit", "source", "min", "max", "min_exclusive", "max_exclusive",
-               "allowed", "integer"}
+_ENTRY_KEYS = {
+    "value",
+    "unit",
+    "source",
+    "min",
+    "max",
+    "min_exclusive",
+    "max_exclusive",
+    "allowed",
+    "integer",
+}
 _PARAMS_ENTRY_KEYS = {"value", "unit", "source", "uncertainty"}
 
 # How specific a value's origin is; a cross-field violation blames the more specific field.
@@ -88,6 +98,7 @@ class ConfigError(ValueError):
 
 
 # --------------------------------------------------------------------------- YAML reading
+
 
 class _Loader(yaml.SafeLoader):
     """SafeLoader that also reads YAML 1.2 floats such as ``1e-3`` and ``6.5e5``."""
@@ -121,11 +132,14 @@ def _stamp(path: Path) -> tuple[str, int, int]:
 
 
 def read_yaml(path: Path) -> Any:
-    """Parsed content of a YAML file (YAML 1.2 floats); cached until the file changes. Do not mutate."""
+    """Parsed content of a YAML file (YAML 1.2 floats), cached until the file changes.
+
+    Do not mutate the result."""
     return _parse_yaml_cached(*_stamp(path))
 
 
 # --------------------------------------------------------------------------- specs
+
 
 @dataclass(frozen=True)
 class _Spec:
@@ -156,9 +170,11 @@ def _show(x: Any) -> str:
     return repr(x)
 
 
-def _suggest(name: str, known: Sequence[str],
-             fallback: str = "known names are pneumatic_env.physics.layout.PARAMETER_NAMES"
-             ) -> str:
+def _suggest(
+    name: str,
+    known: Sequence[str],
+    fallback: str = "known names are pneumatic_env.physics.layout.PARAMETER_NAMES",
+) -> str:
     close = difflib.get_close_matches(name, list(known), n=3, cutoff=0.6)
     if close:  # keep the matches about as close as the best one
         best = difflib.SequenceMatcher(None, name, close[0]).ratio()
@@ -225,12 +241,15 @@ def _coerce(spec: _Spec, value: Any, source: str) -> float:
 def _parse_entry(path: str, name: str, entry: Any, level: int) -> _Spec:
     where = f"{path}: entry {name!r}"
     if not isinstance(entry, Mapping):
-        raise ConfigError(f"{where} must be a mapping with keys value, unit, source, "
-                          f"min/max or allowed; got {_show(entry)}")
+        raise ConfigError(
+            f"{where} must be a mapping with keys value, unit, source, "
+            f"min/max or allowed; got {_show(entry)}"
+        )
     extra = sorted(set(map(str, entry)) - _ENTRY_KEYS)
     if extra:
-        raise ConfigError(f"{where} has unknown key {extra[0]!r}; "
-                          f"allowed keys: {', '.join(sorted(_ENTRY_KEYS))}")
+        raise ConfigError(
+            f"{where} has unknown key {extra[0]!r}; allowed keys: {', '.join(sorted(_ENTRY_KEYS))}"
+        )
     for key in ("value", "unit", "source"):
         if key not in entry:
             raise ConfigError(f"{where} is missing key {key!r}")
@@ -247,29 +266,45 @@ def _parse_entry(path: str, name: str, entry: Any, level: int) -> _Spec:
         if "min" in entry or "max" in entry:
             raise ConfigError(f"{where}: give either 'allowed' or 'min'/'max', not both")
         raw = entry["allowed"]
-        if (not isinstance(raw, list) or not raw
-                or not all(isinstance(a, int) and not isinstance(a, bool) for a in raw)):
+        if (
+            not isinstance(raw, list)
+            or not raw
+            or not all(isinstance(a, int) and not isinstance(a, bool) for a in raw)
+        ):
             raise ConfigError(f"{where}: 'allowed' must be a non-empty list of integers")
         allowed = tuple(raw)
         names = DISCRETE_PARAMETERS.get(name)
         if names is not None and set(allowed) - set(names):
-            raise ConfigError(f"{where}: 'allowed' has codes {sorted(set(allowed) - set(names))} "
-                              f"that layout.DISCRETE_PARAMETERS does not name")
+            raise ConfigError(
+                f"{where}: 'allowed' has codes {sorted(set(allowed) - set(names))} "
+                f"that layout.DISCRETE_PARAMETERS does not name"
+            )
         lo, hi = float(min(allowed)), float(max(allowed))
     else:
         for key in ("min", "max"):
             if key not in entry:
                 raise ConfigError(f"{where} is missing key {key!r} (or 'allowed')")
             if not _is_number(entry[key]) or math.isnan(float(entry[key])):
-                raise ConfigError(f"{where}: {key!r} must be a number or .inf/-.inf, "
-                                  f"got {_show(entry[key])}")
+                raise ConfigError(
+                    f"{where}: {key!r} must be a number or .inf/-.inf, got {_show(entry[key])}"
+                )
         lo, hi = float(entry["min"]), float(entry["max"])
         if lo > hi:
             raise ConfigError(f"{where}: 'min' {lo!r} is greater than 'max' {hi!r}")
-    spec = _Spec(name=name, value=math.nan, unit=entry["unit"].strip(), source=entry["source"],
-                 min=lo, max=hi, min_exclusive=flags["min_exclusive"],
-                 max_exclusive=flags["max_exclusive"], allowed=allowed,
-                 integer=flags["integer"], file=path, level=level)
+    spec = _Spec(
+        name=name,
+        value=math.nan,
+        unit=entry["unit"].strip(),
+        source=entry["source"],
+        min=lo,
+        max=hi,
+        min_exclusive=flags["min_exclusive"],
+        max_exclusive=flags["max_exclusive"],
+        allowed=allowed,
+        integer=flags["integer"],
+        file=path,
+        level=level,
+    )
     value = _coerce(spec, entry["value"], path)
     return replace(spec, value=value)
 
@@ -278,14 +313,15 @@ def _parse_file(path: Path, level: int) -> dict[str, _Spec]:
     data = read_yaml(path)
     if not isinstance(data, Mapping) or not data:
         raise ConfigError(f"{path}: must be a non-empty mapping of parameter entries")
-    return {str(name): _parse_entry(str(path), str(name), entry, level)
-            for name, entry in data.items()}
+    return {
+        str(name): _parse_entry(str(path), str(name), entry, level) for name, entry in data.items()
+    }
 
 
 @dataclass(frozen=True)
 class _Schema:
-    params: dict[str, _Spec]     # PARAMETER_NAMES order
-    numerics: dict[str, _Spec]   # NUMERICS_NAMES order
+    params: dict[str, _Spec]  # PARAMETER_NAMES order
+    numerics: dict[str, _Spec]  # NUMERICS_NAMES order
 
 
 @functools.lru_cache(maxsize=32)
@@ -299,8 +335,10 @@ def _build_schema(cfg: str, cylinder_file: str, stamps: tuple) -> _Schema:
         known = PARAMETER_NAMES + (NUMERICS_NAMES if fname == "numerics.yaml" else ())
         for name, spec in _parse_file(path, _LEVEL_BASE).items():
             if name in cylinder_set:
-                raise ConfigError(f"{path}: {name!r} is a cylinder parameter; "
-                                  f"it belongs in the files under cylinders/")
+                raise ConfigError(
+                    f"{path}: {name!r} is a cylinder parameter; "
+                    f"it belongs in the files under cylinders/"
+                )
             if name not in known:
                 raise _unknown(str(path) + ":", name, known)
             if name in base or name in numerics:
@@ -312,24 +350,32 @@ def _build_schema(cfg: str, cylinder_file: str, stamps: tuple) -> _Schema:
         if name not in PARAMETER_NAMES:
             raise _unknown(str(cyl_path) + ":", name, PARAMETER_NAMES)
         if name in base and base[name].unit != spec.unit:
-            raise ConfigError(f"{cyl_path}: entry {name!r} has unit {spec.unit!r}, "
-                              f"but {base[name].file} uses {base[name].unit!r}")
+            raise ConfigError(
+                f"{cyl_path}: entry {name!r} has unit {spec.unit!r}, "
+                f"but {base[name].file} uses {base[name].unit!r}"
+            )
         base[name] = spec
     for name in CYLINDER_PARAMETERS:
         if base.get(name, None) is None or base[name].level != _LEVEL_CYLINDER:
             raise ConfigError(f"{cyl_path}: cylinder parameter {name!r} is missing")
     for name in PARAMETER_NAMES:
         if name not in base:
-            raise ConfigError(f"{cfg}: parameter {name!r} is not defined in any of "
-                              f"{', '.join(BASE_FILES)}")
+            raise ConfigError(
+                f"{cfg}: parameter {name!r} is not defined in any of {', '.join(BASE_FILES)}"
+            )
     for name in NUMERICS_NAMES:
         if name not in numerics:
             raise ConfigError(f"{Path(cfg) / 'numerics.yaml'}: entry {name!r} is missing")
-    schema = _Schema(params={n: base[n] for n in PARAMETER_NAMES},
-                     numerics={n: numerics[n] for n in NUMERICS_NAMES})
+    schema = _Schema(
+        params={n: base[n] for n in PARAMETER_NAMES},
+        numerics={n: numerics[n] for n in NUMERICS_NAMES},
+    )
     values = {n: s.value for n, s in schema.params.items()}
-    _check_relations(values, {n: s.file for n, s in schema.params.items()},
-                     {n: s.level for n, s in schema.params.items()})
+    _check_relations(
+        values,
+        {n: s.file for n, s in schema.params.items()},
+        {n: s.level for n, s in schema.params.items()},
+    )
     return schema
 
 
@@ -341,6 +387,7 @@ def _schema(cylinder: str | os.PathLike = DEFAULT_CYLINDER) -> _Schema:
 
 
 # --------------------------------------------------------------------------- locations
+
 
 def config_dir() -> Path:
     """The directory of the YAML configs.
@@ -364,8 +411,10 @@ def config_dir() -> Path:
         pass
     if packaged is not None and packaged.is_dir():
         return packaged
-    raise ConfigError(f"no configs directory found (looked in {repo} and in the installed "
-                      f"package); set {CONFIG_DIR_ENV}")
+    raise ConfigError(
+        f"no configs directory found (looked in {repo} and in the installed "
+        f"package); set {CONFIG_DIR_ENV}"
+    )
 
 
 def _known_cylinders(cfg: Path) -> dict[str, str]:
@@ -399,11 +448,12 @@ def resolve_cylinder(cylinder: str) -> str:
         if key == canonical.lower() or key in aliases:
             return canonical
     cfg = config_dir()
-    canonical = _known_cylinders(cfg).get(key)
-    if canonical is None:
-        raise ConfigError(f"unknown cylinder {cylinder!r}; known cylinders: "
-                          f"{_describe_cylinders(cfg)}")
-    return canonical
+    found = _known_cylinders(cfg).get(key)
+    if found is None:
+        raise ConfigError(
+            f"unknown cylinder {cylinder!r}; known cylinders: {_describe_cylinders(cfg)}"
+        )
+    return found
 
 
 def _cylinder_path(cylinder: str | os.PathLike, cfg: Path) -> Path:
@@ -420,6 +470,7 @@ def _cylinder_path(cylinder: str | os.PathLike, cfg: Path) -> Path:
 
 # --------------------------------------------------------------------------- cross-field rules
 
+
 def _p_cr(k: float) -> float:
     return (2.0 / (k + 1.0)) ** (k / (k - 1.0))
 
@@ -430,52 +481,86 @@ def _f(x: float) -> str:
 
 # (a, b, holds(values), complaint about a, complaint about b): a violated rule is reported
 # on whichever of a and b comes from the more specific source (a on a tie).
-_Rule = tuple[str, str, Callable[[dict], bool], Callable[[dict], str], Callable[[dict], str]]
+# (the lambdas bind their loop variables as defaults, hence Callable[..., ...])
+_Rule = tuple[str, str, Callable[..., bool], Callable[..., str], Callable[..., str]]
 _RULES: list[_Rule] = [
-    ("supply_pressure_pa", "ambient_pressure_pa",
-     lambda v: v["supply_pressure_pa"] > v["ambient_pressure_pa"],
-     lambda v: f"greater than ambient_pressure_pa = {_f(v['ambient_pressure_pa'])} Pa",
-     lambda v: f"less than supply_pressure_pa = {_f(v['supply_pressure_pa'])} Pa"),
-    ("rod_diameter_m", "bore_diameter_m",
-     lambda v: v["rod_diameter_m"] < v["bore_diameter_m"],
-     lambda v: f"less than bore_diameter_m = {_f(v['bore_diameter_m'])} m",
-     lambda v: f"greater than rod_diameter_m = {_f(v['rod_diameter_m'])} m"),
+    (
+        "supply_pressure_pa",
+        "ambient_pressure_pa",
+        lambda v: v["supply_pressure_pa"] > v["ambient_pressure_pa"],
+        lambda v: f"greater than ambient_pressure_pa = {_f(v['ambient_pressure_pa'])} Pa",
+        lambda v: f"less than supply_pressure_pa = {_f(v['supply_pressure_pa'])} Pa",
+    ),
+    (
+        "rod_diameter_m",
+        "bore_diameter_m",
+        lambda v: v["rod_diameter_m"] < v["bore_diameter_m"],
+        lambda v: f"less than bore_diameter_m = {_f(v['bore_diameter_m'])} m",
+        lambda v: f"greater than rod_diameter_m = {_f(v['rod_diameter_m'])} m",
+    ),
 ]
 for _pos in ("fixed_position_m", "spring_rest_position_m"):
-    _RULES.append((
-        _pos, "stroke_m",
-        lambda v, p=_pos: abs(v[p]) <= v["stroke_m"] / 2.0,
-        lambda v: f"within +-stroke_m/2 = {_f(v['stroke_m'] / 2.0)} m",
-        lambda v, p=_pos: f"at least 2 |{p}| = {_f(2.0 * abs(v[p]))} m"))
+    _RULES.append(
+        (
+            _pos,
+            "stroke_m",
+            lambda v, p=_pos: abs(v[p]) <= v["stroke_m"] / 2.0,
+            lambda v: f"within +-stroke_m/2 = {_f(v['stroke_m'] / 2.0)} m",
+            lambda v, p=_pos: f"at least 2 |{p}| = {_f(2.0 * abs(v[p]))} m",
+        )
+    )
 for _alpha in ("alpha_in", "alpha_out", "alpha_motion"):
-    _RULES.append((
-        _alpha, "heat_capacity_ratio",
-        lambda v, a=_alpha: v[a] <= v["heat_capacity_ratio"],
-        lambda v: f"at most heat_capacity_ratio = {_f(v['heat_capacity_ratio'])}",
-        lambda v, a=_alpha: f"at least {a} = {_f(v[a])}"))
-_RULES.append((
-    "flow_linear_ratio", "heat_capacity_ratio",
-    lambda v: _p_cr(v["heat_capacity_ratio"]) < v["flow_linear_ratio"] < 1.0,
-    lambda v: (f"in (P_cr, 1) = ({_f(_p_cr(v['heat_capacity_ratio']))}, 1.0), P_cr the "
-               f"critical pressure ratio for heat_capacity_ratio = "
-               f"{_f(v['heat_capacity_ratio'])}"),
-    lambda v: (f"such that the critical pressure ratio P_cr (here "
-               f"{_f(_p_cr(v['heat_capacity_ratio']))}) is below flow_linear_ratio = "
-               f"{_f(v['flow_linear_ratio'])}")))
+    _RULES.append(
+        (
+            _alpha,
+            "heat_capacity_ratio",
+            lambda v, a=_alpha: v[a] <= v["heat_capacity_ratio"],
+            lambda v: f"at most heat_capacity_ratio = {_f(v['heat_capacity_ratio'])}",
+            lambda v, a=_alpha: f"at least {a} = {_f(v[a])}",
+        )
+    )
+_RULES.append(
+    (
+        "flow_linear_ratio",
+        "heat_capacity_ratio",
+        lambda v: _p_cr(v["heat_capacity_ratio"]) < v["flow_linear_ratio"] < 1.0,
+        lambda v: (
+            f"in (P_cr, 1) = ({_f(_p_cr(v['heat_capacity_ratio']))}, 1.0), P_cr the "
+            f"critical pressure ratio for heat_capacity_ratio = "
+            f"{_f(v['heat_capacity_ratio'])}"
+        ),
+        lambda v: (
+            f"such that the critical pressure ratio P_cr (here "
+            f"{_f(_p_cr(v['heat_capacity_ratio']))}) is below flow_linear_ratio = "
+            f"{_f(v['flow_linear_ratio'])}"
+        ),
+    )
+)
 # The transmission line replaces the paper's tube coupling and holds the tube's air itself;
 # the supply droop's own root solve is not nested in the line's valve-end solve.
 for _other, _off, _why in (
-        ("tube_coupling", 0.0, "command (0): the transmission line couples valve and chamber"),
-        ("tube_volume_fraction", 0.0, "0: the transmission line holds the tube's air itself"),
-        ("supply_resistance_pa_s_per_kg", 0.0,
-         "0: the supply droop is not implemented with the transmission line"),
-        ("exhaust_vent_area_m2", 0.0,
-         "0: the exhaust back-pressure is not implemented with the transmission line")):
-    _RULES.append((
-        _other, "tube_waves",
-        lambda v, o=_other, off=_off: v["tube_waves"] == 0.0 or v[o] == off,
-        lambda v, why=_why: f"{why} (tube_waves = 1)",
-        lambda v, o=_other: f"0 (off) while {o} = {_show(v[o])}"))
+    ("tube_coupling", 0.0, "command (0): the transmission line couples valve and chamber"),
+    ("tube_volume_fraction", 0.0, "0: the transmission line holds the tube's air itself"),
+    (
+        "supply_resistance_pa_s_per_kg",
+        0.0,
+        "0: the supply droop is not implemented with the transmission line",
+    ),
+    (
+        "exhaust_vent_area_m2",
+        0.0,
+        "0: the exhaust back-pressure is not implemented with the transmission line",
+    ),
+):
+    _RULES.append(
+        (
+            _other,
+            "tube_waves",
+            lambda v, o=_other, off=_off: v["tube_waves"] == 0.0 or v[o] == off,
+            lambda v, why=_why: f"{why} (tube_waves = 1)",
+            lambda v, o=_other: f"0 (off) while {o} = {_show(v[o])}",
+        )
+    )
 del _pos, _alpha, _other, _off, _why
 
 
@@ -484,11 +569,13 @@ def _check_relations(values: dict, origin: dict, level: dict) -> None:
         if holds(values):
             continue
         name, why = (a, about_a) if level[a] >= level[b] else (b, about_b)
-        raise ConfigError(f"{origin[name]} {name!r} = {_show(values[name])} is not allowed: "
-                          f"must be {why(values)}")
+        raise ConfigError(
+            f"{origin[name]} {name!r} = {_show(values[name])} is not allowed: must be {why(values)}"
+        )
 
 
 # --------------------------------------------------------------------------- public API
+
 
 def _params_items(params: Any, specs: Mapping[str, _Spec]) -> tuple[list, str]:
     """(name, raw value) pairs and a source label from a params file or mapping."""
@@ -508,23 +595,28 @@ def _params_items(params: Any, specs: Mapping[str, _Spec]) -> tuple[list, str]:
         if isinstance(entry, Mapping):
             extra = sorted(set(map(str, entry)) - _PARAMS_ENTRY_KEYS)
             if extra:
-                raise ConfigError(f"{source}: entry {name!r} has unknown key {extra[0]!r}; "
-                                  f"allowed keys: {', '.join(sorted(_PARAMS_ENTRY_KEYS))}")
+                raise ConfigError(
+                    f"{source}: entry {name!r} has unknown key {extra[0]!r}; "
+                    f"allowed keys: {', '.join(sorted(_PARAMS_ENTRY_KEYS))}"
+                )
             if "value" not in entry:
                 raise ConfigError(f"{source}: entry {name!r} is missing key 'value'")
             unit = entry.get("unit")
             if unit is not None and str(unit).strip() != specs[name].unit:
-                raise ConfigError(f"{source}: entry {name!r} has unit {unit!r}; "
-                                  f"expected {specs[name].unit!r}")
+                raise ConfigError(
+                    f"{source}: entry {name!r} has unit {unit!r}; expected {specs[name].unit!r}"
+                )
             entry = entry["value"]
         items.append((name, entry))
     return items, source
 
 
-def load_parameters(cylinder: str | os.PathLike = DEFAULT_CYLINDER,
-                    tube_length_m: float | None = None,
-                    params: str | os.PathLike | Mapping[str, Any] | None = None,
-                    **overrides: Any) -> dict[str, float]:
+def load_parameters(
+    cylinder: str | os.PathLike = DEFAULT_CYLINDER,
+    tube_length_m: float | None = None,
+    params: str | os.PathLike | Mapping[str, Any] | None = None,
+    **overrides: Any,
+) -> dict[str, float]:
     """A complete, validated parameter set, keys in ``PARAMETER_NAMES`` order.
 
     Layers, each on top of the previous: the config files (the cylinder's file on top of
@@ -560,8 +652,7 @@ def load_parameters(cylinder: str | os.PathLike = DEFAULT_CYLINDER,
     return values
 
 
-def parameter_array(param_dicts: Mapping[str, float] | Sequence[Mapping[str, float]]
-                    ) -> np.ndarray:
+def parameter_array(param_dicts: Mapping[str, float] | Sequence[Mapping[str, float]]) -> np.ndarray:
     """Parameter dicts as the kernel's ``params[N_PARAMS, n_envs]`` array (float64, C order)."""
     dicts = [param_dicts] if isinstance(param_dicts, Mapping) else list(param_dicts)
     out = np.empty((N_PARAMS, len(dicts)), dtype=np.float64)
@@ -573,11 +664,15 @@ def parameter_array(param_dicts: Mapping[str, float] | Sequence[Mapping[str, flo
                 raise _unknown(f"parameter set {j}:", name, PARAMETER_NAMES)
         for i, name in enumerate(PARAMETER_NAMES):
             if name not in d:
-                raise ConfigError(f"parameter set {j}: {name!r} is missing "
-                                  f"(use load_parameters for a complete set)")
+                raise ConfigError(
+                    f"parameter set {j}: {name!r} is missing "
+                    f"(use load_parameters for a complete set)"
+                )
             if not _is_number(d[name]):
-                raise ConfigError(f"parameter set {j}: {name!r} = {_show(d[name])} is not a "
-                                  f"number (use load_parameters to convert names)")
+                raise ConfigError(
+                    f"parameter set {j}: {name!r} = {_show(d[name])} is not a "
+                    f"number (use load_parameters to convert names)"
+                )
             out[i, j] = d[name]
     return out
 
@@ -595,8 +690,12 @@ def parameter_info(name: str, cylinder: str | os.PathLike = DEFAULT_CYLINDER) ->
     if spec is None:
         raise _unknown("parameter_info:", name, PARAMETER_NAMES + NUMERICS_NAMES)
     return {
-        "unit": spec.unit, "source": spec.source, "min": spec.min, "max": spec.max,
-        "min_exclusive": spec.min_exclusive, "max_exclusive": spec.max_exclusive,
+        "unit": spec.unit,
+        "source": spec.source,
+        "min": spec.min,
+        "max": spec.max,
+        "min_exclusive": spec.min_exclusive,
+        "max_exclusive": spec.max_exclusive,
         "allowed": list(spec.allowed) if spec.allowed is not None else None,
         "names": dict(DISCRETE_PARAMETERS[name]) if name in DISCRETE_PARAMETERS else None,
         "default": int(spec.value) if spec.integer or spec.allowed else spec.value,
@@ -610,8 +709,10 @@ def load_numerics(**overrides: Any) -> dict[str, float | int]:
     out: dict[str, float | int] = {name: spec.value for name, spec in specs.items()}
     for name, raw in overrides.items():
         if name not in specs:
-            raise ConfigError(f"override {name!r} is not a numerics setting; " + _suggest(
-                name, NUMERICS_NAMES, f"known: {', '.join(NUMERICS_NAMES)}"))
+            raise ConfigError(
+                f"override {name!r} is not a numerics setting; "
+                + _suggest(name, NUMERICS_NAMES, f"known: {', '.join(NUMERICS_NAMES)}")
+            )
         out[name] = _coerce(specs[name], raw, "override")
     out["substeps"] = int(out["substeps"])
     return out
@@ -622,16 +723,22 @@ def _reference_cylinder(values: Mapping[str, Any]) -> str:
     best, best_score = DEFAULT_CYLINDER, -1
     for canonical in CYLINDERS:
         specs = _schema(canonical).params
-        score = sum(1 for n in CYLINDER_PARAMETERS
-                    if n in values and _is_number(values[n])
-                    and float(values[n]) == specs[n].value)
+        score = sum(
+            1
+            for n in CYLINDER_PARAMETERS
+            if n in values and _is_number(values[n]) and float(values[n]) == specs[n].value
+        )
         if score > best_score:
             best, best_score = canonical, score
     return best
 
 
-def save_parameters(path: str | os.PathLike, values: Mapping[str, Any], notes: str = "",
-                    uncertainties: Mapping[str, float] | None = None) -> None:
+def save_parameters(
+    path: str | os.PathLike,
+    values: Mapping[str, Any],
+    notes: str = "",
+    uncertainties: Mapping[str, float] | None = None,
+) -> None:
     """Write a parameter set that ``load_parameters(params=path)`` reads back exactly.
 
     Each entry carries its value, unit and source: the config's source where the value
@@ -650,8 +757,9 @@ def save_parameters(path: str | os.PathLike, values: Mapping[str, Any], notes: s
         if name not in values:
             raise ConfigError(f"uncertainties: {name!r} is not in values")
         if not _is_number(u) or not float(u) >= 0.0:
-            raise ConfigError(f"uncertainties: {name!r} = {_show(u)} is not allowed: "
-                              f"must be a number >= 0")
+            raise ConfigError(
+                f"uncertainties: {name!r} = {_show(u)} is not allowed: must be a number >= 0"
+            )
     one_line = " ".join(notes.split())
     fitted = f"fitted: {one_line}" if one_line else "fitted"
     doc: dict[str, dict] = {}
@@ -667,9 +775,16 @@ def save_parameters(path: str | os.PathLike, values: Mapping[str, Any], notes: s
         if name in uncertainties:
             entry["uncertainty"] = float(uncertainties[name])
         doc[name] = entry
-    header = ["# pneumatic_env parameter set (pneumatic_env.params.save_parameters)",
-              f"# reference cylinder: {reference}"]
+    header = [
+        "# pneumatic_env parameter set (pneumatic_env.params.save_parameters)",
+        f"# reference cylinder: {reference}",
+    ]
     header += [f"# {line}".rstrip() for line in notes.splitlines()]
-    text = "\n".join(header) + "\n" + yaml.safe_dump(
-        doc, sort_keys=False, default_flow_style=False, allow_unicode=True, width=1000)
+    text = (
+        "\n".join(header)
+        + "\n"
+        + yaml.safe_dump(
+            doc, sort_keys=False, default_flow_style=False, allow_unicode=True, width=1000
+        )
+    )
     Path(path).expanduser().write_text(text, encoding="utf-8")

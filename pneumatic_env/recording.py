@@ -71,13 +71,23 @@ PISTON_MODES = {
     "free": (1, ("load_mass_kg", "load_force_n")),
     "spring": (2, ("stiffness_n_per_m", "rest_position_m", "load_mass_kg")),
 }
-_PISTON_KEYS = {"mode", "position_m", "load_mass_kg", "load_force_n",
-                "stiffness_n_per_m", "rest_position_m"}
+_PISTON_KEYS = {
+    "mode",
+    "position_m",
+    "load_mass_kg",
+    "load_force_n",
+    "stiffness_n_per_m",
+    "rest_position_m",
+}
 _NONNEGATIVE_PISTON_KEYS = {"load_mass_kg", "stiffness_n_per_m"}
 
 _REQUIRED_TOP_KEYS = ("format", "version", "cylinder", "tube_length_m", "piston")
-_OPTIONAL_POSITIVE_KEYS = ("tube_inner_diameter_m", "supply_pressure_pa",
-                           "ambient_pressure_pa", "temperature_k")
+_OPTIONAL_POSITIVE_KEYS = (
+    "tube_inner_diameter_m",
+    "supply_pressure_pa",
+    "ambient_pressure_pa",
+    "temperature_k",
+)
 _KNOWN_TOP_KEYS = set(_REQUIRED_TOP_KEYS) | set(_OPTIONAL_POSITIVE_KEYS) | {"initial", "notes"}
 _INITIAL_KEYS = ("p1", "p2", "x", "v", "x_s")
 
@@ -201,14 +211,17 @@ def _check_time(t: np.ndarray, where) -> None:
     """Strictly increasing, uniform ``t``; ``where(k)`` prefixes messages about sample k."""
     if not np.all(np.isfinite(t)):
         k = int(np.flatnonzero(~np.isfinite(t))[0])
-        raise RecordingError(f"{where(k, 't')}: {_fmt(t[k])} is not allowed: NaN and inf are not allowed")
+        raise RecordingError(
+            f"{where(k, 't')}: {_fmt(t[k])} is not allowed: NaN and inf are not allowed"
+        )
     d = np.diff(t)
     bad = np.flatnonzero(d <= 0.0)
     if bad.size:
         k = int(bad[0]) + 1
         raise RecordingError(
             f"{where(k, 't')}: time {_fmt(t[k])} is not after the previous sample's "
-            f"{_fmt(t[k - 1])} (t must be strictly increasing)")
+            f"{_fmt(t[k - 1])} (t must be strictly increasing)"
+        )
     step = float(np.median(d))
     rel = np.abs(d - step) / step
     bad = np.flatnonzero(rel > JITTER_TOLERANCE)
@@ -218,7 +231,8 @@ def _check_time(t: np.ndarray, where) -> None:
         raise RecordingError(
             f"{where(k, 't')}: non-uniform sampling: {what}step {d[k - 1]:.10g} s found "
             f"(from t={_fmt(t[k - 1])} to t={_fmt(t[k])}), {step:.10g} s expected "
-            f"(relative deviation {rel[k - 1]:.3g}, allowed {JITTER_TOLERANCE:g})")
+            f"(relative deviation {rel[k - 1]:.3g}, allowed {JITTER_TOLERANCE:g})"
+        )
 
 
 # --------------------------------------------------------------------------- sidecar
@@ -229,7 +243,8 @@ def canonical_cylinder(name: str) -> str:
     if isinstance(name, str) and name.strip().lower() in _CYLINDER_ALIASES:
         return _CYLINDER_ALIASES[name.strip().lower()]
     raise RecordingError(
-        f"cylinder {name!r} is unknown; allowed: {_allowed_cylinders()}", column="cylinder")
+        f"cylinder {name!r} is unknown; allowed: {_allowed_cylinders()}", column="cylinder"
+    )
 
 
 def _allowed_cylinders() -> str:
@@ -258,8 +273,9 @@ def validate_rig(rig, source: str = "rig") -> list[str]:
         return float(value)
 
     if not isinstance(rig, dict):
-        raise RecordingError(f"{source}: the sidecar must be a JSON object, found {type(rig).__name__}",
-                             file=source)
+        raise RecordingError(
+            f"{source}: the sidecar must be a JSON object, found {type(rig).__name__}", file=source
+        )
     hints = {
         "format": f'(must be "{FORMAT_NAME}")',
         "version": f"(must be {FORMAT_VERSION})",
@@ -269,20 +285,28 @@ def validate_rig(rig, source: str = "rig") -> list[str]:
     }
     for key in _REQUIRED_TOP_KEYS:
         if key not in rig:
-            raise RecordingError(f"{source}: missing required key {key!r} {hints[key]}",
-                                 file=source, column=key)
+            raise RecordingError(
+                f"{source}: missing required key {key!r} {hints[key]}", file=source, column=key
+            )
     if rig["format"] != FORMAT_NAME:
         fail("format", f'is {rig["format"]!r}, must be "{FORMAT_NAME}"')
     version = rig["version"]
-    if not (_is_number(version) and isinstance(version, numbers.Integral) and version == FORMAT_VERSION):
-        fail("version", f"is {version!r}, must be {FORMAT_VERSION} (the only version this package reads)")
+    if not (
+        _is_number(version) and isinstance(version, numbers.Integral) and version == FORMAT_VERSION
+    ):
+        fail(
+            "version",
+            f"is {version!r}, must be {FORMAT_VERSION} (the only version this package reads)",
+        )
     cyl = rig["cylinder"]
     if not (isinstance(cyl, str) and cyl.strip().lower() in _CYLINDER_ALIASES):
         fail("cylinder", f"is {cyl!r}, allowed: {_allowed_cylinders()}")
     tube_length = number("tube_length_m", rig["tube_length_m"], positive=True)
     if tube_length > 50:
-        out.append(f"{source}: tube_length_m {_fmt(tube_length)} looks like millimetres; "
-                   "the format wants metres")
+        out.append(
+            f"{source}: tube_length_m {_fmt(tube_length)} looks like millimetres; "
+            "the format wants metres"
+        )
 
     for key in _OPTIONAL_POSITIVE_KEYS:
         if key in rig:
@@ -292,21 +316,33 @@ def validate_rig(rig, source: str = "rig") -> list[str]:
         if key in rig:
             out.extend(_pressure_value_warnings(f"{source}: {key}", float(rig[key]), ambient))
     if "supply_pressure_pa" in rig and 2e4 <= rig["supply_pressure_pa"] <= ambient:
-        out.append(f"{source}: supply_pressure_pa {_fmt(rig['supply_pressure_pa'])} is not above "
-                   f"ambient ({_fmt(ambient)} Pa); the format wants absolute Pa")
+        out.append(
+            f"{source}: supply_pressure_pa {_fmt(rig['supply_pressure_pa'])} is not above "
+            f"ambient ({_fmt(ambient)} Pa); the format wants absolute Pa"
+        )
     if "temperature_k" in rig and rig["temperature_k"] < 150:
-        out.append(f"{source}: temperature_k {_fmt(rig['temperature_k'])} looks like degrees Celsius; "
-                   "the format wants kelvin")
+        out.append(
+            f"{source}: temperature_k {_fmt(rig['temperature_k'])} looks like degrees Celsius; "
+            "the format wants kelvin"
+        )
     if "tube_inner_diameter_m" in rig and rig["tube_inner_diameter_m"] > 0.05:
-        out.append(f"{source}: tube_inner_diameter_m {_fmt(rig['tube_inner_diameter_m'])} looks like "
-                   "millimetres; the format wants metres")
+        out.append(
+            f"{source}: tube_inner_diameter_m {_fmt(rig['tube_inner_diameter_m'])} looks like "
+            "millimetres; the format wants metres"
+        )
 
     piston = rig["piston"]
     if not isinstance(piston, dict):
-        fail("piston", f'must be an object with "mode": "fixed", "free" or "spring", found {piston!r}')
+        fail(
+            "piston",
+            f'must be an object with "mode": "fixed", "free" or "spring", found {piston!r}',
+        )
     if "mode" not in piston:
-        raise RecordingError(f'{source}: missing required key \'piston.mode\' (allowed: "fixed", "free", "spring")',
-                             file=source, column="piston.mode")
+        raise RecordingError(
+            f'{source}: missing required key \'piston.mode\' (allowed: "fixed", "free", "spring")',
+            file=source,
+            column="piston.mode",
+        )
     mode = piston["mode"]
     if mode not in PISTON_MODES:
         fail("piston.mode", f'is {mode!r}, allowed: "fixed", "free", "spring"')
@@ -315,7 +351,11 @@ def validate_rig(rig, source: str = "rig") -> list[str]:
         if key not in piston:
             raise RecordingError(
                 f"{source}: missing required key 'piston.{key}' (mode {mode!r} needs "
-                + ", ".join(required) + ")", file=source, column=f"piston.{key}")
+                + ", ".join(required)
+                + ")",
+                file=source,
+                column=f"piston.{key}",
+            )
         number(f"piston.{key}", piston[key], nonnegative=key in _NONNEGATIVE_PISTON_KEYS)
     for key in piston:
         if key == "mode" or key in required:
@@ -323,17 +363,25 @@ def validate_rig(rig, source: str = "rig") -> list[str]:
         if key in _PISTON_KEYS:
             out.append(f"{source}: key 'piston.{key}' is not used in mode {mode!r}; ignored")
         else:
-            out.append(f"{source}: unknown key 'piston.{key}' ignored (mode {mode!r} uses "
-                       + ", ".join(required) + ")")
+            out.append(
+                f"{source}: unknown key 'piston.{key}' ignored (mode {mode!r} uses "
+                + ", ".join(required)
+                + ")"
+            )
     for key in ("position_m", "rest_position_m"):
         if key in required and abs(piston[key]) > 0.5:
-            out.append(f"{source}: piston.{key} {_fmt(piston[key])} looks like millimetres; "
-                       "the format wants metres")
+            out.append(
+                f"{source}: piston.{key} {_fmt(piston[key])} looks like millimetres; "
+                "the format wants metres"
+            )
 
     if "initial" in rig:
         initial = rig["initial"]
         if not isinstance(initial, dict):
-            fail("initial", f"must be an object with keys among {', '.join(_INITIAL_KEYS)}, found {initial!r}")
+            fail(
+                "initial",
+                f"must be an object with keys among {', '.join(_INITIAL_KEYS)}, found {initial!r}",
+            )
         for key, value in initial.items():
             if key not in _INITIAL_KEYS:
                 fail(f"initial.{key}", f"is not allowed; allowed: {', '.join(_INITIAL_KEYS)}")
@@ -342,20 +390,27 @@ def validate_rig(rig, source: str = "rig") -> list[str]:
         fail("notes", f"must be a string, found {rig['notes']!r}")
     for key in rig:
         if key not in _KNOWN_TOP_KEYS:
-            out.append(f"{source}: unknown key {key!r} ignored (known: " + ", ".join(
-                [*_REQUIRED_TOP_KEYS, *_OPTIONAL_POSITIVE_KEYS, "initial", "notes"]) + ")")
+            out.append(
+                f"{source}: unknown key {key!r} ignored (known: "
+                + ", ".join([*_REQUIRED_TOP_KEYS, *_OPTIONAL_POSITIVE_KEYS, "initial", "notes"])
+                + ")"
+            )
     return out
 
 
 def _read_sidecar(json_path: Path) -> dict:
     name = json_path.name
     if not json_path.is_file():
-        raise RecordingError(f"{name}: sidecar not found (a recording is NAME.csv plus NAME.json): "
-                             f"{json_path}", file=name)
+        raise RecordingError(
+            f"{name}: sidecar not found (a recording is NAME.csv plus NAME.json): {json_path}",
+            file=name,
+        )
     try:
         text = json_path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:
-        raise RecordingError(f"{name}: not UTF-8 text ({exc.reason} at byte {exc.start})", file=name) from None
+        raise RecordingError(
+            f"{name}: not UTF-8 text ({exc.reason} at byte {exc.start})", file=name
+        ) from None
 
     def pairs(items):
         obj = {}
@@ -371,8 +426,11 @@ def _read_sidecar(json_path: Path) -> dict:
     try:
         return json.loads(text, object_pairs_hook=pairs, parse_constant=constant)
     except json.JSONDecodeError as exc:
-        raise RecordingError(f"{name} line {exc.lineno}, column {exc.colno}: invalid JSON: {exc.msg}",
-                             file=name, line=exc.lineno) from None
+        raise RecordingError(
+            f"{name} line {exc.lineno}, column {exc.colno}: invalid JSON: {exc.msg}",
+            file=name,
+            line=exc.lineno,
+        ) from None
 
 
 # --------------------------------------------------------------------------- plausibility
@@ -410,18 +468,28 @@ def _channel_warnings(name: str, channels: dict, rig: dict, source: str) -> list
     ambient = float(ambient) if _is_number(ambient) else DEFAULT_AMBIENT_PA
     if name in PRESSURE_COLUMNS:
         if max(abs(lo), abs(hi)) < 20:
-            out.append(f"{source}: {name} looks like bar (max {_fmt(hi)}); the format wants absolute Pa")
+            out.append(
+                f"{source}: {name} looks like bar (max {_fmt(hi)}); the format wants absolute Pa"
+            )
         elif max(abs(lo), abs(hi)) < 2e4:
-            out.append(f"{source}: {name} looks like kPa (max {_fmt(hi)}); the format wants absolute Pa")
+            out.append(
+                f"{source}: {name} looks like kPa (max {_fmt(hi)}); the format wants absolute Pa"
+            )
         elif lo < max(0.5 * ambient, 2e4):
-            out.append(f"{source}: {name} looks like gauge pressure: values below ambient "
-                       f"(min {lo:.6g} Pa); the format wants absolute Pa")
+            out.append(
+                f"{source}: {name} looks like gauge pressure: values below ambient "
+                f"(min {lo:.6g} Pa); the format wants absolute Pa"
+            )
     if name == "x" and max(abs(lo), abs(hi)) > 0.5:
-        out.append(f"{source}: x looks like millimetres (max |x| {max(abs(lo), abs(hi)):.6g}); "
-                   "the format wants metres")
+        out.append(
+            f"{source}: x looks like millimetres (max |x| {max(abs(lo), abs(hi)):.6g}); "
+            "the format wants metres"
+        )
     if name == "x_s" and max(abs(lo), abs(hi)) > 0.01:
-        out.append(f"{source}: x_s looks like millimetres (max |x_s| {max(abs(lo), abs(hi)):.6g}); "
-                   "the format wants metres")
+        out.append(
+            f"{source}: x_s looks like millimetres (max |x_s| {max(abs(lo), abs(hi)):.6g}); "
+            "the format wants metres"
+        )
     piston = rig.get("piston")
     fixed = isinstance(piston, dict) and piston.get("mode") == "fixed"
     if lo == hi:
@@ -435,9 +503,11 @@ def _channel_warnings(name: str, channels: dict, rig: dict, source: str) -> list
         count, longest = _extreme_run_fraction(y, value)
         if count > CLIP_FRACTION * n:
             note = " or the piston at an end stop" if name == "x" else ""
-            out.append(f"{source}: {name} looks clipped: it sits at its {label} {_fmt(value)} for "
-                       f"{100.0 * count / n:.1f}% of the samples (longest run {longest} samples); "
-                       f"a saturated sensor or range{note}?")
+            out.append(
+                f"{source}: {name} looks clipped: it sits at its {label} {_fmt(value)} for "
+                f"{100.0 * count / n:.1f}% of the samples (longest run {longest} samples); "
+                f"a saturated sensor or range{note}?"
+            )
     return out
 
 
@@ -451,7 +521,9 @@ def _read_csv(csv_path: Path) -> tuple[np.ndarray, dict[str, np.ndarray], list[s
     try:
         text = csv_path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:
-        raise RecordingError(f"{name}: not UTF-8 text ({exc.reason} at byte {exc.start})", file=name) from None
+        raise RecordingError(
+            f"{name}: not UTF-8 text ({exc.reason} at byte {exc.start})", file=name
+        ) from None
     lines = text.split("\n")
     lines = [ln[:-1] if ln.endswith("\r") else ln for ln in lines]
     while lines and lines[-1].strip() == "":  # final newline / trailing blank lines
@@ -470,7 +542,9 @@ def _read_csv(csv_path: Path) -> tuple[np.ndarray, dict[str, np.ndarray], list[s
     if len(header) == 1 and (";" in header[0] or "\t" in header[0]):
         raise err(1, f"the header {lines[0]!r} has a single column: the separator must be ','")
     if all(_NUMBER_RE.fullmatch(h) for h in header):
-        raise err(1, f"the first line must be the header (column names), found numbers {lines[0]!r}")
+        raise err(
+            1, f"the first line must be the header (column names), found numbers {lines[0]!r}"
+        )
     for j, h in enumerate(header):
         if h == "":
             raise err(1, f"empty column name (column {j + 1} of the header)")
@@ -487,8 +561,9 @@ def _read_csv(csv_path: Path) -> tuple[np.ndarray, dict[str, np.ndarray], list[s
     for h in header:
         if h not in COLUMNS:
             hint = f" (did you mean {h.lower()!r}?)" if h.lower() in COLUMNS else ""
-            warn.append(f"{name}: unknown column {h!r} ignored{hint}; known columns: "
-                        + ", ".join(COLUMNS))
+            warn.append(
+                f"{name}: unknown column {h!r} ignored{hint}; known columns: " + ", ".join(COLUMNS)
+            )
 
     ncol = len(header)
     if len(lines) >= 3 and all(h in COLUMNS for h in header):
@@ -501,9 +576,13 @@ def _read_csv(csv_path: Path) -> tuple[np.ndarray, dict[str, np.ndarray], list[s
                 table = np.loadtxt(body, delimiter=",", dtype=np.float64, comments=None, ndmin=2)
             except ValueError:
                 table = None
-            if table is not None and table.shape == (len(body), ncol) and np.all(np.isfinite(table)):
-                data = {h: np.ascontiguousarray(table[:, j]) for j, h in enumerate(header)}
-                return _finish_csv(name, data, warn)
+            if (
+                table is not None
+                and table.shape == (len(body), ncol)
+                and np.all(np.isfinite(table))
+            ):
+                fast = {h: np.ascontiguousarray(table[:, j]) for j, h in enumerate(header)}
+                return _finish_csv(name, fast, warn)
     rows = list(csv.reader(lines[1:]))
     for k, row in enumerate(rows):
         if len(row) != ncol:
@@ -511,8 +590,11 @@ def _read_csv(csv_path: Path) -> tuple[np.ndarray, dict[str, np.ndarray], list[s
                 raise err(k + 2, "empty line (every row must hold one sample)")
             raise err(k + 2, f"{len(row)} cells, the header has {ncol} columns")
     if len(rows) < 2:
-        raise RecordingError(f"{name}: {len(rows)} data row{'s' if len(rows) != 1 else ''}; "
-                             "a recording needs at least 2", file=name)
+        raise RecordingError(
+            f"{name}: {len(rows)} data row{'s' if len(rows) != 1 else ''}; "
+            "a recording needs at least 2",
+            file=name,
+        )
 
     data: dict[str, np.ndarray] = {}
     columns = list(zip(*rows))
@@ -533,7 +615,9 @@ def _read_csv(csv_path: Path) -> tuple[np.ndarray, dict[str, np.ndarray], list[s
         for k, c in enumerate(cells):  # slow path: find the first bad cell
             if not _NUMBER_RE.fullmatch(c) or not math.isfinite(float(c)):
                 raise err(k + 2, _cell_problem(c), column=h)
-        raise AssertionError(f"{name}: column {h!r} failed to parse but no bad cell found")  # pragma: no cover
+        raise AssertionError(
+            f"{name}: column {h!r} failed to parse but no bad cell found"
+        )  # pragma: no cover
 
     return _finish_csv(name, data, warn)
 
@@ -592,38 +676,55 @@ def write_recording(path, t, channels: dict, rig: dict, *, overwrite: bool = Fal
     cname = csv_path.name
     t = np.asarray(t, dtype=float)
     if t.ndim != 1:
-        raise RecordingError(f"{cname}: t must be one-dimensional, has shape {t.shape}", file=cname, column="t")
+        raise RecordingError(
+            f"{cname}: t must be one-dimensional, has shape {t.shape}", file=cname, column="t"
+        )
     if len(t) < 2:
         raise RecordingError(f"{cname}: {len(t)} samples; a recording needs at least 2", file=cname)
     for name in channels:
         if name not in COLUMNS or name == "t":
-            raise RecordingError(f"{cname}: unknown channel {name!r}; allowed: "
-                                 + ", ".join(COLUMNS[1:]), file=cname, column=name)
+            raise RecordingError(
+                f"{cname}: unknown channel {name!r}; allowed: " + ", ".join(COLUMNS[1:]),
+                file=cname,
+                column=name,
+            )
     if "i_c" not in channels:
         raise RecordingError(f"{cname}: missing required channel 'i_c'", file=cname, column="i_c")
     if not any(c in channels for c in OUTPUT_COLUMNS):
-        raise RecordingError(f"{cname}: needs at least one of the channels 'p1', 'p2', 'x', 'f'", file=cname)
+        raise RecordingError(
+            f"{cname}: needs at least one of the channels 'p1', 'p2', 'x', 'f'", file=cname
+        )
     cols = {}
     for name in COLUMNS[1:]:
         if name not in channels:
             continue
         y = np.asarray(channels[name], dtype=float)
         if y.shape != t.shape:
-            raise RecordingError(f"{cname}: channel {name!r} has shape {y.shape}, t has {t.shape}",
-                                 file=cname, column=name)
+            raise RecordingError(
+                f"{cname}: channel {name!r} has shape {y.shape}, t has {t.shape}",
+                file=cname,
+                column=name,
+            )
         bad = np.flatnonzero(~np.isfinite(y))
         if bad.size:
             k = int(bad[0])
-            raise RecordingError(f"{cname}: channel {name!r} sample {k}: {_fmt(y[k])} is not allowed: "
-                                 "NaN and inf are not allowed", file=cname, column=name)
+            raise RecordingError(
+                f"{cname}: channel {name!r} sample {k}: {_fmt(y[k])} is not allowed: "
+                "NaN and inf are not allowed",
+                file=cname,
+                column=name,
+            )
         cols[name] = y
     _check_time(t, lambda k, col: f"{cname}: channel {col!r} sample {k}")
 
     rig = _jsonable(dict(rig))
     for key, value in (("format", FORMAT_NAME), ("version", FORMAT_VERSION)):
         if rig.get(key, value) != value:
-            raise RecordingError(f"{json_path.name}: key {key!r} is {rig[key]!r}, must be {value!r}",
-                                 file=json_path.name, column=key)
+            raise RecordingError(
+                f"{json_path.name}: key {key!r} is {rig[key]!r}, must be {value!r}",
+                file=json_path.name,
+                column=key,
+            )
     sidecar = {"format": FORMAT_NAME, "version": FORMAT_VERSION}
     sidecar.update((k, v) for k, v in rig.items() if k not in sidecar)
     for message in validate_rig(sidecar, json_path.name):
@@ -677,9 +778,11 @@ def rig_to_parameter_overrides(rig: dict) -> dict:
     names = {
         "fixed": {"position_m": "fixed_position_m"},
         "free": {"load_mass_kg": "load_mass_kg", "load_force_n": "load_force_n"},
-        "spring": {"stiffness_n_per_m": "spring_stiffness_n_per_m",
-                   "rest_position_m": "spring_rest_position_m",
-                   "load_mass_kg": "load_mass_kg"},
+        "spring": {
+            "stiffness_n_per_m": "spring_stiffness_n_per_m",
+            "rest_position_m": "spring_rest_position_m",
+            "load_mass_kg": "load_mass_kg",
+        },
     }[mode]
     for key, param in names.items():
         out[param] = float(piston[key])

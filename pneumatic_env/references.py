@@ -40,8 +40,9 @@ import dataclasses
 import functools
 import math
 import numbers
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -76,8 +77,9 @@ def _is_real(value: Any) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
 
-def _real(owner: str, name: str, value: Any, *, gt: float | None = None,
-          ge: float | None = None) -> float:
+def _real(
+    owner: str, name: str, value: Any, *, gt: float | None = None, ge: float | None = None
+) -> float:
     """Validate a finite real number (optionally with a lower bound) and return a float."""
     if gt is not None:
         rule = f"must be a finite number > {gt:g}"
@@ -98,23 +100,31 @@ def _set(obj: Any, name: str, value: Any) -> None:
 
 
 def _check_generate_args(owner: str, n_steps: Any, dt_s: Any) -> tuple[int, float]:
-    if type(n_steps) is int and type(dt_s) is float and n_steps >= 0 \
-            and 0.0 < dt_s < math.inf:  # the common case, without the ABC checks below
+    if (
+        type(n_steps) is int and type(dt_s) is float and n_steps >= 0 and 0.0 < dt_s < math.inf
+    ):  # the common case, without the ABC checks below
         return n_steps, dt_s
-    if not isinstance(n_steps, numbers.Integral) or isinstance(n_steps, (bool, np.bool_)) \
-            or n_steps < 0:
-        raise ValueError(f"{owner}.generate: n_steps = {n_steps!r} is not allowed: "
-                         "must be an integer >= 0")
+    if (
+        not isinstance(n_steps, numbers.Integral)
+        or isinstance(n_steps, (bool, np.bool_))
+        or n_steps < 0
+    ):
+        raise ValueError(
+            f"{owner}.generate: n_steps = {n_steps!r} is not allowed: must be an integer >= 0"
+        )
     if not _is_real(dt_s) or not math.isfinite(float(dt_s)) or not float(dt_s) > 0:
-        raise ValueError(f"{owner}.generate: dt_s = {dt_s!r} is not allowed: "
-                         "must be a finite number > 0")
+        raise ValueError(
+            f"{owner}.generate: dt_s = {dt_s!r} is not allowed: must be a finite number > 0"
+        )
     return int(n_steps), float(dt_s)
 
 
 def _require_rng(owner: str, rng: Any) -> np.random.Generator:
     if not isinstance(rng, np.random.Generator):
-        raise TypeError(f"{owner}.generate needs rng to be a numpy.random.Generator "
-                        f"(this kind is random), got {type(rng).__name__}")
+        raise TypeError(
+            f"{owner}.generate needs rng to be a numpy.random.Generator "
+            f"(this kind is random), got {type(rng).__name__}"
+        )
     return rng
 
 
@@ -153,8 +163,9 @@ class ReferenceSpec:
     #: True if ``generate`` draws from the rng.
     is_random: ClassVar[bool] = False
 
-    def generate(self, n_steps: int, dt_s: float,
-                 rng: np.random.Generator | None = None) -> np.ndarray:
+    def generate(
+        self, n_steps: int, dt_s: float, rng: np.random.Generator | None = None
+    ) -> np.ndarray:
         raise NotImplementedError
 
     def generate_rows(self, n_steps: int, dt_s: float, rngs) -> np.ndarray:
@@ -201,8 +212,9 @@ class StepReference(ReferenceSpec):
         _set(self, "step_time_s", _real(o, "step_time_s", self.step_time_s, ge=0.0))
         _set(self, "offset", _real(o, "offset", self.offset))
 
-    def generate(self, n_steps: int, dt_s: float,
-                 rng: np.random.Generator | None = None) -> np.ndarray:
+    def generate(
+        self, n_steps: int, dt_s: float, rng: np.random.Generator | None = None
+    ) -> np.ndarray:
         n, dt = _check_generate_args(type(self).__name__, n_steps, dt_s)
         # index of the step; the tolerance keeps e.g. 0.3 / 0.1 from landing on 3 + eps
         k_step = max(0, math.ceil(self.step_time_s / dt - 1e-9))
@@ -229,19 +241,22 @@ class SineReference(ReferenceSpec):
         _set(self, "offset", _real(o, "offset", self.offset))
         _set(self, "phase_rad", _real(o, "phase_rad", self.phase_rad))
 
-    def generate(self, n_steps: int, dt_s: float,
-                 rng: np.random.Generator | None = None) -> np.ndarray:
+    def generate(
+        self, n_steps: int, dt_s: float, rng: np.random.Generator | None = None
+    ) -> np.ndarray:
         n, dt = _check_generate_args(type(self).__name__, n_steps, dt_s)
         t = _time(n, dt)
         return self.offset + self.amplitude * np.sin(
-            2.0 * np.pi * self.frequency_hz * t + self.phase_rad)
+            2.0 * np.pi * self.frequency_hz * t + self.phase_rad
+        )
 
 
 _CHIRP_METHODS = ("logarithmic", "linear")
 
 
-def _chirp_phase(t: np.ndarray | float, f0: float, f1: float, t1: float,
-                 method: str) -> np.ndarray | float:
+def _chirp_phase(
+    t: np.ndarray | float, f0: float, f1: float, t1: float, method: str
+) -> np.ndarray | float:
     """Phase (rad) of a sweep from f0 at t=0 to f1 at t1 (same as scipy.signal.chirp)."""
     if method == "linear":
         return 2.0 * np.pi * (f0 * t + 0.5 * (f1 - f0) / t1 * t * t)
@@ -281,19 +296,20 @@ class ChirpReference(ReferenceSpec):
         if self.method not in _CHIRP_METHODS:
             raise _fail(o, "method", self.method, f"must be one of {list(_CHIRP_METHODS)}")
 
-    def generate(self, n_steps: int, dt_s: float,
-                 rng: np.random.Generator | None = None) -> np.ndarray:
+    def generate(
+        self, n_steps: int, dt_s: float, rng: np.random.Generator | None = None
+    ) -> np.ndarray:
         n, dt = _check_generate_args(type(self).__name__, n_steps, dt_s)
         t = _time(n, dt)
         T = self.duration_s
         unit = np.empty(n, dtype=np.float64)
         inside = t <= T
         if _scipy_chirp is not None:
-            unit[inside] = _scipy_chirp(t[inside], f0=self.f0_hz, t1=T, f1=self.f1_hz,
-                                        method=self.method, phi=-90.0)
+            unit[inside] = _scipy_chirp(
+                t[inside], f0=self.f0_hz, t1=T, f1=self.f1_hz, method=self.method, phi=-90.0
+            )
         else:  # pragma: no cover
-            unit[inside] = np.sin(_chirp_phase(t[inside], self.f0_hz, self.f1_hz, T,
-                                               self.method))
+            unit[inside] = np.sin(_chirp_phase(t[inside], self.f0_hz, self.f1_hz, T, self.method))
         phase_end = float(_chirp_phase(T, self.f0_hz, self.f1_hz, T, self.method))
         after = ~inside
         unit[after] = np.sin(phase_end + 2.0 * np.pi * self.f1_hz * (t[after] - T))
@@ -349,8 +365,9 @@ class MultisineReference(ReferenceSpec):
     def is_random(self) -> bool:  # type: ignore[override]
         return self.phases == "random"
 
-    def generate(self, n_steps: int, dt_s: float,
-                 rng: np.random.Generator | None = None) -> np.ndarray:
+    def generate(
+        self, n_steps: int, dt_s: float, rng: np.random.Generator | None = None
+    ) -> np.ndarray:
         return self.generate_rows(n_steps, dt_s, [rng])[0]
 
     def generate_rows(self, n_steps: int, dt_s: float, rngs) -> np.ndarray:
@@ -368,8 +385,11 @@ class MultisineReference(ReferenceSpec):
         out = np.empty((len(rngs), n))
         cos_part = np.empty(n)
         for i, rng in enumerate(rngs):
-            phi = (_require_rng(owner, rng).uniform(0.0, 2.0 * np.pi, size=n_f)
-                   if self.phases == "random" else schroeder)
+            phi = (
+                _require_rng(owner, rng).uniform(0.0, 2.0 * np.pi, size=n_f)
+                if self.phases == "random"
+                else schroeder
+            )
             np.matmul(sin_wt, np.cos(phi), out=out[i])
             out[i] += np.matmul(cos_wt, np.sin(phi), out=cos_part)
         peak = np.max(np.abs(out), axis=1) if n else np.zeros(len(rngs))
@@ -404,8 +424,9 @@ class RandomStepReference(ReferenceSpec):
         _set(self, "hold_min_s", _real(o, "hold_min_s", self.hold_min_s, gt=0.0))
         hold_max = _real(o, "hold_max_s", self.hold_max_s, gt=0.0)
         if hold_max < self.hold_min_s:
-            raise _fail(o, "hold_max_s", self.hold_max_s,
-                        f"must be >= hold_min_s = {self.hold_min_s!r}")
+            raise _fail(
+                o, "hold_max_s", self.hold_max_s, f"must be >= hold_min_s = {self.hold_min_s!r}"
+            )
         _set(self, "hold_max_s", hold_max)
         _set(self, "offset", _real(o, "offset", self.offset))
 
@@ -415,16 +436,16 @@ class RandomStepReference(ReferenceSpec):
         hi = max(lo, math.floor(self.hold_max_s / dt_s + 1e-9))
         return lo, hi
 
-    def generate(self, n_steps: int, dt_s: float,
-                 rng: np.random.Generator | None = None) -> np.ndarray:
+    def generate(
+        self, n_steps: int, dt_s: float, rng: np.random.Generator | None = None
+    ) -> np.ndarray:
         owner = type(self).__name__
         n, dt = _check_generate_args(owner, n_steps, dt_s)
         rng = _require_rng(owner, rng)
         lo, hi = self.hold_range_steps(dt)
         n_seg = n // lo + 1  # enough segments to cover n samples even if all are short
         holds = rng.integers(lo, hi + 1, size=n_seg)
-        levels = rng.uniform(self.offset - self.amplitude, self.offset + self.amplitude,
-                             size=n_seg)
+        levels = rng.uniform(self.offset - self.amplitude, self.offset + self.amplitude, size=n_seg)
         return np.repeat(levels, holds)[:n].astype(np.float64, copy=False)
 
 
@@ -447,11 +468,11 @@ class ArrayReference(ReferenceSpec):
         try:
             arr = np.array(self.values, dtype=np.float64)
         except (TypeError, ValueError):
-            raise _fail(o, "values", self.values,
-                        "must be a non-empty 1-D array of finite numbers") from None
+            raise _fail(
+                o, "values", self.values, "must be a non-empty 1-D array of finite numbers"
+            ) from None
         if arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)):
-            raise _fail(o, "values", self.values,
-                        "must be a non-empty 1-D array of finite numbers")
+            raise _fail(o, "values", self.values, "must be a non-empty 1-D array of finite numbers")
         arr.setflags(write=False)
         _set(self, "values", arr)
         _set(self, "dt_s", _real(o, "dt_s", self.dt_s, gt=0.0))
@@ -464,8 +485,9 @@ class ArrayReference(ReferenceSpec):
     def __hash__(self) -> int:
         return hash((self.values.tobytes(), self.dt_s))
 
-    def generate(self, n_steps: int, dt_s: float,
-                 rng: np.random.Generator | None = None) -> np.ndarray:
+    def generate(
+        self, n_steps: int, dt_s: float, rng: np.random.Generator | None = None
+    ) -> np.ndarray:
         n, dt = _check_generate_args(type(self).__name__, n_steps, dt_s)
         # positions in units of source samples; snap near-integers so coinciding
         # sample times reproduce the given values exactly
@@ -497,8 +519,12 @@ class MixtureReference(ReferenceSpec):
         if isinstance(choices, (ReferenceSpec, Mapping)):
             choices = (choices,)
         if not isinstance(choices, (tuple, list)) or len(choices) == 0:
-            raise _fail(o, "choices", self.choices,
-                        "must be a non-empty sequence of reference specs or dicts")
+            raise _fail(
+                o,
+                "choices",
+                self.choices,
+                "must be a non-empty sequence of reference specs or dicts",
+            )
         built = []
         for i, c in enumerate(choices):
             if not isinstance(c, (ReferenceSpec, Mapping)):
@@ -509,12 +535,16 @@ class MixtureReference(ReferenceSpec):
             w = self.weights
             if isinstance(w, np.ndarray):
                 w = w.tolist()
-            rule = (f"must be None or {len(built)} finite numbers >= 0 "
-                    "(one per choice) with a positive sum")
+            rule = (
+                f"must be None or {len(built)} finite numbers >= 0 "
+                "(one per choice) with a positive sum"
+            )
             if not isinstance(w, (tuple, list)) or len(w) != len(built):
                 raise _fail(o, "weights", self.weights, rule)
-            if not all(_is_real(x) and math.isfinite(float(x)) and float(x) >= 0
-                       for x in w) or sum(float(x) for x in w) <= 0:
+            if (
+                not all(_is_real(x) and math.isfinite(float(x)) and float(x) >= 0 for x in w)
+                or sum(float(x) for x in w) <= 0
+            ):
                 raise _fail(o, "weights", self.weights, rule)
             _set(self, "weights", tuple(float(x) for x in w))
 
@@ -540,8 +570,9 @@ class MixtureReference(ReferenceSpec):
         p = self.probabilities()
         return p.tolist(), np.cumsum(p).tolist()
 
-    def generate(self, n_steps: int, dt_s: float,
-                 rng: np.random.Generator | None = None) -> np.ndarray:
+    def generate(
+        self, n_steps: int, dt_s: float, rng: np.random.Generator | None = None
+    ) -> np.ndarray:
         return self.generate_rows(n_steps, dt_s, [rng])[0]
 
     def generate_rows(self, n_steps: int, dt_s: float, rngs) -> np.ndarray:
@@ -559,8 +590,15 @@ class MixtureReference(ReferenceSpec):
 
 REFERENCE_KINDS: dict[str, type[ReferenceSpec]] = {
     cls.kind: cls
-    for cls in (StepReference, SineReference, ChirpReference, MultisineReference,
-                RandomStepReference, ArrayReference, MixtureReference)
+    for cls in (
+        StepReference,
+        SineReference,
+        ChirpReference,
+        MultisineReference,
+        RandomStepReference,
+        ArrayReference,
+        MixtureReference,
+    )
 }
 
 
@@ -574,12 +612,13 @@ def make_reference(spec_or_dict: ReferenceSpec | Mapping[str, Any]) -> Reference
         return spec_or_dict
     known = sorted(REFERENCE_KINDS)
     if not isinstance(spec_or_dict, Mapping):
-        raise TypeError("make_reference expects a reference spec or a dict with a 'kind' "
-                        f"key, got {type(spec_or_dict).__name__}")
+        raise TypeError(
+            "make_reference expects a reference spec or a dict with a 'kind' "
+            f"key, got {type(spec_or_dict).__name__}"
+        )
     d = dict(spec_or_dict)
     if "kind" not in d:
-        raise ValueError(f"reference dict {spec_or_dict!r} has no 'kind' key; "
-                         f"known kinds: {known}")
+        raise ValueError(f"reference dict {spec_or_dict!r} has no 'kind' key; known kinds: {known}")
     kind_raw = d.pop("kind")
     kind = str(kind_raw).strip().lower().replace("-", "_")
     if kind not in REFERENCE_KINDS:
@@ -589,14 +628,22 @@ def make_reference(spec_or_dict: ReferenceSpec | Mapping[str, Any]) -> Reference
     names = [f.name for f in fields]
     unknown = sorted(k for k in d if k not in names)
     if unknown:
-        raise ValueError(f"unknown key(s) {unknown} for reference kind {kind!r} "
-                         f"({cls.__name__}); allowed keys: {names}")
-    missing = [f.name for f in fields
-               if f.default is dataclasses.MISSING
-               and f.default_factory is dataclasses.MISSING and f.name not in d]
+        raise ValueError(
+            f"unknown key(s) {unknown} for reference kind {kind!r} "
+            f"({cls.__name__}); allowed keys: {names}"
+        )
+    missing = [
+        f.name
+        for f in fields
+        if f.default is dataclasses.MISSING
+        and f.default_factory is dataclasses.MISSING
+        and f.name not in d
+    ]
     if missing:
-        raise ValueError(f"missing key(s) {missing} for reference kind {kind!r} "
-                         f"({cls.__name__}); allowed keys: {names}")
+        raise ValueError(
+            f"missing key(s) {missing} for reference kind {kind!r} "
+            f"({cls.__name__}); allowed keys: {names}"
+        )
     if kind == "multisine" and isinstance(d.get("frequencies_hz"), list):
         d["frequencies_hz"] = tuple(d["frequencies_hz"])
     if kind == "mixture":
@@ -619,17 +666,21 @@ def reference_preview(ref: np.ndarray, k: int, horizon: int) -> np.ndarray:
     """
     ref = np.asarray(ref, dtype=np.float64)
     if ref.ndim != 1 or ref.size == 0:
-        raise ValueError(f"reference_preview: ref must be a non-empty 1-D array, "
-                         f"got shape {ref.shape}")
+        raise ValueError(
+            f"reference_preview: ref must be a non-empty 1-D array, got shape {ref.shape}"
+        )
     if not isinstance(k, numbers.Integral) or isinstance(k, (bool, np.bool_)) or k < -1:
-        raise ValueError(f"reference_preview: k = {k!r} is not allowed: "
-                         "must be an integer >= -1")
-    if not isinstance(horizon, numbers.Integral) or isinstance(horizon, (bool, np.bool_)) \
-            or horizon < 0:
-        raise ValueError(f"reference_preview: horizon = {horizon!r} is not allowed: "
-                         "must be an integer >= 0")
+        raise ValueError(f"reference_preview: k = {k!r} is not allowed: must be an integer >= -1")
+    if (
+        not isinstance(horizon, numbers.Integral)
+        or isinstance(horizon, (bool, np.bool_))
+        or horizon < 0
+    ):
+        raise ValueError(
+            f"reference_preview: horizon = {horizon!r} is not allowed: must be an integer >= 0"
+        )
     start = int(k) + 1
     out = np.full(int(horizon), ref[-1], dtype=np.float64)
-    chunk = ref[start:start + int(horizon)]
-    out[:chunk.size] = chunk
+    chunk = ref[start : start + int(horizon)]
+    out[: chunk.size] = chunk
     return out

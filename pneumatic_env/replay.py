@@ -11,6 +11,7 @@ The control period of the simulation is the recording's sample step; the number 
 substeps per step is chosen so that the substep is no longer than the default one
 (``control_dt_s / substeps`` of ``configs/numerics.yaml``), unless given.
 """
+
 from __future__ import annotations
 
 import math
@@ -23,8 +24,13 @@ import numpy as np
 
 from .params import load_numerics, load_parameters, parameter_array
 from .physics import layout as L
-from .recording import (Recording, read_recording, recording_paths,
-                        rig_to_parameter_overrides, write_recording)
+from .recording import (
+    Recording,
+    read_recording,
+    recording_paths,
+    rig_to_parameter_overrides,
+    write_recording,
+)
 from .simulator import BatchSimulator
 
 __all__ = [
@@ -38,8 +44,14 @@ __all__ = [
 ]
 
 #: Channels a replay predicts, with their output rows in the kernel's layout.
-PREDICTED_CHANNELS = {"p1": L.O_P1, "p2": L.O_P2, "x": L.O_X, "f": L.O_F, "v": L.O_V,
-                      "x_s": L.O_X_S}
+PREDICTED_CHANNELS = {
+    "p1": L.O_P1,
+    "p2": L.O_P2,
+    "x": L.O_X,
+    "f": L.O_F,
+    "v": L.O_V,
+    "x_s": L.O_X_S,
+}
 _UNITS = {"p1": "Pa", "p2": "Pa", "x": "m", "f": "N", "v": "m/s", "x_s": "m"}
 # A sample step within this relative distance of a whole number of default substeps
 # counts as that whole number (float noise of t[-1] - t[0] over n - 1 steps).
@@ -57,10 +69,12 @@ def substeps_for(control_dt_s: float, max_substep_s: float | None = None) -> int
 
     ``max_substep_s`` defaults to :func:`default_substep_s`.
     """
-    if not (isinstance(control_dt_s, (int, float)) and math.isfinite(control_dt_s)
-            and control_dt_s > 0):
-        raise ValueError(f"control_dt_s = {control_dt_s!r} is not allowed: must be a finite "
-                         "number > 0 s")
+    if not (
+        isinstance(control_dt_s, (int, float)) and math.isfinite(control_dt_s) and control_dt_s > 0
+    ):
+        raise ValueError(
+            f"control_dt_s = {control_dt_s!r} is not allowed: must be a finite number > 0 s"
+        )
     h = default_substep_s() if max_substep_s is None else float(max_substep_s)
     if not (math.isfinite(h) and h > 0):
         raise ValueError(f"max_substep_s = {max_substep_s!r} is not allowed: must be > 0 s")
@@ -69,15 +83,24 @@ def substeps_for(control_dt_s: float, max_substep_s: float | None = None) -> int
 
 
 def _check_substeps(substeps) -> int:
-    if isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer, float)) \
-            or not float(substeps).is_integer() or substeps < 1:
+    if (
+        isinstance(substeps, bool)
+        or not isinstance(substeps, (int, np.integer, float))
+        or not float(substeps).is_integer()
+        or substeps < 1
+    ):
         raise ValueError(f"substeps = {substeps!r} is not allowed: must be a whole number >= 1")
     return int(substeps)
 
 
-def simulate_currents(params: Mapping[str, float], coil_current_a, control_dt_s: float,
-                      substeps: int | None = None, initial: Mapping[str, float] | None = None,
-                      t0_s: float = 0.0) -> dict[str, np.ndarray]:
+def simulate_currents(
+    params: Mapping[str, float],
+    coil_current_a,
+    control_dt_s: float,
+    substeps: int | None = None,
+    initial: Mapping[str, float] | None = None,
+    t0_s: float = 0.0,
+) -> dict[str, np.ndarray]:
     """Open-loop run of one actuator; the common core of replay and the paper's experiments.
 
     ``coil_current_a[k]`` is held from ``t_k`` to ``t_{k+1}`` (``t_k = t0_s + k dt``).
@@ -90,8 +113,9 @@ def simulate_currents(params: Mapping[str, float], coil_current_a, control_dt_s:
         k = int(np.flatnonzero(~np.isfinite(currents))[0])
         raise ValueError(f"coil_current_a[{k}] = {currents[k]} is not allowed: must be finite")
     n_sub = substeps_for(control_dt_s) if substeps is None else _check_substeps(substeps)
-    sim = BatchSimulator(parameter_array([dict(params)]), control_dt_s=control_dt_s,
-                         n_substeps=n_sub)
+    sim = BatchSimulator(
+        parameter_array([dict(params)]), control_dt_s=control_dt_s, n_substeps=n_sub
+    )
     sim.reset(initial=dict(initial) if initial else None)
     first = sim.outputs[:, 0].copy()
     out = sim.rollout(currents[:, None])[:, :, 0]
@@ -102,8 +126,9 @@ def simulate_currents(params: Mapping[str, float], coil_current_a, control_dt_s:
     return result
 
 
-def recording_parameters(recording: Recording,
-                         params: str | os.PathLike | Mapping | None = None) -> dict[str, float]:
+def recording_parameters(
+    recording: Recording, params: str | os.PathLike | Mapping | None = None
+) -> dict[str, float]:
     """The parameter set of a recording's rig.
 
     Layers: the configs for the sidecar's cylinder, then ``params`` (e.g. a fitted
@@ -116,9 +141,11 @@ def recording_parameters(recording: Recording,
     return load_parameters(cylinder, params=params, **overrides)
 
 
-def simulate_recording(recording: Recording | str | os.PathLike,
-                       params: str | os.PathLike | Mapping | None = None,
-                       substeps: int | None = None) -> dict[str, np.ndarray]:
+def simulate_recording(
+    recording: Recording | str | os.PathLike,
+    params: str | os.PathLike | Mapping | None = None,
+    substeps: int | None = None,
+) -> dict[str, np.ndarray]:
     """Predicted channels (``t, p1, p2, x, f, v, x_s``) of a recording, same sample times.
 
     ``recording`` is a :class:`Recording` or a path for :func:`read_recording`.
@@ -130,8 +157,14 @@ def simulate_recording(recording: Recording | str | os.PathLike,
         recording = read_recording(recording)
     values = recording_parameters(recording, params)
     dt = recording.dt
-    predicted = simulate_currents(values, recording.i_c[:-1], dt, substeps=substeps,
-                                  initial=recording.rig.get("initial"), t0_s=float(recording.t[0]))
+    predicted = simulate_currents(
+        values,
+        recording.i_c[:-1],
+        dt,
+        substeps=substeps,
+        initial=recording.rig.get("initial"),
+        t0_s=float(recording.t[0]),
+    )
     predicted["t"] = recording.t.copy()
     return predicted
 
@@ -148,13 +181,19 @@ def _check_not_input(output, source: Path) -> None:
     in_csv, in_json = recording_paths(source)
     for out_p, in_p in ((out_csv, in_csv), (out_json, in_json)):
         if out_p.resolve() == in_p.resolve() or _same_file(out_p, in_p):
-            raise ValueError(f"output {out_p} is the input recording's file; the input is never "
-                             "overwritten: choose another output name")
+            raise ValueError(
+                f"output {out_p} is the input recording's file; the input is never "
+                "overwritten: choose another output name"
+            )
 
 
-def predict_to_recording(recording: Recording | str | os.PathLike, output: str | os.PathLike,
-                         params: str | os.PathLike | None = None, substeps: int | None = None,
-                         overwrite: bool = False) -> tuple[Path, dict[str, np.ndarray], Recording]:
+def predict_to_recording(
+    recording: Recording | str | os.PathLike,
+    output: str | os.PathLike,
+    params: str | os.PathLike | None = None,
+    substeps: int | None = None,
+    overwrite: bool = False,
+) -> tuple[Path, dict[str, np.ndarray], Recording]:
     """Replay ``recording`` and write the prediction as a recording at ``output``.
 
     The output has the input's ``t`` and ``i_c``, the predicted ``p1, p2, x, f, v, x_s``
@@ -167,8 +206,10 @@ def predict_to_recording(recording: Recording | str | os.PathLike, output: str |
     if not isinstance(recording, Recording):
         recording = read_recording(recording)
     if recording.path is None:
-        raise ValueError("recording.path is None: predict_to_recording needs a recording read "
-                         "from a file (to name it in the notes and to protect it)")
+        raise ValueError(
+            "recording.path is None: predict_to_recording needs a recording read "
+            "from a file (to name it in the notes and to protect it)"
+        )
     _check_not_input(output, recording.path)
     predicted = simulate_recording(recording, params=params, substeps=substeps)
     channels = {"i_c": recording.i_c}
@@ -184,38 +225,66 @@ def predict_to_recording(recording: Recording | str | os.PathLike, output: str |
 
 def rms_errors(recording: Recording, predicted: Mapping[str, np.ndarray]) -> dict[str, float]:
     """RMS of measured minus predicted for every predicted channel the recording has."""
-    return {name: float(np.sqrt(np.mean((recording.channels[name] - predicted[name]) ** 2)))
-            for name in PREDICTED_CHANNELS if name in recording.channels}
+    return {
+        name: float(np.sqrt(np.mean((recording.channels[name] - predicted[name]) ** 2)))
+        for name in PREDICTED_CHANNELS
+        if name in recording.channels
+    }
 
 
 # --------------------------------------------------------------------------- CLI
 
+
 def add_arguments(p) -> None:
-    p.add_argument("recording", metavar="REC",
-                   help="recording to replay: NAME.csv, NAME.json or the stem NAME")
-    p.add_argument("-o", "--output", metavar="OUT.csv", required=True,
-                   help="where to write the predicted recording (never the input)")
-    p.add_argument("--params", metavar="FILE", default=None,
-                   help="parameter YAML (e.g. fitted by identify) on top of the cylinder's "
-                        "configs; the recording's sidecar still sets the rig")
-    p.add_argument("--substeps", metavar="N", type=int, default=None,
-                   help="RK4 substeps per sample step (default: enough to keep the default "
-                        "substep of configs/numerics.yaml)")
-    p.add_argument("--overwrite", action="store_true",
-                   help="replace OUT if it exists (the input is never replaced)")
+    p.add_argument(
+        "recording", metavar="REC", help="recording to replay: NAME.csv, NAME.json or the stem NAME"
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        metavar="OUT.csv",
+        required=True,
+        help="where to write the predicted recording (never the input)",
+    )
+    p.add_argument(
+        "--params",
+        metavar="FILE",
+        default=None,
+        help="parameter YAML (e.g. fitted by identify) on top of the cylinder's "
+        "configs; the recording's sidecar still sets the rig",
+    )
+    p.add_argument(
+        "--substeps",
+        metavar="N",
+        type=int,
+        default=None,
+        help="RK4 substeps per sample step (default: enough to keep the default "
+        "substep of configs/numerics.yaml)",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace OUT if it exists (the input is never replaced)",
+    )
 
 
 def run(args) -> int:
     """Replay REC into OUT; print a one-line summary. Bad input: message on stderr, exit 2."""
     try:
         path, predicted, recording = predict_to_recording(
-            args.recording, args.output, params=args.params, substeps=args.substeps,
-            overwrite=args.overwrite)
+            args.recording,
+            args.output,
+            params=args.params,
+            substeps=args.substeps,
+            overwrite=args.overwrite,
+        )
     except (ValueError, FileExistsError) as exc:  # RecordingError, ConfigError are ValueErrors
         print(f"pneumatic-env simulate: error: {exc}", file=sys.stderr)
         return 2
     errors = rms_errors(recording, predicted)
     rms = ", ".join(f"{k} {v:.4g} {_UNITS[k]}" for k, v in errors.items()) or "none"
-    print(f"{path}: {recording.n_samples} rows, {recording.duration:.6g} s; "
-          f"RMS measured - predicted: {rms}")
+    print(
+        f"{path}: {recording.n_samples} rows, {recording.duration:.6g} s; "
+        f"RMS measured - predicted: {rms}"
+    )
     return 0

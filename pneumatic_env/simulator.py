@@ -3,6 +3,7 @@
 This is the one Python object between the kernel and every user of it (the Gymnasium
 environments, recording replay, the paper's experiments, identification).
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -18,8 +19,13 @@ from .physics.piston import MODE_FIXED
 INITIAL_STATE_KEYS = ("p1", "p2", "x", "v", "x_s")
 # parameters that set the tube delay tau = L_t / c (Eq. 31) or the transmission line: a
 # change goes through set_params' checks (the ring buffer may have to grow)
-DELAY_PARAMETERS = ("tube_length_m", "heat_capacity_ratio", "gas_constant_j_per_kg_k",
-                    "temperature_k", "tube_waves")
+DELAY_PARAMETERS = (
+    "tube_length_m",
+    "heat_capacity_ratio",
+    "gas_constant_j_per_kg_k",
+    "temperature_k",
+    "tube_waves",
+)
 PARALLEL_MIN_ENVS = 256  # below this, threads cost more than they save (see docs/speed.md)
 
 
@@ -57,16 +63,25 @@ class BatchSimulator:
     head: int
     time_s: np.ndarray
 
-    def __init__(self, params: np.ndarray, control_dt_s: float = 1e-3, n_substeps: int = 20,
-                 parallel: bool | None = None) -> None:
+    def __init__(
+        self,
+        params: np.ndarray,
+        control_dt_s: float = 1e-3,
+        n_substeps: int = 20,
+        parallel: bool | None = None,
+    ) -> None:
         params = np.array(params, dtype=np.float64, order="C", ndmin=2)
         if params.shape[0] != L.N_PARAMS:
-            raise ValueError(f"params has {params.shape[0]} rows, expected {L.N_PARAMS} "
-                             "(one per name in pneumatic_env.physics.layout.PARAMETER_NAMES)")
+            raise ValueError(
+                f"params has {params.shape[0]} rows, expected {L.N_PARAMS} "
+                "(one per name in pneumatic_env.physics.layout.PARAMETER_NAMES)"
+            )
         if not np.all(np.isfinite(params)):
             bad = np.argwhere(~np.isfinite(params))[0]
-            raise ValueError(f"params[{L.PARAMETER_NAMES[bad[0]]}] of environment {bad[1]} "
-                             f"is {params[tuple(bad)]}, must be finite")
+            raise ValueError(
+                f"params[{L.PARAMETER_NAMES[bad[0]]}] of environment {bad[1]} "
+                f"is {params[tuple(bad)]}, must be finite"
+            )
         if not (control_dt_s > 0 and np.isfinite(control_dt_s)):
             raise ValueError(f"control_dt_s = {control_dt_s} is not allowed: must be > 0")
         if int(n_substeps) != n_substeps or n_substeps < 1:
@@ -92,9 +107,18 @@ class BatchSimulator:
     def delays_s(self) -> np.ndarray:
         """Tube delay tau = L_t / c of each environment (Eq. 31), s."""
         p = self.params
-        return np.array([tube_delay_s(p[L.P_TUBE_LENGTH_M, i], p[L.P_HEAT_CAPACITY_RATIO, i],
-                                      p[L.P_GAS_CONSTANT_J_PER_KG_K, i], p[L.P_TEMPERATURE_K, i])
-                         for i in range(self.n_envs)], dtype=np.float64)
+        return np.array(
+            [
+                tube_delay_s(
+                    p[L.P_TUBE_LENGTH_M, i],
+                    p[L.P_HEAT_CAPACITY_RATIO, i],
+                    p[L.P_GAS_CONSTANT_J_PER_KG_K, i],
+                    p[L.P_TEMPERATURE_K, i],
+                )
+                for i in range(self.n_envs)
+            ],
+            dtype=np.float64,
+        )
 
     def _check_tube_waves(self, envs: Iterable[int]) -> None:
         """The transmission line (``tube_waves = 1``) reads waves sent at least one substep ago."""
@@ -108,11 +132,13 @@ class BatchSimulator:
                     f"L_t/c of at least one substep ({substep_s:g} s); tube_length_m = {length:g} "
                     f"gives {delays[env]:g} s: use a tube of at least "
                     f"{length * substep_s / delays[env] if delays[env] > 0 else np.inf:.3g} m "
-                    f"or more substeps, or tube_waves = 0")
+                    f"or more substeps, or tube_waves = 0"
+                )
 
     def _slots_needed(self) -> int:
-        return kernel.history_slots(float(self.delays_s().max()), self.control_dt_s,
-                                    self.n_substeps)
+        return kernel.history_slots(
+            float(self.delays_s().max()), self.control_dt_s, self.n_substeps
+        )
 
     def set_params(self, envs: Sequence[int] | np.ndarray, columns: np.ndarray) -> None:
         """Replace the parameter columns of ``envs`` (call ``reset(envs)`` afterwards)."""
@@ -120,8 +146,10 @@ class BatchSimulator:
         columns = np.asarray(columns, dtype=np.float64).reshape(L.N_PARAMS, len(envs))
         if not np.all(np.isfinite(columns)):
             row, col = np.argwhere(~np.isfinite(columns))[0]
-            raise ValueError(f"set_params: {L.PARAMETER_NAMES[row]} of environment {envs[col]} "
-                             f"is {columns[row, col]}, must be finite")
+            raise ValueError(
+                f"set_params: {L.PARAMETER_NAMES[row]} of environment {envs[col]} "
+                f"is {columns[row, col]}, must be finite"
+            )
         previous = self.params[:, envs].copy()
         self._write_params((slice(None), envs), columns, envs)
         try:
@@ -140,13 +168,16 @@ class BatchSimulator:
             grown[(self.head - np.arange(slots)) % slots] = np.concatenate([newest_first, pad])
             self.history = grown
 
-    def set_parameter(self, name: str, envs: Sequence[int] | np.ndarray | int,
-                      value: float) -> None:
+    def set_parameter(
+        self, name: str, envs: Sequence[int] | np.ndarray | int, value: float
+    ) -> None:
         """Set parameter ``name`` of ``envs`` to ``value`` from the next step on (no reset
         needed; a parameter in ``DELAY_PARAMETERS`` goes through ``set_params``)."""
         if name not in L.PARAMETER_INDEX:
-            raise ValueError(f"set_parameter: name = {name!r} is not a parameter; allowed: "
-                             "the names in pneumatic_env.physics.layout.PARAMETER_NAMES")
+            raise ValueError(
+                f"set_parameter: name = {name!r} is not a parameter; allowed: "
+                "the names in pneumatic_env.physics.layout.PARAMETER_NAMES"
+            )
         value = float(value)
         if not np.isfinite(value):
             raise ValueError(f"set_parameter: {name} = {value} is not allowed: must be finite")
@@ -174,15 +205,20 @@ class BatchSimulator:
         rest (at the clamp position when fixed), spool centred, with ``initial`` applied."""
         p = self.params[:, envs]
         fixed = p[L.P_PISTON_MODE].astype(np.int64) == MODE_FIXED
-        columns = {"p1": p[L.P_AMBIENT_PRESSURE_PA].copy(),
-                   "p2": p[L.P_AMBIENT_PRESSURE_PA].copy(),
-                   "x": np.where(fixed, p[L.P_FIXED_POSITION_M], 0.0),
-                   "v": np.zeros(len(envs)), "x_s": np.zeros(len(envs))}
+        columns = {
+            "p1": p[L.P_AMBIENT_PRESSURE_PA].copy(),
+            "p2": p[L.P_AMBIENT_PRESSURE_PA].copy(),
+            "x": np.where(fixed, p[L.P_FIXED_POSITION_M], 0.0),
+            "v": np.zeros(len(envs)),
+            "x_s": np.zeros(len(envs)),
+        }
         if initial:
             unknown = set(initial) - set(INITIAL_STATE_KEYS)
             if unknown:
-                raise ValueError(f"initial state key(s) {sorted(unknown)} not known; "
-                                 f"allowed: {list(INITIAL_STATE_KEYS)}")
+                raise ValueError(
+                    f"initial state key(s) {sorted(unknown)} not known; "
+                    f"allowed: {list(INITIAL_STATE_KEYS)}"
+                )
             for key, value in initial.items():
                 value = float(value)
                 if not np.isfinite(value):
@@ -192,21 +228,27 @@ class BatchSimulator:
         outside = np.flatnonzero(np.abs(columns["x"]) > half)
         if outside.size:
             x, h = columns["x"][outside[0]], half[outside[0]]
-            raise ValueError(f"initial['x'] = {x} is outside the stroke: must be in "
-                             f"[{-h}, {h}] m")
+            raise ValueError(f"initial['x'] = {x} is outside the stroke: must be in [{-h}, {h}] m")
         for key in ("p1", "p2"):
             if np.any(columns[key] <= 0):
-                raise ValueError(f"initial['{key}'] = {columns[key].min()} must be > 0 Pa "
-                                 "(absolute)")
+                raise ValueError(
+                    f"initial['{key}'] = {columns[key].min()} must be > 0 Pa (absolute)"
+                )
         columns["x"] = np.where(fixed, p[L.P_FIXED_POSITION_M], columns["x"])
         columns["v"] = np.where(fixed, 0.0, columns["v"])
         return columns
 
-    def reset(self, envs: Sequence[int] | np.ndarray | None = None,
-              initial: Mapping[str, float] | None = None) -> None:
+    def reset(
+        self,
+        envs: Sequence[int] | np.ndarray | None = None,
+        initial: Mapping[str, float] | None = None,
+    ) -> None:
         """Put ``envs`` (default: all) in their initial state; the delay history equals it."""
-        envs = (np.arange(self.n_envs) if envs is None
-                else np.atleast_1d(np.asarray(envs, dtype=np.int64)))
+        envs = (
+            np.arange(self.n_envs)
+            if envs is None
+            else np.atleast_1d(np.asarray(envs, dtype=np.int64))
+        )
         s = self._initial_columns(envs, initial)
         self.state[:, envs] = 0.0
         self.state[L.S_X_S, envs], self.state[L.S_P1, envs] = s["x_s"], s["p1"]
@@ -231,15 +273,28 @@ class BatchSimulator:
         """Advance all environments by one control period; returns ``outputs[O_*, env]``
         (a view)."""
         coil_current_a = self._check_currents(coil_current_a, (self.n_envs,))
-        self.call_step_kernel(kernel.step_serial, kernel.step_parallel,
-                              (self.params, self.state, self.history, self.head,
-                               coil_current_a, self.control_dt_s, self.n_substeps, self.outputs,
-                               self.constants_key, self.constants))
+        self.call_step_kernel(
+            kernel.step_serial,
+            kernel.step_parallel,
+            (
+                self.params,
+                self.state,
+                self.history,
+                self.head,
+                coil_current_a,
+                self.control_dt_s,
+                self.n_substeps,
+                self.outputs,
+                self.constants_key,
+                self.constants,
+            ),
+        )
         self.advance_clock()
         return self.outputs
 
-    def call_step_kernel(self, serial: Callable[..., None], parallel: Callable[..., None],
-                         args: tuple) -> None:
+    def call_step_kernel(
+        self, serial: Callable[..., None], parallel: Callable[..., None], args: tuple
+    ) -> None:
         """``parallel(*args)`` when this batch runs on threads (``self.parallel`` and more
         than one Numba thread), its chunks handed to the threads one at a time
         (``kernel.PARALLEL_CHUNKS_PER_HANDOUT``), else ``serial(*args)`` (on one thread the
@@ -255,11 +310,14 @@ class BatchSimulator:
         """Coil currents as a C-contiguous float64 array of ``shape``, all finite."""
         a = np.ascontiguousarray(currents, dtype=np.float64)
         if a.shape != shape:
-            raise ValueError(f"coil_current_a has shape {a.shape}, expected {shape} "
-                             "(steps x environments for rollout, environments for step)")
+            raise ValueError(
+                f"coil_current_a has shape {a.shape}, expected {shape} "
+                "(steps x environments for rollout, environments for step)"
+            )
         if not np.isfinite(a).all():
-            raise ValueError(f"coil_current_a contains {a[~np.isfinite(a)][0]}: coil currents "
-                             "must be finite (A)")
+            raise ValueError(
+                f"coil_current_a contains {a[~np.isfinite(a)][0]}: coil currents must be finite (A)"
+            )
         return a
 
     def advance_clock(self, n_steps: int = 1) -> None:
@@ -278,9 +336,18 @@ class BatchSimulator:
             currents = currents[:, None]
         currents = self._check_currents(currents, (currents.shape[0], self.n_envs))
         out = np.empty((currents.shape[0], L.N_OUTPUT, self.n_envs))
-        kernel.rollout_serial(self.params, self.state, self.history, self.head, currents,
-                              self.control_dt_s, self.n_substeps, out, self.constants_key,
-                              self.constants)
+        kernel.rollout_serial(
+            self.params,
+            self.state,
+            self.history,
+            self.head,
+            currents,
+            self.control_dt_s,
+            self.n_substeps,
+            out,
+            self.constants_key,
+            self.constants,
+        )
         self.advance_clock(currents.shape[0])
         if currents.shape[0]:
             self.outputs[:] = out[-1]

@@ -20,6 +20,7 @@ Each run is made with the control period split into single-substep periods
 (``control_dt_s / n``, the current repeated ``n`` times): the arithmetic is the same as
 ``n`` substeps per period, and dp/dt is visible at every substep.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -73,22 +74,31 @@ def scenarios(quick: bool = False) -> list[Scenario]:
 def fine_run(scenario: Scenario, substeps: int, **overrides) -> tuple[dict, dict]:
     """Run with ``substeps`` per control period, sampled at every substep; (run, params)."""
     params = scenario.parameters(**overrides)
-    run = simulate_currents(params, np.repeat(scenario.coil_current_a, substeps),
-                            scenario.control_dt_s / substeps, substeps=1)
+    run = simulate_currents(
+        params,
+        np.repeat(scenario.coil_current_a, substeps),
+        scenario.control_dt_s / substeps,
+        substeps=1,
+    )
     return run, params
 
 
 def _scales(params: dict, reference: dict) -> dict:
     f_range = float(np.ptp(reference["f"]))
-    return {"p1": params["supply_pressure_pa"] - params["ambient_pressure_pa"],
-            "p2": params["supply_pressure_pa"] - params["ambient_pressure_pa"],
-            "f": f_range if f_range > 0 else 1.0, "x": 0.5 * params["stroke_m"]}
+    return {
+        "p1": params["supply_pressure_pa"] - params["ambient_pressure_pa"],
+        "p2": params["supply_pressure_pa"] - params["ambient_pressure_pa"],
+        "f": f_range if f_range > 0 else 1.0,
+        "x": 0.5 * params["stroke_m"],
+    }
 
 
 def errors(run: dict, stride: int, reference: dict, scales: dict) -> dict:
     """Largest |run - reference| over the control-period samples, % of each channel's scale."""
-    return {k: 100.0 * float(np.abs(run[k][::stride] - reference[k]).max()) / scales[k]
-            for k in CHANNELS}
+    return {
+        k: 100.0 * float(np.abs(run[k][::stride] - reference[k]).max()) / scales[k]
+        for k in CHANNELS
+    }
 
 
 def chatter(run: dict, params: dict, substep_s: float) -> dict:
@@ -106,8 +116,9 @@ def chatter(run: dict, params: dict, substep_s: float) -> dict:
         y = run[key]
         d = np.diff(y)
         sign = np.sign(d) * (np.abs(d) > CHATTER_MIN_RATE_FRACTION_PER_S * span * substep_s)
-        near = (np.abs(y[1:] - supply) < NEAR_FRACTION * span) | \
-               (np.abs(y[1:] - ambient) < NEAR_FRACTION * span)
+        near = (np.abs(y[1:] - supply) < NEAR_FRACTION * span) | (
+            np.abs(y[1:] - ambient) < NEAR_FRACTION * span
+        )
         flip = (sign[1:] * sign[:-1] < 0) & near[1:]
         flips += int(flip.sum())
         alternating += int((flip[1:] & flip[:-1]).sum())
@@ -140,8 +151,14 @@ def study(quick: bool = False, use_scipy: bool = True) -> dict:
             reference = {k: run[k][::KERNEL_REFERENCE_SUBSTEPS] for k in CHANNELS}
             ref_name = f"kernel at {KERNEL_REFERENCE_SUBSTEPS} substeps (SciPy reference {why})"
         scales = _scales(params, reference)
-        row = {"name": s.name, "reference": ref_name, "scales": scales, "errors": {},
-               "chatter": {}, "linearisation": {}}
+        row = {
+            "name": s.name,
+            "reference": ref_name,
+            "scales": scales,
+            "errors": {},
+            "chatter": {},
+            "linearisation": {},
+        }
         for n in (*SUBSTEPS, FINE_SUBSTEPS):
             runs = {}
             for ratio in LINEAR_RATIOS:
@@ -180,39 +197,59 @@ def markdown(result: dict) -> str:
     rows = result["rows"]
     numerics = load_numerics()
     dt_ms = 1e3 * float(numerics["control_dt_s"])
-    out = [f"Control period {dt_ms:g} ms; substeps per period as listed. Errors are the "
-           "largest over the control-period samples, in % of full scale: p1, p2 of "
-           "(supply - ambient), f of the scenario's force range, x of half the stroke.", ""]
-    out += ["## Errors against the reference", "",
-            "| scenario | substeps | substep [us] | p1 % | p2 % | f % | x % | max % |",
-            "|---|---|---|---|---|---|---|---|"]
+    out = [
+        f"Control period {dt_ms:g} ms; substeps per period as listed. Errors are the "
+        "largest over the control-period samples, in % of full scale: p1, p2 of "
+        "(supply - ambient), f of the scenario's force range, x of half the stroke.",
+        "",
+    ]
+    out += [
+        "## Errors against the reference",
+        "",
+        "| scenario | substeps | substep [us] | p1 % | p2 % | f % | x % | max % |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
         for n in SUBSTEPS + (FINE_SUBSTEPS,) + EXTRA_SUBSTEPS:
             e = r["errors"][n]
-            out.append(f"| {r['name']} | {n} | {1e3 * dt_ms / n:g} | "
-                       + " | ".join(_fmt(e[k]) for k in CHANNELS) + f" | {_fmt(_worst(e))} |")
+            out.append(
+                f"| {r['name']} | {n} | {1e3 * dt_ms / n:g} | "
+                + " | ".join(_fmt(e[k]) for k in CHANNELS)
+                + f" | {_fmt(_worst(e))} |"
+            )
     out += ["", "Reference of each scenario:", ""]
     out += [f"- {r['name']}: {r['reference']}" for r in rows]
     out += [""]
 
-    out += [f"## Flow linearisation (at {FINE_SUBSTEPS} substeps)", "",
-            "Largest difference from the default `flow_linear_ratio` "
-            f"{LINEAR_RATIOS[0]} (% of full scale).", "",
-            "| scenario | flow_linear_ratio | p1 % | p2 % | f % | x % |",
-            "|---|---|---|---|---|---|"]
+    out += [
+        f"## Flow linearisation (at {FINE_SUBSTEPS} substeps)",
+        "",
+        "Largest difference from the default `flow_linear_ratio` "
+        f"{LINEAR_RATIOS[0]} (% of full scale).",
+        "",
+        "| scenario | flow_linear_ratio | p1 % | p2 % | f % | x % |",
+        "|---|---|---|---|---|---|",
+    ]
     for r in rows:
         for ratio, e in r["linearisation"].items():
-            out.append(f"| {r['name']} | {ratio} | "
-                       + " | ".join(_fmt(e[k]) for k in CHANNELS) + " |")
+            out.append(
+                f"| {r['name']} | {ratio} | " + " | ".join(_fmt(e[k]) for k in CHANNELS) + " |"
+            )
 
-    out += ["", "## Chatter and NaN", "",
-            "Sign changes of dp/dt between consecutive substeps while a chamber is within "
-            f"{100 * NEAR_FRACTION:g}% of (supply - ambient) of supply or ambient; in brackets "
-            "those on consecutive substeps (period-2 oscillation). `NaN` marks a non-finite "
-            "output.",
-            "", "| scenario | flow_linear_ratio | " + " | ".join(
-                f"{n} substeps" for n in SUBSTEPS + (FINE_SUBSTEPS,)) + " |",
-            "|---|---|" + "---|" * (len(SUBSTEPS) + 1)]
+    out += [
+        "",
+        "## Chatter and NaN",
+        "",
+        "Sign changes of dp/dt between consecutive substeps while a chamber is within "
+        f"{100 * NEAR_FRACTION:g}% of (supply - ambient) of supply or ambient; in brackets "
+        "those on consecutive substeps (period-2 oscillation). `NaN` marks a non-finite "
+        "output.",
+        "",
+        "| scenario | flow_linear_ratio | "
+        + " | ".join(f"{n} substeps" for n in SUBSTEPS + (FINE_SUBSTEPS,))
+        + " |",
+        "|---|---|" + "---|" * (len(SUBSTEPS) + 1),
+    ]
     for r in rows:
         for ratio in LINEAR_RATIOS:
             cells = []
@@ -223,33 +260,50 @@ def markdown(result: dict) -> str:
 
     clamped = [r for r in rows if r["name"].startswith("(b)")]
     free = [r for r in rows if r["name"].startswith("(c)")]
+
     def calm(ratio):
-        return [n for n in SUBSTEPS + (FINE_SUBSTEPS,)
-                if all(r["chatter"][(m, ratio)]["alternating"] == 0
-                       and not r["chatter"][(m, ratio)]["nan"]
-                       for r in rows for m in SUBSTEPS + (FINE_SUBSTEPS,) if m >= n)]
+        return [
+            n
+            for n in SUBSTEPS + (FINE_SUBSTEPS,)
+            if all(
+                r["chatter"][(m, ratio)]["alternating"] == 0 and not r["chatter"][(m, ratio)]["nan"]
+                for r in rows
+                for m in SUBSTEPS + (FINE_SUBSTEPS,)
+                if m >= n
+            )
+        ]
 
     def say(n):
         return f"{n}" if n is not None else f"none up to {max(EXTRA_SUBSTEPS)}"
 
-    out += ["", "## Smallest substeps below "
-            f"{TOLERANCE_PERCENT:g}% of full scale", "",
-            f"- clamped rod (b), all tubes and couplings: {say(smallest_substeps(clamped))}",
-            f"- free rod (c), both cylinders: {say(smallest_substeps(free))}",
-            f"- every scenario: {say(smallest_substeps(rows))}",
-            "- without chatter (period-2 dp/dt alternation) or NaN in any scenario, from: "
-            + ", ".join(f"{calm(r)[0] if calm(r) else 'none'} substeps at flow_linear_ratio {r}"
-                        for r in LINEAR_RATIOS), ""]
+    out += [
+        "",
+        f"## Smallest substeps below {TOLERANCE_PERCENT:g}% of full scale",
+        "",
+        f"- clamped rod (b), all tubes and couplings: {say(smallest_substeps(clamped))}",
+        f"- free rod (c), both cylinders: {say(smallest_substeps(free))}",
+        f"- every scenario: {say(smallest_substeps(rows))}",
+        "- without chatter (period-2 dp/dt alternation) or NaN in any scenario, from: "
+        + ", ".join(
+            f"{calm(r)[0] if calm(r) else 'none'} substeps at flow_linear_ratio {r}"
+            for r in LINEAR_RATIOS
+        ),
+        "",
+    ]
     return "\n".join(out)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pneumatic_env.studies.convergence",
-                                     description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m pneumatic_env.studies.convergence", description=__doc__.splitlines()[0]
+    )
     parser.add_argument("--quick", action="store_true", help="shorter scenarios")
-    parser.add_argument("--no-scipy", action="store_true",
-                        help=f"use the kernel at {KERNEL_REFERENCE_SUBSTEPS} substeps as "
-                             "the reference instead of the SciPy reference solution")
+    parser.add_argument(
+        "--no-scipy",
+        action="store_true",
+        help=f"use the kernel at {KERNEL_REFERENCE_SUBSTEPS} substeps as "
+        "the reference instead of the SciPy reference solution",
+    )
     args = parser.parse_args(argv)
     start = time.perf_counter()
     result = study(quick=args.quick, use_scipy=not args.no_scipy)

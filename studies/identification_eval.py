@@ -1,6 +1,7 @@
 """Evaluate the diagnosis on the virtual rig: confusion matrix, detection vs strength, FDR.
 
-``python -m pneumatic_env.studies.identification_eval [--jobs 2] [--seeds 1,2,3] [--docs docs/identification.md]``
+``python -m pneumatic_env.studies.identification_eval [--jobs 2] [--seeds 1,2,3]
+[--docs docs/identification.md]``
 
 ``--seeds`` repeats every cell with other seeds (base-parameter perturbation, excitation
 draws and sensor noise): the confusion matrix and the detection table then count
@@ -9,13 +10,15 @@ recordings over the seeds (stability across noise seeds); the run time grows lin
 
 For each true effect (every rig effect whose candidate the kernel has, plus ``none`` and
 ``supply_ripple``, which no candidate models; some effects in extra rig set-ups, see
-:data:`EXTRA_SETUPS`) it writes a synthetic recording at strength 1 and diagnoses it with every available candidate (one selection round: the
-first choice is what the confusion matrix counts). For a few effects it repeats this at
-other strengths (detection rate vs strength). The false-discovery rate is the share of
-diagnoses that selected something other than the truth among those that selected
-anything. Results go to ``--out`` (JSON) and, with ``--docs``, replace the block between
+:data:`EXTRA_SETUPS`) it writes a synthetic recording at strength 1 and diagnoses it with
+every available candidate (one selection round: the first choice is what the confusion
+matrix counts). For a few effects it repeats this at other strengths (detection rate vs
+strength). The false-discovery rate is the share of diagnoses that selected something other
+than the truth among those that selected anything. Results go to ``--out`` (JSON) and, with
+``--docs``, replace the block between
 ``<!-- evaluate:begin -->`` and ``<!-- evaluate:end -->`` in that Markdown file.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -47,23 +50,34 @@ def evaluate_one(job: dict) -> dict:
     """Make one rig recording and diagnose it; returns what was found."""
     from pneumatic_env.identification.checks import read_checked
     from pneumatic_env.identification.diagnose import diagnose
+
     from .virtual_rig import make_recording
 
     t0 = time.time()
-    suffix = job["label"][len(job["effect"]):].strip(" ()").replace(" ", "_")
+    suffix = job["label"][len(job["effect"]) :].strip(" ()").replace(" ", "_")
     name = f"{job['effect']}{'_' + suffix if suffix else ''}_s{job['strength']:g}_seed{job['seed']}"
-    path = make_recording(job["workdir"], name=name, effect=job["effect"],
-                          strength=job["strength"], seed=job["seed"],
-                          duration_s=job["duration_s"], overwrite=True, **job["rig"])
+    path = make_recording(
+        job["workdir"],
+        name=name,
+        effect=job["effect"],
+        strength=job["strength"],
+        seed=job["seed"],
+        duration_s=job["duration_s"],
+        overwrite=True,
+        **job["rig"],
+    )
     diag = diagnose([read_checked(path)], candidates=job["candidates"], max_effects=1)
     data = diag.to_json()
-    return {**{k: job[k] for k in ("effect", "label", "strength", "seed")},
-            "selected": data["selected"], "winner": data["winner"],
-            "runner_up": data["runner_up"],
-            "baseline_nrmse_mean": data["baseline_nrmse_mean"],
-            "after_nrmse_mean": data["after_nrmse_mean"],
-            "scores": {c["name"]: c["score"] for c in data["candidates"]},
-            "seconds": time.time() - t0}
+    return {
+        **{k: job[k] for k in ("effect", "label", "strength", "seed")},
+        "selected": data["selected"],
+        "winner": data["winner"],
+        "runner_up": data["runner_up"],
+        "baseline_nrmse_mean": data["baseline_nrmse_mean"],
+        "after_nrmse_mean": data["after_nrmse_mean"],
+        "scores": {c["name"]: c["score"] for c in data["candidates"]},
+        "seconds": time.time() - t0,
+    }
 
 
 def _jobs(args, candidates: list[str]) -> list[dict]:
@@ -73,8 +87,10 @@ def _jobs(args, candidates: list[str]) -> list[dict]:
     if args.effects is not None:
         unknown = sorted(set(args.effects) - set(truths))
         if unknown:
-            raise SystemExit(f"--effects names {', '.join(unknown)}, not allowed: must be among "
-                             f"{', '.join(truths)}")
+            raise SystemExit(
+                f"--effects names {', '.join(unknown)}, not allowed: must be among "
+                f"{', '.join(truths)}"
+            )
         truths = [e for e in truths if e in args.effects]
     jobs = []
     common = {"duration_s": args.duration, "candidates": candidates, "workdir": str(args.out)}
@@ -82,16 +98,32 @@ def _jobs(args, candidates: list[str]) -> list[dict]:
         for suffix, rig in EXTRA_SETUPS.get(effect, [("", {})]):
             label = f"{effect} ({suffix})" if suffix else effect
             for seed in args.seeds:
-                jobs.append({"effect": effect, "label": label, "rig": rig, "strength": 1.0,
-                             "seed": seed, **common})
+                jobs.append(
+                    {
+                        "effect": effect,
+                        "label": label,
+                        "rig": rig,
+                        "strength": 1.0,
+                        "seed": seed,
+                        **common,
+                    }
+                )
     for effect in [e for e in args.strength_effects if e in truths]:
         suffix, rig = EXTRA_SETUPS.get(effect, [("", {})])[-1]
         label = f"{effect} ({suffix})" if suffix else effect
         for s in args.strengths:
             if s != 1.0:
                 for seed in args.seeds:
-                    jobs.append({"effect": effect, "label": label, "rig": rig, "strength": s,
-                                 "seed": seed, **common})
+                    jobs.append(
+                        {
+                            "effect": effect,
+                            "label": label,
+                            "rig": rig,
+                            "strength": s,
+                            "seed": seed,
+                            **common,
+                        }
+                    )
     return jobs
 
 
@@ -108,62 +140,91 @@ def summarise(results: list[dict], candidates: list[str]) -> dict:
         if r["effect"] in candidates:
             d = detection.setdefault(r["label"], {})
             d.setdefault(f"{r['strength']:g}", []).append(r["winner"] == r["effect"])
-    detection_rate = {e: {s: sum(v) / len(v) for s, v in sorted(d.items(), key=lambda x: float(x[0]))}
-                      for e, d in detection.items()}
-    detection_count = {e: {s: [sum(v), len(v)] for s, v in d.items()}
-                       for e, d in detection.items()}
+    detection_rate = {
+        e: {s: sum(v) / len(v) for s, v in sorted(d.items(), key=lambda x: float(x[0]))}
+        for e, d in detection.items()
+    }
+    detection_count = {e: {s: [sum(v), len(v)] for s, v in d.items()} for e, d in detection.items()}
     with_selection = [r for r in results if r["winner"]]
     false = [r for r in with_selection if r["winner"] != r["effect"]]
     # the right answer for an effect no candidate models is "none"
-    correct_at_one = [r for r in at_one if (r["winner"] or "none") ==
-                      ("none" if r["effect"] in OUT_OF_CATALOG else r["effect"])]
-    return {"confusion": confusion, "detection_rate": detection_rate,
-            "detection_count": detection_count,
-            "false_discovery_rate": len(false) / len(with_selection) if with_selection else 0.0,
-            "n_with_selection": len(with_selection), "n_false": len(false),
-            "accuracy_at_strength_1": len(correct_at_one) / len(at_one) if at_one else 0.0,
-            "n_at_strength_1": len(at_one)}
+    correct_at_one = [
+        r
+        for r in at_one
+        if (r["winner"] or "none") == ("none" if r["effect"] in OUT_OF_CATALOG else r["effect"])
+    ]
+    return {
+        "confusion": confusion,
+        "detection_rate": detection_rate,
+        "detection_count": detection_count,
+        "false_discovery_rate": len(false) / len(with_selection) if with_selection else 0.0,
+        "n_with_selection": len(with_selection),
+        "n_false": len(false),
+        "accuracy_at_strength_1": len(correct_at_one) / len(at_one) if at_one else 0.0,
+        "n_at_strength_1": len(at_one),
+    }
 
 
 def markdown(summary: dict, results: list[dict], args, elapsed_s: float) -> str:
-    lines = [BEGIN, "",
-             f"Generated by `python -m pneumatic_env.studies.identification_eval "
-             f"--duration {args.duration:g} --seeds {','.join(map(str, args.seeds))} "
-             f"--strengths {','.join(f'{s:g}' for s in args.strengths)} "
-             f"--strength-effects {','.join(args.strength_effects)}"
-             + (f" --effects {','.join(args.effects)}" if args.effects else "") + "` "
-             f"({len(results)} synthetic recordings of {args.duration:g} s, "
-             f"{elapsed_s / 60:.1f} min with {args.jobs} processes). All data are synthetic "
-             "(virtual rig).", "",
-             f"- Correct first choice at strength 1 (the rig's effect; `none` for `none` and "
-             f"for {', '.join(OUT_OF_CATALOG)}, which no candidate models): "
-             f"{summary['accuracy_at_strength_1'] * summary['n_at_strength_1']:.0f} of "
-             f"{summary['n_at_strength_1']}.",
-             f"- False-discovery rate (a selected effect that is not the truth, over all "
-             f"diagnoses that selected one): {summary['n_false']} of "
-             f"{summary['n_with_selection']} = {summary['false_discovery_rate']:.2f}.", "",
-             "Confusion matrix (rows: effect in the rig at strength 1; columns: first effect "
-             "selected; `none` = nothing accepted):", ""]
+    lines = [
+        BEGIN,
+        "",
+        f"Generated by `python -m pneumatic_env.studies.identification_eval "
+        f"--duration {args.duration:g} --seeds {','.join(map(str, args.seeds))} "
+        f"--strengths {','.join(f'{s:g}' for s in args.strengths)} "
+        f"--strength-effects {','.join(args.strength_effects)}"
+        + (f" --effects {','.join(args.effects)}" if args.effects else "")
+        + "` "
+        f"({len(results)} synthetic recordings of {args.duration:g} s, "
+        f"{elapsed_s / 60:.1f} min with {args.jobs} processes). All data are synthetic "
+        "(virtual rig).",
+        "",
+        f"- Correct first choice at strength 1 (the rig's effect; `none` for `none` and "
+        f"for {', '.join(OUT_OF_CATALOG)}, which no candidate models): "
+        f"{summary['accuracy_at_strength_1'] * summary['n_at_strength_1']:.0f} of "
+        f"{summary['n_at_strength_1']}.",
+        f"- False-discovery rate (a selected effect that is not the truth, over all "
+        f"diagnoses that selected one): {summary['n_false']} of "
+        f"{summary['n_with_selection']} = {summary['false_discovery_rate']:.2f}.",
+        "",
+        "Confusion matrix (rows: effect in the rig at strength 1; columns: first effect "
+        "selected; `none` = nothing accepted):",
+        "",
+    ]
     cols = sorted({c for row in summary["confusion"].values() for c in row} | {"none"})
     lines.append("| rig effect | " + " | ".join(cols) + " |")
     lines.append("|---" * (len(cols) + 1) + "|")
     for truth, row in summary["confusion"].items():
         lines.append(f"| {truth} | " + " | ".join(str(row.get(c, "")) for c in cols) + " |")
     strengths = sorted({k for d in summary["detection_rate"].values() for k in d}, key=float)
-    lines += ["", "Detection (first choice = the rig's effect; detected / recordings, over the "
-              "noise seeds) vs strength (1 = the realistic value of "
-              "`configs/identification.yaml`):", "",
-              "| effect | " + " | ".join(strengths) + " |", "|---" * (len(strengths) + 1) + "|"]
+    lines += [
+        "",
+        "Detection (first choice = the rig's effect; detected / recordings, over the "
+        "noise seeds) vs strength (1 = the realistic value of "
+        "`configs/identification.yaml`):",
+        "",
+        "| effect | " + " | ".join(strengths) + " |",
+        "|---" * (len(strengths) + 1) + "|",
+    ]
     for effect, counts in summary["detection_count"].items():
-        lines.append(f"| {effect} | " + " | ".join(
-            f"{counts[s][0]}/{counts[s][1]}" if s in counts else "" for s in strengths) + " |")
-    lines += ["", "Per recording (held-out mean NRMSE before -> after; runner-up):", "",
-              "| rig effect | strength | seed | selected | runner-up | NRMSE before | after |",
-              "|---|---|---|---|---|---|---|"]
+        lines.append(
+            f"| {effect} | "
+            + " | ".join(f"{counts[s][0]}/{counts[s][1]}" if s in counts else "" for s in strengths)
+            + " |"
+        )
+    lines += [
+        "",
+        "Per recording (held-out mean NRMSE before -> after; runner-up):",
+        "",
+        "| rig effect | strength | seed | selected | runner-up | NRMSE before | after |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in sorted(results, key=lambda r: (r["label"], r["strength"], r["seed"])):
-        lines.append(f"| {r['label']} | {r['strength']:g} | {r['seed']} | "
-                     f"{', '.join(r['selected']) or 'none'} | {r['runner_up'] or '-'} | "
-                     f"{r['baseline_nrmse_mean']:.4f} | {r['after_nrmse_mean']:.4f} |")
+        lines.append(
+            f"| {r['label']} | {r['strength']:g} | {r['seed']} | "
+            f"{', '.join(r['selected']) or 'none'} | {r['runner_up'] or '-'} | "
+            f"{r['baseline_nrmse_mean']:.4f} | {r['after_nrmse_mean']:.4f} |"
+        )
     lines += ["", END]
     return "\n".join(lines)
 
@@ -186,41 +247,69 @@ def _floats(text: str) -> list[float]:
 def main(argv: list[str] | None = None) -> int:
     from pneumatic_env.identification.candidates import available_candidates
 
-    p = argparse.ArgumentParser(prog="python -m pneumatic_env.studies.identification_eval",
-                                description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(
+        prog="python -m pneumatic_env.studies.identification_eval",
+        description=__doc__.splitlines()[0],
+    )
     p.add_argument("--out", type=Path, default=Path("runs/identification-eval"))
     p.add_argument("--duration", type=float, default=1.5, help="recording length in s")
     p.add_argument("--seeds", type=lambda s: [int(x) for x in s.split(",")], default=[1])
     p.add_argument("--strengths", type=_floats, default=[0.25, 0.5, 1.0, 2.0])
-    p.add_argument("--strength-effects", type=lambda s: s.split(","),
-                   default=["leakage", "pressure_sensor_lag", "coil_lag"])
+    p.add_argument(
+        "--strength-effects",
+        type=lambda s: s.split(","),
+        default=["leakage", "pressure_sensor_lag", "coil_lag"],
+    )
     p.add_argument("--candidates", default=None, help="comma-separated (default: all available)")
-    p.add_argument("--effects", type=lambda s: s.split(","), default=None,
-                   help="comma-separated rig effects to record, 'none' included (default: "
-                        "none, every effect among the candidates and the out-of-catalog ones)")
+    p.add_argument(
+        "--effects",
+        type=lambda s: s.split(","),
+        default=None,
+        help="comma-separated rig effects to record, 'none' included (default: "
+        "none, every effect among the candidates and the out-of-catalog ones)",
+    )
     p.add_argument("--jobs", type=int, default=2)
-    p.add_argument("--docs", type=Path, default=None,
-                   help="Markdown file whose evaluate block is replaced by the results")
+    p.add_argument(
+        "--docs",
+        type=Path,
+        default=None,
+        help="Markdown file whose evaluate block is replaced by the results",
+    )
     args = p.parse_args(argv)
     names = args.candidates.split(",") if args.candidates else None
     candidates = [c.name for c in available_candidates(names)]
     args.out.mkdir(parents=True, exist_ok=True)
     jobs = _jobs(args, candidates)
-    print(f"evaluate: {len(jobs)} recordings, {len(candidates)} candidates, {args.jobs} processes",
-          flush=True)
+    print(
+        f"evaluate: {len(jobs)} recordings, {len(candidates)} candidates, {args.jobs} processes",
+        flush=True,
+    )
     t0 = time.time()
     results = []
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
         for r in pool.map(evaluate_one, jobs):
             results.append(r)
-            print(f"  {r['label']:28s} s={r['strength']:<5g} seed={r['seed']}: "
-                  f"{', '.join(r['selected']) or 'none':24s} ({r['seconds']:.0f} s, "
-                  f"{time.time() - t0:.0f} s total)", flush=True)
+            print(
+                f"  {r['label']:28s} s={r['strength']:<5g} seed={r['seed']}: "
+                f"{', '.join(r['selected']) or 'none':24s} ({r['seconds']:.0f} s, "
+                f"{time.time() - t0:.0f} s total)",
+                flush=True,
+            )
     elapsed = time.time() - t0
     summary = summarise(results, candidates)
-    (args.out / "evaluation.json").write_text(json.dumps(
-        {"summary": summary, "results": results, "candidates": candidates,
-         "elapsed_s": elapsed}, indent=2) + "\n", encoding="utf-8")
+    (args.out / "evaluation.json").write_text(
+        json.dumps(
+            {
+                "summary": summary,
+                "results": results,
+                "candidates": candidates,
+                "elapsed_s": elapsed,
+            },
+            indent=2,
+        )
+        + "\n",
+        encoding="utf-8",
+    )
     block = markdown(summary, results, args, elapsed)
     print(block)
     if args.docs is not None:

@@ -15,6 +15,7 @@ as a choice; every model parameter comes from ``configs/`` through ``load_parame
 All results are simulated: nothing here is measured data. The figures are drawn by
 :mod:`pneumatic_env.studies.paper_figures` (the ``plots`` extra).
 """
+
 from __future__ import annotations
 
 import json
@@ -39,10 +40,24 @@ from pneumatic_env.physics.valve import orifice_area, steady_spool_position
 from pneumatic_env.replay import simulate_currents
 
 __all__ = [
-    "CYLINDERS", "STEP_CURRENT_A", "STEP_TUBES_M", "COUPLINGS", "SINE_AMPLITUDE_A",
-    "SINE_FREQUENCY_HZ", "Scenario", "clamped_step_scenario", "free_sine_scenario",
-    "run_scenario", "valve_flow_vs_current", "valve_flow_vs_downstream", "valve_numbers",
-    "clamped_step_runs", "step_metrics", "free_sine_runs", "tube_response", "reproduce",
+    "CYLINDERS",
+    "STEP_CURRENT_A",
+    "STEP_TUBES_M",
+    "COUPLINGS",
+    "SINE_AMPLITUDE_A",
+    "SINE_FREQUENCY_HZ",
+    "Scenario",
+    "clamped_step_scenario",
+    "free_sine_scenario",
+    "run_scenario",
+    "valve_flow_vs_current",
+    "valve_flow_vs_downstream",
+    "valve_numbers",
+    "clamped_step_runs",
+    "step_metrics",
+    "free_sine_runs",
+    "tube_response",
+    "reproduce",
 ]
 
 CYLINDERS = (CYLINDER_IDS["Numatics"], CYLINDER_IDS["Airpel"])  # the paper's two
@@ -87,6 +102,7 @@ DOWNSTREAM_CURRENTS_A = (0.3, 0.5, 0.8, 1.5)
 
 # --------------------------------------------------------------------------- scenarios
 
+
 @dataclass(frozen=True, eq=False)
 class Scenario:
     """One open-loop experiment: the rig (cylinder + parameter settings), the coil current
@@ -113,50 +129,80 @@ class Scenario:
 
 def _steps(duration_s: float, control_dt_s: float) -> int:
     if not (duration_s > 0 and control_dt_s > 0):
-        raise ValueError(f"duration_s = {duration_s} and control_dt_s = {control_dt_s} "
-                         "must both be > 0")
+        raise ValueError(
+            f"duration_s = {duration_s} and control_dt_s = {control_dt_s} must both be > 0"
+        )
     return max(1, int(round(duration_s / control_dt_s)))
 
 
-def clamped_step_scenario(tube_length_m: float, coupling: str = "command",
-                          duration_s: float = STEP_DURATION_S,
-                          control_dt_s: float = STEP_SAMPLE_S,
-                          cylinder: str = DEFAULT_CYLINDER) -> Scenario:
+def clamped_step_scenario(
+    tube_length_m: float,
+    coupling: str = "command",
+    duration_s: float = STEP_DURATION_S,
+    control_dt_s: float = STEP_SAMPLE_S,
+    cylinder: str = DEFAULT_CYLINDER,
+) -> Scenario:
     """(b): rod clamped at mid-stroke, coil current stepped to 0.5 A at t = 0 (Figs. 15-16)."""
-    settings = dict(tube_length_m=tube_length_m, tube_coupling=coupling, piston_mode="fixed",
-                    fixed_position_m=0.0)
+    settings = dict(
+        tube_length_m=tube_length_m,
+        tube_coupling=coupling,
+        piston_mode="fixed",
+        fixed_position_m=0.0,
+    )
     n = _steps(duration_s, control_dt_s)
-    return Scenario(f"(b) step, {tube_length_m:g} m tube, {coupling} coupling", cylinder,
-                    settings, np.full(n, STEP_CURRENT_A), control_dt_s)
+    return Scenario(
+        f"(b) step, {tube_length_m:g} m tube, {coupling} coupling",
+        cylinder,
+        settings,
+        np.full(n, STEP_CURRENT_A),
+        control_dt_s,
+    )
 
 
-def free_sine_scenario(cylinder: str, duration_s: float = SINE_DURATION_S,
-                       control_dt_s: float = SINE_CONTROL_DT_S,
-                       amplitude_a: float = SINE_AMPLITUDE_A,
-                       tube_length_m: float | None = SINE_TUBE_M) -> Scenario:
+def free_sine_scenario(
+    cylinder: str,
+    duration_s: float = SINE_DURATION_S,
+    control_dt_s: float = SINE_CONTROL_DT_S,
+    amplitude_a: float = SINE_AMPLITUDE_A,
+    tube_length_m: float | None = SINE_TUBE_M,
+) -> Scenario:
     """(c): rod free, no load, i_c = A sin(2 pi 5 Hz t) held per period (Figs. 17-18)."""
     settings = dict(piston_mode="free", load_mass_kg=0.0, load_force_n=0.0)
     if tube_length_m is not None:
         settings["tube_length_m"] = tube_length_m
     n = _steps(duration_s, control_dt_s)
     t = control_dt_s * np.arange(n)
-    return Scenario(f"(c) sine, {cylinder}", cylinder, settings,
-                    amplitude_a * np.sin(2.0 * np.pi * SINE_FREQUENCY_HZ * t), control_dt_s)
+    return Scenario(
+        f"(c) sine, {cylinder}",
+        cylinder,
+        settings,
+        amplitude_a * np.sin(2.0 * np.pi * SINE_FREQUENCY_HZ * t),
+        control_dt_s,
+    )
 
 
 def run_scenario(scenario: Scenario, substeps: int | None = None, **overrides) -> dict:
     """Simulate a scenario (rows at t_k, row 0 the initial state); ``overrides`` change
     parameters."""
-    return simulate_currents(scenario.parameters(**overrides), scenario.coil_current_a,
-                             scenario.control_dt_s, substeps=substeps)
+    return simulate_currents(
+        scenario.parameters(**overrides),
+        scenario.coil_current_a,
+        scenario.control_dt_s,
+        substeps=substeps,
+    )
 
 
 # --------------------------------------------------------------------------- (a) valve
 
+
 def _flow_args(p: dict) -> tuple:
     """Constant arguments of ``orifice_mass_flow`` after the pressures (Eqs. 40, 52)."""
-    return orifice_gas_constants(p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"],
-                                 p["temperature_k"], p["flow_linear_ratio"])
+    return orifice_gas_constants(
+        p["heat_capacity_ratio"],
+        p["gas_constant_j_per_kg_k"],
+        p["temperature_k"],
+        p["flow_linear_ratio"],
+    )
 
 
 def _area(p: dict, spool_m: float) -> float:
@@ -167,8 +213,9 @@ def _spool(p: dict, current_a: float) -> float:
     return steady_spool_position(current_a, p["spool_spring_n_per_m"], p["coil_force_n_per_a"])
 
 
-def valve_flow_vs_current(params: dict, currents_a=VALVE_CURRENTS_A,
-                          chamber_pa: float | None = None) -> dict:
+def valve_flow_vs_current(
+    params: dict, currents_a=VALVE_CURRENTS_A, chamber_pa: float | None = None
+) -> dict:
     """Steady valve flow from supply into a chamber held at ``chamber_pa`` (default ambient).
 
     The spool sits at its steady position (Eq. 46); path A (supply -> chamber 1) opens with
@@ -184,10 +231,16 @@ def valve_flow_vs_current(params: dict, currents_a=VALVE_CURRENTS_A,
     one, two = [], []
     for i in currents:
         x_s = _spool(p, i)
-        one.append(orifice_mass_flow(_area(p, x_s), p["discharge_coefficient"],
-                                     p["supply_pressure_pa"], chamber, *args))
-        two.append(orifice_mass_flow(_area(p, -x_s), p["discharge_coefficient"],
-                                     p["supply_pressure_pa"], chamber, *args))
+        one.append(
+            orifice_mass_flow(
+                _area(p, x_s), p["discharge_coefficient"], p["supply_pressure_pa"], chamber, *args
+            )
+        )
+        two.append(
+            orifice_mass_flow(
+                _area(p, -x_s), p["discharge_coefficient"], p["supply_pressure_pa"], chamber, *args
+            )
+        )
     return {"current_a": currents, "chamber1_kg_s": np.array(one), "chamber2_kg_s": np.array(two)}
 
 
@@ -196,8 +249,14 @@ def valve_flow_vs_downstream(params: dict, current_a: float, downstream_pa) -> n
     p = params
     area = _area(p, _spool(p, current_a))
     args = _flow_args(p)
-    return np.array([orifice_mass_flow(area, p["discharge_coefficient"], p["supply_pressure_pa"],
-                                       float(pd), *args) for pd in np.asarray(downstream_pa)])
+    return np.array(
+        [
+            orifice_mass_flow(
+                area, p["discharge_coefficient"], p["supply_pressure_pa"], float(pd), *args
+            )
+            for pd in np.asarray(downstream_pa)
+        ]
+    )
 
 
 def valve_numbers(params: dict) -> dict:
@@ -213,18 +272,29 @@ def valve_numbers(params: dict) -> dict:
         "full_open_area_formula_m2": full_area,
         "full_open_current_a": full_current,
         "choked_flow_full_open_kg_s": orifice_mass_flow(
-            full_area, p["discharge_coefficient"], p["supply_pressure_pa"],
-            p["ambient_pressure_pa"], *_flow_args(p)),
+            full_area,
+            p["discharge_coefficient"],
+            p["supply_pressure_pa"],
+            p["ambient_pressure_pa"],
+            *_flow_args(p),
+        ),
     }
 
 
 # --------------------------------------------------------------------------- (b) clamped step
 
-def clamped_step_runs(duration_s: float = STEP_DURATION_S, control_dt_s: float = STEP_SAMPLE_S,
-                      substeps: int | None = None) -> dict:
+
+def clamped_step_runs(
+    duration_s: float = STEP_DURATION_S,
+    control_dt_s: float = STEP_SAMPLE_S,
+    substeps: int | None = None,
+) -> dict:
     """(b) for both tubes and both couplings: ``{(coupling, tube_m): run}``."""
-    return {(c, L): run_scenario(clamped_step_scenario(L, c, duration_s, control_dt_s), substeps)
-            for c in COUPLINGS for L in STEP_TUBES_M}
+    return {
+        (c, L): run_scenario(clamped_step_scenario(L, c, duration_s, control_dt_s), substeps)
+        for c in COUPLINGS
+        for L in STEP_TUBES_M
+    }
 
 
 def first_rise_s(run: dict, params: dict) -> float:
@@ -232,8 +302,9 @@ def first_rise_s(run: dict, params: dict) -> float:
 
     Linear interpolation between samples. NaN if it never does.
     """
-    threshold = run["p1"][0] + RISE_FRACTION * (params["supply_pressure_pa"]
-                                                - params["ambient_pressure_pa"])
+    threshold = run["p1"][0] + RISE_FRACTION * (
+        params["supply_pressure_pa"] - params["ambient_pressure_pa"]
+    )
     return _crossing(run["t"], run["p1"], threshold)
 
 
@@ -275,7 +346,8 @@ def step_metrics(runs: dict) -> dict:
             "final_force_time_ratio": final[long_] / final[short],
             "steady_force_n": steady_force_n(params[short]),
             "p1_oscillation_amplitude_pa": {
-                str(L): _half_range_at_end(runs[(coupling, L)], "p1") for L in STEP_TUBES_M},
+                str(L): _half_range_at_end(runs[(coupling, L)], "p1") for L in STEP_TUBES_M
+            },
             "spool_position_at_end_m": runs[(coupling, short)]["x_s"][-1],
         }
     return out
@@ -291,11 +363,13 @@ def _sound_speed(p: dict) -> float:
 
 
 def _tube_delay_s(length_m: float, p: dict) -> float:
-    return tube_delay_s(length_m, p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"],
-                        p["temperature_k"])
+    return tube_delay_s(
+        length_m, p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"], p["temperature_k"]
+    )
 
 
 # --------------------------------------------------------------------------- (c) free sine
+
 
 def free_sine_runs(duration_s: float = SINE_DURATION_S, substeps: int | None = None) -> dict:
     """(c) for both cylinders: ``{cylinder: run}`` (the run also holds ``i_c``)."""
@@ -310,6 +384,7 @@ def free_sine_runs(duration_s: float = SINE_DURATION_S, substeps: int | None = N
 
 # --------------------------------------------------------------------------- (d) tube
 
+
 @njit(cache=True)
 def _resistance(mass_flow, diameter_m, viscosity, reynolds_turbulent):
     """R_t (Eq. 33 or 35) of each flow value, by its Reynolds number."""
@@ -320,10 +395,15 @@ def _resistance(mass_flow, diameter_m, viscosity, reynolds_turbulent):
     return out
 
 
-def tube_response(params: dict | None = None, duration_s: float = TUBE_DURATION_S,
-                  length_m: float = TUBE_LENGTH_M, amplitude_kg_s: float = TUBE_FLOW_AMPLITUDE_KG_S,
-                  frequency_hz: float = TUBE_FLOW_FREQUENCY_HZ,
-                  mean_pressure_pa: float = TUBE_MEAN_PRESSURE_PA, cells: int = TUBE_CELLS) -> dict:
+def tube_response(
+    params: dict | None = None,
+    duration_s: float = TUBE_DURATION_S,
+    length_m: float = TUBE_LENGTH_M,
+    amplitude_kg_s: float = TUBE_FLOW_AMPLITUDE_KG_S,
+    frequency_hz: float = TUBE_FLOW_FREQUENCY_HZ,
+    mean_pressure_pa: float = TUBE_MEAN_PRESSURE_PA,
+    cells: int = TUBE_CELLS,
+) -> dict:
     """(d) Outlet flow of a tube for a sinusoidal inlet flow h(t) = A sin(2 pi f t).
 
     ``outlet_eq31``: Eq. 31, h(t - tau) phi with phi of Eq. 30 at ``mean_pressure_pa`` and
@@ -367,23 +447,30 @@ def tube_response(params: dict | None = None, duration_s: float = TUBE_DURATION_
         b1[-1] = 0.0
         a1[0] = 2.0 * h_new - b1[0]
         s1 = source(a1, b1)
-        a[1:], b[:-1] = (a[:-1] + 0.5 * dt * (s0[:-1] + s1[1:]),
-                         b[1:] + 0.5 * dt * (s0[1:] + s1[:-1]))
+        a[1:], b[:-1] = (
+            a[:-1] + 0.5 * dt * (s0[:-1] + s1[1:]),
+            b[1:] + 0.5 * dt * (s0[1:] + s1[:-1]),
+        )
         b[-1] = 0.0
         a[0] = 2.0 * h_new - b[0]
         outlet[n + 1] = 0.5 * (a[-1] + b[-1])
 
     delayed = inlet(t - tau)
-    phi = np.array([tube_attenuation(m, mean_pressure_pa, gas_rt, tau, diameter, mu, re_t)
-                    for m in delayed])
+    phi = np.array(
+        [tube_attenuation(m, mean_pressure_pa, gas_rt, tau, diameter, mu, re_t) for m in delayed]
+    )
     phi_laminar = tube_attenuation(0.0, mean_pressure_pa, gas_rt, tau, diameter, mu, re_t)
     steady = t >= 2.0 * tau + 1.0 / frequency_hz  # after the first wave and one period
     return {
-        "t": t, "inlet_kg_s": inlet(t), "outlet_eq31_kg_s": phi * delayed,
+        "t": t,
+        "inlet_kg_s": inlet(t),
+        "outlet_eq31_kg_s": phi * delayed,
         "outlet_eq31_laminar_kg_s": phi_laminar * delayed,
-        "outlet_wave_kg_s": outlet, "delay_s": tau,
-        "phi_at_peak_flow": tube_attenuation(amplitude_kg_s, mean_pressure_pa, gas_rt, tau,
-                                             diameter, mu, re_t),
+        "outlet_wave_kg_s": outlet,
+        "delay_s": tau,
+        "phi_at_peak_flow": tube_attenuation(
+            amplitude_kg_s, mean_pressure_pa, gas_rt, tau, diameter, mu, re_t
+        ),
         "phi_laminar": phi_laminar,
         "amplitude_ratio_eq31": float(np.abs(phi * delayed)[steady].max() / amplitude_kg_s),
         "amplitude_ratio_wave": float(np.abs(outlet)[steady].max() / amplitude_kg_s),
@@ -393,47 +480,90 @@ def tube_response(params: dict | None = None, duration_s: float = TUBE_DURATION_
 
 # --------------------------------------------------------------------------- table
 
+
 def _table_rows(table: dict) -> list[tuple[str, str, str, str]]:
     """(quantity, value, unit, paper / expected) rows of table.md."""
     v, s, t = table["valve"], table["step"], table["tube"]
     cmd, lit = s["command"], s["literal"]
     rows = [
-        ("steady spool displacement at 0.5 A (Eq. 46)",
-         f"{1e3 * v['spool_displacement_at_step_m']:.4f}", "mm", "K_fc 0.5 / (2 k_s)"),
-        ("simulated spool position at the end of the 0.5 A step",
-         f"{1e3 * cmd['spool_position_at_end_m']:.4f}", "mm", "same"),
+        (
+            "steady spool displacement at 0.5 A (Eq. 46)",
+            f"{1e3 * v['spool_displacement_at_step_m']:.4f}",
+            "mm",
+            "K_fc 0.5 / (2 k_s)",
+        ),
+        (
+            "simulated spool position at the end of the 0.5 A step",
+            f"{1e3 * cmd['spool_position_at_end_m']:.4f}",
+            "mm",
+            "same",
+        ),
         ("current that opens the valve fully", f"{v['full_open_current_a']:.3f}", "A", ""),
-        ("full-open area per path (Eq. 44)", f"{1e6 * v['full_open_area_m2']:.3f}", "mm^2",
-         "pi n_h R_h^2"),
-        ("choked flow, fully open, supply -> ambient (Eq. 39)",
-         f"{1e3 * v['choked_flow_full_open_kg_s']:.3f}", "g/s", ""),
+        (
+            "full-open area per path (Eq. 44)",
+            f"{1e6 * v['full_open_area_m2']:.3f}",
+            "mm^2",
+            "pi n_h R_h^2",
+        ),
+        (
+            "choked flow, fully open, supply -> ambient (Eq. 39)",
+            f"{1e3 * v['choked_flow_full_open_kg_s']:.3f}",
+            "g/s",
+            "",
+        ),
     ]
     for name, m in (("command", cmd), ("literal", lit)):
         rise = m["first_rise_s"]
         final = m["time_to_final_force_s"]
         rows += [
-            (f"[{name}] first p1 rise, 0.5 m / 2 m tube",
-             f"{1e3 * rise['0.5']:.2f} / {1e3 * rise['2.0']:.2f}", "ms", ""),
-            (f"[{name}] extra delay of the 2 m tube", f"{1e3 * m['extra_delay_s']:.2f}", "ms",
-             f"1.5 m / c = {1e3 * m['expected_extra_delay_s']:.2f} ms (paper: about 5 ms)"),
-            (f"[{name}] time to {100 * FINAL_FRACTION:g}% of the final force, 0.5 m / 2 m",
-             f"{1e3 * final['0.5']:.1f} / {1e3 * final['2.0']:.1f}", "ms", ""),
-            (f"[{name}] ratio 2 m / 0.5 m of that time", f"{m['final_force_time_ratio']:.2f}",
-             "-", "more than 2"),
-            (f"[{name}] p1 half peak-to-peak over the last {1e3 * OSCILLATION_WINDOW_S:g} ms, "
-             "0.5 m / 2 m",
-             f"{1e-3 * m['p1_oscillation_amplitude_pa']['0.5']:.2f} / "
-             f"{1e-3 * m['p1_oscillation_amplitude_pa']['2.0']:.2f}", "kPa",
-             "0 (command); oscillation near supply (literal)"),
+            (
+                f"[{name}] first p1 rise, 0.5 m / 2 m tube",
+                f"{1e3 * rise['0.5']:.2f} / {1e3 * rise['2.0']:.2f}",
+                "ms",
+                "",
+            ),
+            (
+                f"[{name}] extra delay of the 2 m tube",
+                f"{1e3 * m['extra_delay_s']:.2f}",
+                "ms",
+                f"1.5 m / c = {1e3 * m['expected_extra_delay_s']:.2f} ms (paper: about 5 ms)",
+            ),
+            (
+                f"[{name}] time to {100 * FINAL_FRACTION:g}% of the final force, 0.5 m / 2 m",
+                f"{1e3 * final['0.5']:.1f} / {1e3 * final['2.0']:.1f}",
+                "ms",
+                "",
+            ),
+            (
+                f"[{name}] ratio 2 m / 0.5 m of that time",
+                f"{m['final_force_time_ratio']:.2f}",
+                "-",
+                "more than 2",
+            ),
+            (
+                f"[{name}] p1 half peak-to-peak over the last {1e3 * OSCILLATION_WINDOW_S:g} ms, "
+                "0.5 m / 2 m",
+                f"{1e-3 * m['p1_oscillation_amplitude_pa']['0.5']:.2f} / "
+                f"{1e-3 * m['p1_oscillation_amplitude_pa']['2.0']:.2f}",
+                "kPa",
+                "0 (command); oscillation near supply (literal)",
+            ),
         ]
     rows += [
         ("tube 3 m: delay L / c", f"{1e3 * t['delay_s']:.2f}", "ms", ""),
-        (f"tube 3 m: phi at {1e3 * TUBE_FLOW_AMPLITUDE_KG_S:g} g/s (turbulent) / laminar, "
-         f"P = {1e-5 * t['mean_pressure_pa']:g} bar",
-         f"{t['phi_at_peak_flow']:.3f} / {t['phi_laminar']:.3f}", "-", ""),
-        ("tube 3 m: outlet / inlet amplitude, Eq. 31 / Eqs. 19-20",
-         f"{t['amplitude_ratio_eq31']:.3f} / {t['amplitude_ratio_wave']:.3f}", "-",
-         "attenuated"),
+        (
+            f"tube 3 m: phi at {1e3 * TUBE_FLOW_AMPLITUDE_KG_S:g} g/s (turbulent) / laminar, "
+            f"P = {1e-5 * t['mean_pressure_pa']:g} bar",
+            f"{t['phi_at_peak_flow']:.3f} / {t['phi_laminar']:.3f}",
+            "-",
+            "",
+        ),
+        (
+            "tube 3 m: outlet / inlet amplitude, Eq. 31 / Eqs. 19-20",
+            f"{t['amplitude_ratio_eq31']:.3f} / {t['amplitude_ratio_wave']:.3f}",
+            "-",
+            "attenuated",
+        ),
     ]
     return rows
 
@@ -462,18 +592,24 @@ def reproduce(out_dir: str | Path, quick: bool = False, figures: bool = True) ->
         "valve": valve_numbers(params),
         "step": step_metrics(step_runs),
         "tube": {k: v for k, v in tube.items() if not isinstance(v, np.ndarray)},
-        "sine": {c: {"x_min_m": float(r["x"].min()), "x_max_m": float(r["x"].max())}
-                 for c, r in sine_runs.items()},
+        "sine": {
+            c: {"x_min_m": float(r["x"].min()), "x_max_m": float(r["x"].max())}
+            for c, r in sine_runs.items()
+        },
         "settings": {
-            "step_current_a": STEP_CURRENT_A, "sine_amplitude_a": SINE_AMPLITUDE_A,
-            "sine_frequency_hz": SINE_FREQUENCY_HZ, "rise_fraction": RISE_FRACTION,
-            "final_fraction": FINAL_FRACTION, "tube_mean_pressure_pa": TUBE_MEAN_PRESSURE_PA,
+            "step_current_a": STEP_CURRENT_A,
+            "sine_amplitude_a": SINE_AMPLITUDE_A,
+            "sine_frequency_hz": SINE_FREQUENCY_HZ,
+            "rise_fraction": RISE_FRACTION,
+            "final_fraction": FINAL_FRACTION,
+            "tube_mean_pressure_pa": TUBE_MEAN_PRESSURE_PA,
             "quick": quick,
         },
     }
     files = []
     if figures:
         from .paper_figures import write_figures  # matplotlib: the plots extra
+
         files += write_figures(params, step_runs, sine_runs, tube, out)
     (out / "table.json").write_text(json.dumps(_jsonable(table), indent=2) + "\n")
     lines = ["| quantity | value | unit | paper / expected |", "|---|---|---|---|"]
@@ -486,17 +622,27 @@ def reproduce(out_dir: str | Path, quick: bool = False, figures: bool = True) ->
 
 # --------------------------------------------------------------------------- CLI
 
+
 def add_arguments(p) -> None:
-    p.add_argument("--out", metavar="DIR", required=True,
-                   help="directory for the PNG figures and table.md / table.json")
-    p.add_argument("--quick", action="store_true",
-                   help="shorter runs (for tests); the table's numbers stay meaningful")
+    p.add_argument(
+        "--out",
+        metavar="DIR",
+        required=True,
+        help="directory for the PNG figures and table.md / table.json",
+    )
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="shorter runs (for tests); the table's numbers stay meaningful",
+    )
 
 
 def run(args) -> int:
     table = reproduce(args.out, quick=args.quick)
     cmd = table["step"]["command"]
-    print(f"wrote {len(table['files'])} files to {args.out}: extra delay 2 m vs 0.5 m "
-          f"{1e3 * cmd['extra_delay_s']:.2f} ms (1.5/c = {1e3 * cmd['expected_extra_delay_s']:.2f}"
-          f" ms), time-to-final-force ratio {cmd['final_force_time_ratio']:.2f}")
+    print(
+        f"wrote {len(table['files'])} files to {args.out}: extra delay 2 m vs 0.5 m "
+        f"{1e3 * cmd['extra_delay_s']:.2f} ms (1.5/c = {1e3 * cmd['expected_extra_delay_s']:.2f}"
+        f" ms), time-to-final-force ratio {cmd['final_force_time_ratio']:.2f}"
+    )
     return 0

@@ -1,5 +1,6 @@
 """The figures of ``pneumatic-env paper`` (needs the ``plots`` extra): one PNG per
 experiment of :mod:`pneumatic_env.studies.paper`, with the paper's figure numbers."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -23,18 +24,25 @@ from .paper import (
 )
 
 
-def write_figures(params: dict, step_runs: dict, sine_runs: dict, tube: dict,
-                  out: Path) -> list[Path]:
+def write_figures(
+    params: dict, step_runs: dict, sine_runs: dict, tube: dict, out: Path
+) -> list[Path]:
     """Write the figures of (a)-(d) to ``out``; the paths written."""
     plt = pyplot()
-    return (figure_valve(plt, params, out) + figure_step(plt, step_runs, out)
-            + figure_sine(plt, sine_runs, out) + figure_tube(plt, tube, out))
+    return (
+        figure_valve(plt, params, out)
+        + figure_step(plt, step_runs, out)
+        + figure_sine(plt, sine_runs, out)
+        + figure_tube(plt, tube, out)
+    )
 
 
 def pyplot():
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     return plt
 
 
@@ -43,12 +51,21 @@ def figure_valve(plt, params, out: Path) -> list[Path]:
     numbers = valve_numbers(params)
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     ax.plot(flows["current_a"], 1e3 * flows["chamber1_kg_s"], label="supply -> chamber 1 (A_in)")
-    ax.plot(flows["current_a"], 1e3 * flows["chamber2_kg_s"], "--",
-            label="supply -> chamber 2 (A_ex)")
-    ax.axhline(1e3 * numbers["choked_flow_full_open_kg_s"], color="k", lw=0.6, ls=":",
-               label="choked flow, fully open")
-    ax.set(xlabel="coil current i_c [A]", ylabel="mass flow [g/s]",
-           title="Valve flow vs coil current, chamber at ambient (cf. Fig. 7)")
+    ax.plot(
+        flows["current_a"], 1e3 * flows["chamber2_kg_s"], "--", label="supply -> chamber 2 (A_ex)"
+    )
+    ax.axhline(
+        1e3 * numbers["choked_flow_full_open_kg_s"],
+        color="k",
+        lw=0.6,
+        ls=":",
+        label="choked flow, fully open",
+    )
+    ax.set(
+        xlabel="coil current i_c [A]",
+        ylabel="mass flow [g/s]",
+        title="Valve flow vs coil current, chamber at ambient (cf. Fig. 7)",
+    )
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     paths = [out / "valve_flow_vs_current.png"]
@@ -59,14 +76,25 @@ def figure_valve(plt, params, out: Path) -> list[Path]:
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     downstream = np.linspace(params["ambient_pressure_pa"], params["supply_pressure_pa"], 400)
     for i in DOWNSTREAM_CURRENTS_A:
-        ax.plot(1e-5 * downstream, 1e3 * valve_flow_vs_downstream(params, i, downstream),
-                label=f"i_c = {i:g} A")
+        ax.plot(
+            1e-5 * downstream,
+            1e3 * valve_flow_vs_downstream(params, i, downstream),
+            label=f"i_c = {i:g} A",
+        )
     p_cr = flow_constants(params["heat_capacity_ratio"], params["gas_constant_j_per_kg_k"])[2]
-    ax.axvline(1e-5 * p_cr * params["supply_pressure_pa"], color="k", lw=0.6, ls=":",
-               label="P_cr P_s (choked below)")
-    ax.set(xlabel="downstream pressure [bar abs]", ylabel="mass flow [g/s]",
-           title=f"Valve flow vs downstream pressure, upstream "
-                 f"{1e-5 * params['supply_pressure_pa']:g} bar (cf. Fig. 9)")
+    ax.axvline(
+        1e-5 * p_cr * params["supply_pressure_pa"],
+        color="k",
+        lw=0.6,
+        ls=":",
+        label="P_cr P_s (choked below)",
+    )
+    ax.set(
+        xlabel="downstream pressure [bar abs]",
+        ylabel="mass flow [g/s]",
+        title=f"Valve flow vs downstream pressure, upstream "
+        f"{1e-5 * params['supply_pressure_pa']:g} bar (cf. Fig. 9)",
+    )
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     paths.append(out / "valve_flow_vs_downstream.png")
@@ -92,8 +120,10 @@ def figure_step(plt, runs, out: Path) -> list[Path]:
         for ax in axes[:, col]:
             ax.grid(alpha=0.3)
             ax.legend(fontsize=7)
-    fig.suptitle("Clamped rod at mid-stroke, 0.5 A coil step (cf. Figs. 15-16); "
-                 "solid: command coupling (default), dashed: literal Eq. 55")
+    fig.suptitle(
+        "Clamped rod at mid-stroke, 0.5 A coil step (cf. Figs. 15-16); "
+        "solid: command coupling (default), dashed: literal Eq. 55"
+    )
     fig.tight_layout()
     path = out / "clamped_step.png"
     fig.savefig(path, dpi=110)
@@ -113,8 +143,10 @@ def figure_sine(plt, runs, out: Path) -> list[Path]:
         twin.set_ylabel("i_c [A]", color="C3")
         ax.legend(loc="upper left", fontsize=8)
     axes[-1].set_xlabel("time [s]")
-    fig.suptitle(f"Free rod, no load, {SINE_AMPLITUDE_A:g} A {SINE_FREQUENCY_HZ:g} Hz "
-                 "sinusoidal coil current (cf. Figs. 17-18)")
+    fig.suptitle(
+        f"Free rod, no load, {SINE_AMPLITUDE_A:g} A {SINE_FREQUENCY_HZ:g} Hz "
+        "sinusoidal coil current (cf. Figs. 17-18)"
+    )
     fig.tight_layout()
     path = out / "free_sine.png"
     fig.savefig(path, dpi=110)
@@ -126,15 +158,32 @@ def figure_tube(plt, tube, out: Path) -> list[Path]:
     fig, ax = plt.subplots(figsize=(8, 4.2))
     t_ms = 1e3 * tube["t"]
     ax.plot(t_ms, 1e3 * tube["inlet_kg_s"], color="k", lw=0.8, label="inlet flow")
-    ax.plot(t_ms, 1e3 * tube["outlet_eq31_kg_s"], color="C0",
-            label="outlet, Eq. 31 (R_t by Reynolds number)")
-    ax.plot(t_ms, 1e3 * tube["outlet_eq31_laminar_kg_s"], ":", color="C0",
-            label="outlet, Eq. 31 with laminar R_t (Eq. 33)")
-    ax.plot(t_ms, 1e3 * tube["outlet_wave_kg_s"], "--", color="C3",
-            label="outlet, Eqs. 19-20 (characteristics, R_t by Reynolds number)")
-    ax.set(xlabel="time [ms]", ylabel="mass flow [g/s]",
-           title=f"{TUBE_LENGTH_M:g} m x 3.2 mm tube, {TUBE_FLOW_FREQUENCY_HZ:g} Hz inlet flow, "
-                 f"P = {1e-5 * tube['mean_pressure_pa']:g} bar (cf. Fig. 3)")
+    ax.plot(
+        t_ms,
+        1e3 * tube["outlet_eq31_kg_s"],
+        color="C0",
+        label="outlet, Eq. 31 (R_t by Reynolds number)",
+    )
+    ax.plot(
+        t_ms,
+        1e3 * tube["outlet_eq31_laminar_kg_s"],
+        ":",
+        color="C0",
+        label="outlet, Eq. 31 with laminar R_t (Eq. 33)",
+    )
+    ax.plot(
+        t_ms,
+        1e3 * tube["outlet_wave_kg_s"],
+        "--",
+        color="C3",
+        label="outlet, Eqs. 19-20 (characteristics, R_t by Reynolds number)",
+    )
+    ax.set(
+        xlabel="time [ms]",
+        ylabel="mass flow [g/s]",
+        title=f"{TUBE_LENGTH_M:g} m x 3.2 mm tube, {TUBE_FLOW_FREQUENCY_HZ:g} Hz inlet flow, "
+        f"P = {1e-5 * tube['mean_pressure_pa']:g} bar (cf. Fig. 3)",
+    )
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)
     fig.tight_layout()
@@ -142,4 +191,3 @@ def figure_tube(plt, tube, out: Path) -> list[Path]:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return [path]
-

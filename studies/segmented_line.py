@@ -19,6 +19,7 @@ equations as ``reference_solution.simulate_segmented_line`` (SciPy, a constant c
 here jitted with fixed RK4 steps and a current that changes every plant step, built on the
 kernel's sub-model functions; ``tests/test_virtual_rig.py`` compares the two.
 """
+
 from __future__ import annotations
 
 import math
@@ -36,23 +37,61 @@ from pneumatic_env.physics.valve import orifice_area, spool_acceleration
 __all__ = ["line_constants", "segmented_line_rollout"]
 
 # rows of the constants vector
-(_M_INV_SPOOL, _C_S, _K_S, _K_F, _R_H, _P_W, _N_H, _C_F, _P_S, _P_A, _INV_SQRT_T, _K, _C1, _C2,
- _P_CR, _LIN, _SLOPE, _RT, _ALPHA_IN, _ALPHA_OUT, _ALPHA_MOTION, _V1, _V2, _A_T, _DX, _D_T,
- _MU, _RE_T, _A_LEAK, _A1, _A2, _A_ROD, _N_CONSTANTS) = range(33)
+(
+    _M_INV_SPOOL,
+    _C_S,
+    _K_S,
+    _K_F,
+    _R_H,
+    _P_W,
+    _N_H,
+    _C_F,
+    _P_S,
+    _P_A,
+    _INV_SQRT_T,
+    _K,
+    _C1,
+    _C2,
+    _P_CR,
+    _LIN,
+    _SLOPE,
+    _RT,
+    _ALPHA_IN,
+    _ALPHA_OUT,
+    _ALPHA_MOTION,
+    _V1,
+    _V2,
+    _A_T,
+    _DX,
+    _D_T,
+    _MU,
+    _RE_T,
+    _A_LEAK,
+    _A1,
+    _A2,
+    _A_ROD,
+    _N_CONSTANTS,
+) = range(33)
 
 
 def line_constants(p: dict, n_segments: int) -> np.ndarray:
     """The constants of :func:`segmented_line_rollout` for the parameters ``p`` (a
     ``load_parameters`` dict with the rod clamped) and ``n_segments`` nodes per tube."""
     if int(p["piston_mode"]) != MODE_FIXED:
-        raise ValueError(f"the segmented line plant models a clamped rod (piston_mode = 0); "
-                         f"got piston_mode = {p['piston_mode']!r}")
-    switched_on = [n for n, neutral in L.EFFECT_NEUTRAL_VALUES.items()
-                   if n not in ("tube_waves", "tube_volume_fraction")
-                   and float(p.get(n, neutral)) != neutral]
+        raise ValueError(
+            f"the segmented line plant models a clamped rod (piston_mode = 0); "
+            f"got piston_mode = {p['piston_mode']!r}"
+        )
+    switched_on = [
+        n
+        for n, neutral in L.EFFECT_NEUTRAL_VALUES.items()
+        if n not in ("tube_waves", "tube_volume_fraction") and float(p.get(n, neutral)) != neutral
+    ]
     if switched_on:
-        raise ValueError(f"the segmented line plant has the paper's valve and chambers only; "
-                         f"effects switched on: {switched_on}")
+        raise ValueError(
+            f"the segmented line plant has the paper's valve and chambers only; "
+            f"effects switched on: {switched_on}"
+        )
     if not (isinstance(n_segments, (int, np.integer)) and n_segments >= 2):
         raise ValueError(f"n_segments = {n_segments!r} is not allowed: must be an integer >= 2")
     k, r_gas, temp = p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"], p["temperature_k"]
@@ -60,15 +99,24 @@ def line_constants(p: dict, n_segments: int) -> np.ndarray:
     lin = p["flow_linear_ratio"]
     area_cap = 0.25 * math.pi * p["bore_diameter_m"] ** 2
     area_rod_side = area_cap - 0.25 * math.pi * p["rod_diameter_m"] ** 2
-    v1, v2 = chamber_volumes(p["fixed_position_m"], 0.5 * p["stroke_m"], area_cap, area_rod_side,
-                             p["dead_volume_cap_m3"], p["dead_volume_rod_m3"])
+    v1, v2 = chamber_volumes(
+        p["fixed_position_m"],
+        0.5 * p["stroke_m"],
+        area_cap,
+        area_rod_side,
+        p["dead_volume_cap_m3"],
+        p["dead_volume_rod_m3"],
+    )
     c = np.empty(_N_CONSTANTS)
     c[_M_INV_SPOOL] = 1.0 / p["spool_mass_kg"]
     c[_C_S], c[_K_S] = p["spool_damping_n_s_per_m"], p["spool_spring_n_per_m"]
     c[_K_F], c[_R_H] = p["coil_force_n_per_a"], p["hole_radius_m"]
     c[_P_W], c[_N_H] = p["spool_half_width_m"], p["holes_per_path"]
-    c[_C_F], c[_P_S], c[_P_A] = (p["discharge_coefficient"], p["supply_pressure_pa"],
-                                 p["ambient_pressure_pa"])
+    c[_C_F], c[_P_S], c[_P_A] = (
+        p["discharge_coefficient"],
+        p["supply_pressure_pa"],
+        p["ambient_pressure_pa"],
+    )
     c[_INV_SQRT_T], c[_K], c[_C1], c[_C2], c[_P_CR] = 1.0 / math.sqrt(temp), k, c1, c2, pcr
     c[_LIN] = lin
     c[_SLOPE] = subsonic_reduced_flow(lin, k, c2) / (1.0 - lin)
@@ -77,8 +125,11 @@ def line_constants(p: dict, n_segments: int) -> np.ndarray:
     c[_V1], c[_V2] = v1, v2
     c[_A_T] = 0.25 * math.pi * p["tube_inner_diameter_m"] ** 2
     c[_DX] = p["tube_length_m"] / n_segments
-    c[_D_T], c[_MU], c[_RE_T] = (p["tube_inner_diameter_m"], p["air_viscosity_pa_s"],
-                                 p["reynolds_turbulent"])
+    c[_D_T], c[_MU], c[_RE_T] = (
+        p["tube_inner_diameter_m"],
+        p["air_viscosity_pa_s"],
+        p["reynolds_turbulent"],
+    )
     c[_A_LEAK] = p["leakage_area_m2"]
     c[_A1], c[_A2] = area_cap, area_rod_side
     c[_A_ROD] = area_cap - area_rod_side
@@ -88,8 +139,19 @@ def line_constants(p: dict, n_segments: int) -> np.ndarray:
 @njit(cache=True)
 def _flow(c, area, p_from, p_to):
     """Eq. 39 through an orifice of ``area`` with the valve's C_f (signed, from -> to)."""
-    return orifice_mass_flow(area, c[_C_F], p_from, p_to, c[_INV_SQRT_T], c[_K], c[_C1], c[_C2],
-                             c[_P_CR], c[_LIN], c[_SLOPE])
+    return orifice_mass_flow(
+        area,
+        c[_C_F],
+        p_from,
+        p_to,
+        c[_INV_SQRT_T],
+        c[_K],
+        c[_C1],
+        c[_C2],
+        c[_P_CR],
+        c[_LIN],
+        c[_SLOPE],
+    )
 
 
 @njit(cache=True)
@@ -97,8 +159,9 @@ def _derivatives(c, n, coil_current_a, y, out):
     """dy/dt of the state [x_s, v_s, tube 1 (n nodes, n links, chamber 1), tube 2 (...)]."""
     x_s, v_s = y[0], y[1]
     out[0] = v_s
-    out[1] = spool_acceleration(x_s, v_s, coil_current_a, c[_M_INV_SPOOL], c[_C_S], c[_K_S],
-                                c[_K_F])
+    out[1] = spool_acceleration(
+        x_s, v_s, coil_current_a, c[_M_INV_SPOOL], c[_C_S], c[_K_S], c[_K_F]
+    )
     a_in = orifice_area(x_s, c[_R_H], c[_P_W], c[_N_H])
     a_ex = orifice_area(-x_s, c[_R_H], c[_P_W], c[_N_H])
     node_rate = c[_K] * c[_RT] / (c[_A_T] * c[_DX])
@@ -108,23 +171,33 @@ def _derivatives(c, n, coil_current_a, y, out):
         first = 2 + side * (2 * n + 1)
         supply_area = a_in if side == 0 else a_ex
         exhaust_area = a_ex if side == 0 else a_in
-        inflow = (_flow(c, supply_area, c[_P_S], y[first])
-                  - _flow(c, exhaust_area, y[first], c[_P_A]))
+        inflow = _flow(c, supply_area, c[_P_S], y[first]) - _flow(
+            c, exhaust_area, y[first], c[_P_A]
+        )
         for j in range(n):
             node = y[first + j]
             downstream = y[first + j + 1] if j < n - 1 else y[first + 2 * n]
             q = y[first + n + j]
             out[first + j] = node_rate * (inflow - q)
             density = 0.5 * (node + downstream) / c[_RT]
-            friction = tube_resistance(reynolds_number(q, c[_D_T], c[_MU]), c[_D_T], c[_MU],
-                                       c[_RE_T])
+            friction = tube_resistance(
+                reynolds_number(q, c[_D_T], c[_MU]), c[_D_T], c[_MU], c[_RE_T]
+            )
             out[first + n + j] = c[_A_T] * (node - downstream) / c[_DX] - friction * q / density
             inflow = q
         chamber_in = inflow + (leak if side == 0 else -leak)
         chamber = y[first + 2 * n]
-        out[first + 2 * n] = pressure_rate(chamber, c[_V1] if side == 0 else c[_V2], 0.0,
-                                           max(chamber_in, 0.0), max(-chamber_in, 0.0), c[_RT],
-                                           c[_ALPHA_IN], c[_ALPHA_OUT], c[_ALPHA_MOTION])
+        out[first + 2 * n] = pressure_rate(
+            chamber,
+            c[_V1] if side == 0 else c[_V2],
+            0.0,
+            max(chamber_in, 0.0),
+            max(-chamber_in, 0.0),
+            c[_RT],
+            c[_ALPHA_IN],
+            c[_ALPHA_OUT],
+            c[_ALPHA_MOTION],
+        )
 
 
 @njit(cache=True)
@@ -137,7 +210,7 @@ def segmented_line_rollout(c, n, coil_current_a, step_s, substeps):
     y = np.zeros(size)
     for side in range(2):
         first = 2 + side * (2 * n + 1)
-        y[first:first + n] = c[_P_A]
+        y[first : first + n] = c[_P_A]
         y[first + 2 * n] = c[_P_A]
     k1, k2, k3, k4 = np.empty(size), np.empty(size), np.empty(size), np.empty(size)
     stage = np.empty(size)

@@ -65,6 +65,7 @@ How the plant differs from the fitting model:
   stribeck
   ================================  ==========================================================
 """
+
 from __future__ import annotations
 
 import json
@@ -75,6 +76,7 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import cont2discrete, lfilter, lfilter_zi
 
+from pneumatic_env.identification.config import IdentificationConfig, load_config
 from pneumatic_env.params import load_parameters, parameter_array
 from pneumatic_env.physics import layout as L
 from pneumatic_env.physics.chamber import chamber_volumes
@@ -85,11 +87,21 @@ from pneumatic_env.recording import PISTON_MODES, canonical_cylinder, write_reco
 from pneumatic_env.references import ChirpReference, MultisineReference
 from pneumatic_env.simulator import BatchSimulator
 
-from pneumatic_env.identification.config import IdentificationConfig, load_config
 from .segmented_line import line_constants, segmented_line_rollout
 
-__all__ = ["KERNEL_EFFECTS", "LINE_EFFECTS", "RIG_EFFECTS", "SPLIT_EFFECTS", "MOVING_EFFECTS",
-           "RigResult", "excitation", "make_recording", "run_rig", "add_arguments", "run"]
+__all__ = [
+    "KERNEL_EFFECTS",
+    "LINE_EFFECTS",
+    "RIG_EFFECTS",
+    "SPLIT_EFFECTS",
+    "MOVING_EFFECTS",
+    "RigResult",
+    "excitation",
+    "make_recording",
+    "run_rig",
+    "add_arguments",
+    "run",
+]
 
 #: Rig effects realised by a kernel parameter (same form as the candidate): name ->
 #: (kernel parameter, value at strength S given the strength-1 reference r).
@@ -102,18 +114,37 @@ KERNEL_EFFECTS = {
     "tube_waves": ("tube_waves", lambda s, r: r if s > 0.0 else 0.0),  # a switch
 }
 #: Every effect the rig can add.
-RIG_EFFECTS = ("none", "leakage", "rod_seal_leak", "coil_lag", "spool_friction",
-               "pressure_sensor_offset",
-               "pressure_sensor_lag", "channel_time_skew", "load_cell_compliance",
-               "supply_ripple", "heat_transfer", "supply_droop", "exhaust_muffler", "lugre",
-               *KERNEL_EFFECTS)
+RIG_EFFECTS = (
+    "none",
+    "leakage",
+    "rod_seal_leak",
+    "coil_lag",
+    "spool_friction",
+    "pressure_sensor_offset",
+    "pressure_sensor_lag",
+    "channel_time_skew",
+    "load_cell_compliance",
+    "supply_ripple",
+    "heat_transfer",
+    "supply_droop",
+    "exhaust_muffler",
+    "lugre",
+    *KERNEL_EFFECTS,
+)
 #: Rig effects whose plant is not the kernel: the tubes as segmented lines
 #: (``segmented_line``); their ``KERNEL_EFFECTS`` entry states the nearest kernel form in
 #: the truth.
 LINE_EFFECTS = ("tube_waves",)
 #: Rig effects applied by operator splitting between steps of the kernel.
-SPLIT_EFFECTS = ("leakage", "rod_seal_leak", "supply_ripple", "heat_transfer", "supply_droop",
-                 "exhaust_muffler", "lugre")
+SPLIT_EFFECTS = (
+    "leakage",
+    "rod_seal_leak",
+    "supply_ripple",
+    "heat_transfer",
+    "supply_droop",
+    "exhaust_muffler",
+    "lugre",
+)
 #: Rig effects of the piston's friction: they need a moving piston (``spring`` or ``free``).
 MOVING_EFFECTS = ("stribeck", "lugre")
 EXCITATIONS = ("identification", "steps", "prbs", "multisine", "chirp", "triangle")
@@ -122,8 +153,10 @@ _SEGMENTS = ("rest", "step_pos", "step_neg", "prbs", "multisine", "chirp", "tria
 
 # --------------------------------------------------------------------------- excitation
 
-def _segment(kind: str, n: int, dt: float, rng: np.random.Generator,
-             cfg: IdentificationConfig) -> np.ndarray:
+
+def _segment(
+    kind: str, n: int, dt: float, rng: np.random.Generator, cfg: IdentificationConfig
+) -> np.ndarray:
     ex = lambda name: cfg.value("virtual_rig", "excitation", name)  # noqa: E731
     if n <= 0:
         return np.zeros(0)
@@ -139,23 +172,31 @@ def _segment(kind: str, n: int, dt: float, rng: np.random.Generator,
         f_lo, f_hi = (float(f) for f in ex("multisine_band_hz"))
         period = n * dt
         k = np.arange(max(1, math.ceil(f_lo * period)), max(2, math.floor(f_hi * period)) + 1)
-        spec = MultisineReference(amplitude=float(ex("multisine_a")),
-                                  frequencies_hz=tuple(k / period), phases="random")
+        spec = MultisineReference(
+            amplitude=float(ex("multisine_a")), frequencies_hz=tuple(k / period), phases="random"
+        )
         return spec.generate(n, dt, rng)
     if kind == "chirp":
         f0, f1 = (float(f) for f in ex("chirp_band_hz"))
-        return ChirpReference(amplitude=float(ex("chirp_a")), f0_hz=f0, f1_hz=f1,
-                              duration_s=n * dt).generate(n, dt)
+        return ChirpReference(
+            amplitude=float(ex("chirp_a")), f0_hz=f0, f1_hz=f1, duration_s=n * dt
+        ).generate(n, dt)
     if kind == "triangle":
         a = float(ex("triangle_a"))
         phase = np.arange(n) / n  # one period: 0 -> +a -> -a -> 0
-        return a * np.where(phase < 0.25, 4 * phase,
-                            np.where(phase < 0.75, 2 - 4 * phase, 4 * phase - 4))
+        return a * np.where(
+            phase < 0.25, 4 * phase, np.where(phase < 0.75, 2 - 4 * phase, 4 * phase - 4)
+        )
     raise ValueError(f"excitation segment {kind!r} is not known; allowed: {', '.join(_SEGMENTS)}")
 
 
-def excitation(kind: str, n_samples: int, dt_s: float, rng: np.random.Generator,
-               config: IdentificationConfig | None = None) -> np.ndarray:
+def excitation(
+    kind: str,
+    n_samples: int,
+    dt_s: float,
+    rng: np.random.Generator,
+    config: IdentificationConfig | None = None,
+) -> np.ndarray:
     """Coil current (A) for identification, ``n_samples`` at ``dt_s``.
 
     ``identification``: two blocks of ``virtual_rig.excitation.block_layout`` (rest
@@ -179,13 +220,15 @@ def excitation(kind: str, n_samples: int, dt_s: float, rng: np.random.Generator,
         return np.concatenate(parts)
     if kind == "steps":
         quarter = n_samples // 4
-        out = np.concatenate([_segment(s, quarter, dt_s, rng, cfg)
-                              for s in ("step_pos", "rest", "step_neg", "rest")])
+        out = np.concatenate(
+            [_segment(s, quarter, dt_s, rng, cfg) for s in ("step_pos", "rest", "step_neg", "rest")]
+        )
         return np.concatenate([out, np.zeros(n_samples - out.size)])
     return _segment(kind, n_samples, dt_s, rng, cfg)
 
 
 # --------------------------------------------------------------------------- plant
+
 
 @dataclass
 class RigResult:
@@ -207,15 +250,20 @@ def _two_lags(y: np.ndarray, total_tau_s: float, dt_s: float) -> np.ndarray:
     return y
 
 
-def _coil_plant(command_a: np.ndarray, total_tau_s: float, dt_s: float, amplifier_period_s: float,
-                force_share: float) -> np.ndarray:
+def _coil_plant(
+    command_a: np.ndarray,
+    total_tau_s: float,
+    dt_s: float,
+    amplifier_period_s: float,
+    force_share: float,
+) -> np.ndarray:
     """The current-equivalent of the rig's coil force at the end of each plant step: the
     amplifier holds the command over each of its periods (a whole number of plant steps),
     then a current lag of ``(1 - force_share) total_tau_s`` and a force lag of
     ``force_share total_tau_s`` in series (their exact zero-order-hold discretisation),
     starting at rest at the first command."""
     hold = max(1, int(round(amplifier_period_s / dt_s)))
-    held = np.repeat(command_a[::hold], hold)[:command_a.size]
+    held = np.repeat(command_a[::hold], hold)[: command_a.size]
     den = np.polymul([(1.0 - force_share) * total_tau_s, 1.0], [force_share * total_tau_s, 1.0])
     num, den = cont2discrete(([1.0], np.trim_zeros(den, "f")), dt_s, method="zoh")[:2]
     num = np.ravel(num)
@@ -255,12 +303,12 @@ def _orifice_gas(p: dict) -> tuple:
     c1, c2, pcr = flow_constants(p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"])
     lin = p["flow_linear_ratio"]
     slope = subsonic_reduced_flow(lin, p["heat_capacity_ratio"], c2) / (1.0 - lin)
-    return (1.0 / math.sqrt(p["temperature_k"]), p["heat_capacity_ratio"], c1, c2, pcr, lin,
-            slope)
+    return (1.0 / math.sqrt(p["temperature_k"]), p["heat_capacity_ratio"], c1, c2, pcr, lin, slope)
 
 
-def _orifice_flow(gas: tuple, area_m2: float, discharge: float, p_from_pa: float,
-                  p_to_pa: float) -> float:
+def _orifice_flow(
+    gas: tuple, area_m2: float, discharge: float, p_from_pa: float, p_to_pa: float
+) -> float:
     """Signed mass flow (kg/s) of the paper's orifice (Eq. 39) for ``_orifice_gas``'s gas."""
     return orifice_mass_flow(area_m2, discharge, p_from_pa, p_to_pa, *gas)
 
@@ -273,16 +321,28 @@ def _laminar_conductance(p: dict, area_m2: float) -> float:
     return _orifice_flow(_orifice_gas(p), area_m2, p["discharge_coefficient"], ps, ps - dp) / dp
 
 
-def _muffler_step(muffler_pa: float, inflow_kg_per_s: float, vent_kg_per_s: float,
-                  volume_m3: float, gas_rt: float, h_s: float) -> float:
+def _muffler_step(
+    muffler_pa: float,
+    inflow_kg_per_s: float,
+    vent_kg_per_s: float,
+    volume_m3: float,
+    gas_rt: float,
+    h_s: float,
+) -> float:
     """The exhaust muffler's pressure after h_s (explicit Euler, isothermal): a volume
     filled by the valve's exhaust flow and vented to the atmosphere through its porous
     element, dp/dt = R T / V (inflow - vent); never below zero."""
     return max(muffler_pa + gas_rt / volume_m3 * (inflow_kg_per_s - vent_kg_per_s) * h_s, 0.0)
 
 
-def _supply_line_step(line_pa: float, regulator_pa: float, resistance_pa_s_per_kg: float,
-                      time_constant_s: float, draw_kg_per_s: float, h_s: float) -> float:
+def _supply_line_step(
+    line_pa: float,
+    regulator_pa: float,
+    resistance_pa_s_per_kg: float,
+    time_constant_s: float,
+    draw_kg_per_s: float,
+    h_s: float,
+) -> float:
     """The supply line's pressure after h_s: a volume V fed through the regulator's linear
     resistance R from its set pressure, drained by the valve's draw (held over the step):
     dp/dt = (R T / V) ((p_set - p) / R - draw), exact for the held draw; the time constant
@@ -292,10 +352,18 @@ def _supply_line_step(line_pa: float, regulator_pa: float, resistance_pa_s_per_k
     return steady + (line_pa - steady) * math.exp(-h_s / time_constant_s)
 
 
-def _wall_heat_exchange(p_pa: float, t_k: float, volume_m3: float, h_s: float,
-                        conductance_ref_w_per_k: float, density_ref_kg_m3: float,
-                        density_exponent: float, wall_t_k: float, gas_constant: float,
-                        heat_capacity_ratio: float) -> tuple[float, float]:
+def _wall_heat_exchange(
+    p_pa: float,
+    t_k: float,
+    volume_m3: float,
+    h_s: float,
+    conductance_ref_w_per_k: float,
+    density_ref_kg_m3: float,
+    density_exponent: float,
+    wall_t_k: float,
+    gas_constant: float,
+    heat_capacity_ratio: float,
+) -> tuple[float, float]:
     """A chamber's gas after exchanging heat with its wall for h_s at constant volume and mass.
 
     hA = hA_ref (rho / rho_ref)^n (natural convection: Nu ~ Ra^(1/3), Ra ~ rho^2, so
@@ -327,9 +395,14 @@ class _PlantForm:
 
     def volumes(self, state: np.ndarray) -> tuple[float, float]:
         t = self.true
-        return chamber_volumes(state[L.S_X, 0], 0.5 * t["stroke_m"], self.cap_area,
-                               self.rod_side_area, t["dead_volume_cap_m3"],
-                               t["dead_volume_rod_m3"])
+        return chamber_volumes(
+            state[L.S_X, 0],
+            0.5 * t["stroke_m"],
+            self.cap_area,
+            self.rod_side_area,
+            t["dead_volume_cap_m3"],
+            t["dead_volume_rod_m3"],
+        )
 
     def before_step(self, sim: BatchSimulator, plant_step: int, h_s: float) -> None:
         raise NotImplementedError
@@ -371,8 +444,12 @@ class _SupplyRipple(_PlantForm):
         self.amplitude = amplitude
 
     def before_step(self, sim, plant_step, h_s):
-        sim.set_parameter("supply_pressure_pa", 0, self.true["supply_pressure_pa"] * (
-            1.0 + self.amplitude * math.sin(2.0 * math.pi * 3.0 * plant_step * h_s)))
+        sim.set_parameter(
+            "supply_pressure_pa",
+            0,
+            self.true["supply_pressure_pa"]
+            * (1.0 + self.amplitude * math.sin(2.0 * math.pi * 3.0 * plant_step * h_s)),
+        )
 
 
 class _WallExchange(_PlantForm):
@@ -382,25 +459,35 @@ class _WallExchange(_PlantForm):
         super().__init__(true)
         self.conductance_ref = conductance_ref_w_per_k
         self.density_exponent = density_exponent
-        self.density_ref = 0.5 * (true["supply_pressure_pa"]
-                                  + true["ambient_pressure_pa"]) / self.gas_rt
+        self.density_ref = (
+            0.5 * (true["supply_pressure_pa"] + true["ambient_pressure_pa"]) / self.gas_rt
+        )
 
     def before_step(self, sim, plant_step, h_s):
         t, state = self.true, sim.state
         v1, v2 = self.volumes(state)
         for p_row, t_row, volume in ((L.S_P1, L.S_T1, v1), (L.S_P2, L.S_T2, v2)):
             state[p_row, 0], state[t_row, 0] = _wall_heat_exchange(
-                state[p_row, 0], state[t_row, 0], volume, h_s, self.conductance_ref,
-                self.density_ref, self.density_exponent, t["temperature_k"],
-                t["gas_constant_j_per_kg_k"], t["heat_capacity_ratio"])
+                state[p_row, 0],
+                state[t_row, 0],
+                volume,
+                h_s,
+                self.conductance_ref,
+                self.density_ref,
+                self.density_exponent,
+                t["temperature_k"],
+                t["gas_constant_j_per_kg_k"],
+                t["heat_capacity_ratio"],
+            )
 
 
 def _valve_path(true: dict, state: np.ndarray) -> tuple[float, float, float]:
     """The valve's open area (m^2) at its spool's position now, and the pressures of the
     chamber it feeds and of the one it exhausts (Eqs. 44, 45)."""
     spool = state[L.S_X_S, 0]
-    area = orifice_area(abs(spool), true["hole_radius_m"], true["spool_half_width_m"],
-                        true["holes_per_path"])
+    area = orifice_area(
+        abs(spool), true["hole_radius_m"], true["spool_half_width_m"], true["holes_per_path"]
+    )
     p1, p2 = state[L.S_P1, 0], state[L.S_P2, 0]
     return (area, p1, p2) if spool > 0.0 else (area, p2, p1)
 
@@ -416,10 +503,17 @@ class _SupplyLine(_PlantForm):
 
     def before_step(self, sim, plant_step, h_s):
         area, fed_pa, _ = _valve_path(self.true, sim.state)
-        draw = _orifice_flow(self.gas, area, self.true["discharge_coefficient"], self.line_pa,
-                             fed_pa)
-        self.line_pa = _supply_line_step(self.line_pa, self.true["supply_pressure_pa"],
-                                         self.resistance, self.time_constant, draw, h_s)
+        draw = _orifice_flow(
+            self.gas, area, self.true["discharge_coefficient"], self.line_pa, fed_pa
+        )
+        self.line_pa = _supply_line_step(
+            self.line_pa,
+            self.true["supply_pressure_pa"],
+            self.resistance,
+            self.time_constant,
+            draw,
+            h_s,
+        )
         sim.set_parameter("supply_pressure_pa", 0, self.line_pa)
 
 
@@ -441,17 +535,21 @@ class _Muffler(_PlantForm):
         area, _, exhausting_pa = _valve_path(t, sim.state)
         self.muffler_pa = _muffler_step(
             self.muffler_pa,
-            _orifice_flow(self.gas, area, t["discharge_coefficient"], exhausting_pa,
-                          self.muffler_pa),
-            _orifice_flow(self.gas, self.vent_area, 1.0, self.muffler_pa,
-                          t["ambient_pressure_pa"]),
-            self.volume, self.gas_rt, h_s)
+            _orifice_flow(
+                self.gas, area, t["discharge_coefficient"], exhausting_pa, self.muffler_pa
+            ),
+            _orifice_flow(self.gas, self.vent_area, 1.0, self.muffler_pa, t["ambient_pressure_pa"]),
+            self.volume,
+            self.gas_rt,
+            h_s,
+        )
         sim.set_parameter("ambient_pressure_pa", 0, self.muffler_pa)
         sim.set_parameter("load_force_n", 0, t["load_force_n"] - self._rod_force_error())
 
     def _rod_force_error(self) -> float:
         return (self.muffler_pa - self.true["ambient_pressure_pa"]) * (
-            self.cap_area - self.rod_side_area)
+            self.cap_area - self.rod_side_area
+        )
 
     def correct_output(self, row):
         if self.force_is_f_p:
@@ -464,9 +562,16 @@ class _LuGre(_PlantForm):
 
     every_substep = True
 
-    def __init__(self, true: dict, static_n: float, coulomb_n: float,
-                 stribeck_velocity_m_per_s: float, stiffness_n_per_m: float,
-                 damping_n_s_per_m: float, damping_decay_velocity_m_per_s: float):
+    def __init__(
+        self,
+        true: dict,
+        static_n: float,
+        coulomb_n: float,
+        stribeck_velocity_m_per_s: float,
+        stiffness_n_per_m: float,
+        damping_n_s_per_m: float,
+        damping_decay_velocity_m_per_s: float,
+    ):
         super().__init__(true)
         self.damping_decay_velocity = damping_decay_velocity_m_per_s
         self.static_n, self.coulomb_n = static_n, coulomb_n
@@ -477,21 +582,33 @@ class _LuGre(_PlantForm):
     def before_step(self, sim, plant_step, h_s):
         v = sim.state[L.S_V, 0]
         self.bristle_m, friction = lugre_bristle_step(
-            self.bristle_m, v, h_s, self.stiffness,
+            self.bristle_m,
+            v,
+            h_s,
+            self.stiffness,
             _lugre_damping(self.damping, v, self.damping_decay_velocity),
-            stribeck_friction(v, self.coulomb_n, self.static_n, self.stribeck_velocity))
+            stribeck_friction(v, self.coulomb_n, self.static_n, self.stribeck_velocity),
+        )
         sim.set_parameter("load_force_n", 0, self.true["load_force_n"] + friction)
 
 
-def _lugre_damping(damping_n_s_per_m: float, velocity_m_per_s: float,
-                   decay_velocity_m_per_s: float) -> float:
+def _lugre_damping(
+    damping_n_s_per_m: float, velocity_m_per_s: float, decay_velocity_m_per_s: float
+) -> float:
     """A bristle damping sigma1 exp(-(v/v_d)^2) that damps the pre-sliding motion more than
     the sliding one (a velocity-dependent sigma1 as discussed by Canudas de Wit et al. 1995)."""
-    return damping_n_s_per_m * math.exp(-(velocity_m_per_s / decay_velocity_m_per_s) ** 2)
+    return damping_n_s_per_m * math.exp(-((velocity_m_per_s / decay_velocity_m_per_s) ** 2))
 
 
-def _plant_form(effect: str, strength: float, reference: float, true: dict, truth: dict,
-                cfg: IdentificationConfig, piston: str) -> _PlantForm:
+def _plant_form(
+    effect: str,
+    strength: float,
+    reference: float,
+    true: dict,
+    truth: dict,
+    cfg: IdentificationConfig,
+    piston: str,
+) -> _PlantForm:
     """The rig's form of ``effect`` at ``strength`` (``reference`` at strength 1):
     switches the kernel's own form off in ``true`` and states the truth in ``truth``."""
     rig = lambda name, **kw: cfg.number("virtual_rig", name, **kw)  # noqa: E731
@@ -514,12 +631,21 @@ def _plant_form(effect: str, strength: float, reference: float, true: dict, trut
         damping = rig("lugre_damping_n_s_per_m", positive=True) / math.sqrt(strength)
         stribeck_velocity = cfg.number("virtual_rig", "effects", "stribeck", positive=True)
         stiffness = reference / strength
-        truth.update(lugre_stiffness_n_per_m=stiffness, lugre_damping_n_s_per_m=damping,
-                     stribeck_velocity_m_per_s=stribeck_velocity)
+        truth.update(
+            lugre_stiffness_n_per_m=stiffness,
+            lugre_damping_n_s_per_m=damping,
+            stribeck_velocity_m_per_s=stribeck_velocity,
+        )
         true.update(static_friction_n=0.0, dynamic_friction_n=0.0, stribeck_velocity_m_per_s=0.0)
-        return _LuGre(true, truth["static_friction_n"], truth["dynamic_friction_n"],
-                      stribeck_velocity, stiffness, damping,
-                      rig("lugre_damping_decay_velocity_m_per_s", positive=True))
+        return _LuGre(
+            true,
+            truth["static_friction_n"],
+            truth["dynamic_friction_n"],
+            stribeck_velocity,
+            stiffness,
+            damping,
+            rig("lugre_damping_decay_velocity_m_per_s", positive=True),
+        )
     if effect == "exhaust_muffler":  # the kernel's vent stays off: its node is the muffler
         vent_area = reference / strength  # strength scales the vent's resistance
         volume = rig("exhaust_muffler_volume_m3", positive=True)
@@ -528,8 +654,9 @@ def _plant_form(effect: str, strength: float, reference: float, true: dict, trut
     raise ValueError(f"effect {effect!r} has no plant form of the rig's own")
 
 
-def _perturbed(cylinder: str, base: dict, rng: np.random.Generator,
-               cfg: IdentificationConfig) -> dict:
+def _perturbed(
+    cylinder: str, base: dict, rng: np.random.Generator, cfg: IdentificationConfig
+) -> dict:
     """``base`` with each parameter under ``virtual_rig.perturbation`` multiplied by
     ``exp(sigma z)``, z standard normal; validated by the loader."""
     out = dict(base)
@@ -539,39 +666,56 @@ def _perturbed(cylinder: str, base: dict, rng: np.random.Generator,
     return load_parameters(cylinder, params=out)
 
 
-def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
-            duration_s: float | None = None, cylinder: str = "numatics",
-            tube_length_m: float = 0.5, piston: str = "fixed", excitation_kind: str = "identification",
-            perturb: bool = True,
-            config: IdentificationConfig | None = None) -> RigResult:
+def run_rig(
+    effect: str = "none",
+    strength: float = 1.0,
+    seed: int = 0,
+    duration_s: float | None = None,
+    cylinder: str = "numatics",
+    tube_length_m: float = 0.5,
+    piston: str = "fixed",
+    excitation_kind: str = "identification",
+    perturb: bool = True,
+    config: IdentificationConfig | None = None,
+) -> RigResult:
     """Simulate the virtual rig; returns the recording's samples, sidecar and truth."""
     cfg = config or load_config()
     if effect not in RIG_EFFECTS:
-        raise ValueError(f"effect {effect!r} is not known to the virtual rig; allowed: "
-                         f"{', '.join(RIG_EFFECTS)}")
+        raise ValueError(
+            f"effect {effect!r} is not known to the virtual rig; allowed: {', '.join(RIG_EFFECTS)}"
+        )
     if not (isinstance(strength, (int, float)) and math.isfinite(strength) and strength >= 0):
         raise ValueError(f"strength = {strength!r} is not allowed: must be a finite number >= 0")
     if piston not in PISTON_MODES:
         raise ValueError(f"piston = {piston!r} is not allowed: must be one of {list(PISTON_MODES)}")
     if effect in LINE_EFFECTS and strength > 0 and piston != "fixed":
-        raise ValueError(f"effect {effect!r} needs piston = 'fixed' (the segmented line plant "
-                         f"has a clamped rod); got piston = {piston!r}")
+        raise ValueError(
+            f"effect {effect!r} needs piston = 'fixed' (the segmented line plant "
+            f"has a clamped rod); got piston = {piston!r}"
+        )
     if effect == "load_cell_compliance" and piston != "fixed":
-        raise ValueError(f"effect 'load_cell_compliance' needs piston = 'fixed' (a clamped rod "
-                         f"held through a load cell); got piston = {piston!r}")
+        raise ValueError(
+            f"effect 'load_cell_compliance' needs piston = 'fixed' (a clamped rod "
+            f"held through a load cell); got piston = {piston!r}"
+        )
     if effect in MOVING_EFFECTS and strength > 0 and piston == "fixed":
-        raise ValueError(f"effect {effect!r} needs a moving piston ('spring' or 'free'); got "
-                         f"piston = 'fixed'")
+        raise ValueError(
+            f"effect {effect!r} needs a moving piston ('spring' or 'free'); got piston = 'fixed'"
+        )
     if effect in KERNEL_EFFECTS and KERNEL_EFFECTS[effect][0] not in L.PARAMETER_NAMES:
-        raise ValueError(f"effect {effect!r} needs the kernel parameter "
-                         f"{KERNEL_EFFECTS[effect][0]!r}, which this kernel does not have")
+        raise ValueError(
+            f"effect {effect!r} needs the kernel parameter "
+            f"{KERNEL_EFFECTS[effect][0]!r}, which this kernel does not have"
+        )
     rng = np.random.default_rng(seed)
     dt = cfg.number("virtual_rig", "sample_dt_s", positive=True)
     plant_dt = cfg.number("virtual_rig", "plant_dt_s", positive=True)
     ratio = int(round(dt / plant_dt))
     if ratio < 1 or abs(ratio * plant_dt - dt) > 1e-9 * dt:
         raise ValueError("virtual_rig.sample_dt_s must be a whole multiple of plant_dt_s")
-    duration = float(duration_s if duration_s is not None else cfg.number("virtual_rig", "duration_s"))
+    duration = float(
+        duration_s if duration_s is not None else cfg.number("virtual_rig", "duration_s")
+    )
     n = int(round(duration / dt)) + 1
     cylinder = canonical_cylinder(cylinder)
 
@@ -587,8 +731,9 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         k_env = cfg.number("virtual_rig", "spring_stiffness_n_per_m", positive=True)
         m_env = cfg.number("virtual_rig", "spring_load_mass_kg", minimum=0.0)
         piston_rig.update(stiffness_n_per_m=k_env, rest_position_m=0.0, load_mass_kg=m_env)
-        overrides.update(spring_stiffness_n_per_m=k_env, spring_rest_position_m=0.0,
-                         load_mass_kg=m_env)
+        overrides.update(
+            spring_stiffness_n_per_m=k_env, spring_rest_position_m=0.0, load_mass_kg=m_env
+        )
     nominal = load_parameters(cylinder, **overrides)
     true = _perturbed(cylinder, nominal, rng, cfg) if perturb else dict(nominal)
 
@@ -605,23 +750,29 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         # the clamp is a spring (the cell) at the clamp position; strength scales the
         # compliance 1/k; the cell's moving part adds its mass to the rod; the rod's
         # micrometre motion stays in the seal's pre-sliding range: no sliding friction
-        true.update(piston_mode=PISTON_MODES["spring"][0], spring_stiffness_n_per_m=ref / s,
-                    static_friction_n=0.0, dynamic_friction_n=0.0,
-                    spring_rest_position_m=true["fixed_position_m"],
-                    load_mass_kg=cfg.number("virtual_rig", "load_cell_moving_mass_kg",
-                                            minimum=0.0))
+        true.update(
+            piston_mode=PISTON_MODES["spring"][0],
+            spring_stiffness_n_per_m=ref / s,
+            static_friction_n=0.0,
+            dynamic_friction_n=0.0,
+            spring_rest_position_m=true["fixed_position_m"],
+            load_mass_kg=cfg.number("virtual_rig", "load_cell_moving_mass_kg", minimum=0.0),
+        )
         true = load_parameters(cylinder, params=true)
 
     fine = np.repeat(i_c[:-1], ratio)
     truth_parameters = dict(true)
     if effect == "coil_lag" and s > 0.0:
         share = cfg.number("virtual_rig", "coil_force_lag_share", minimum=0.0)
-        fine = _coil_plant(fine, s * ref, plant_dt,
-                           cfg.number("virtual_rig", "coil_amplifier_period_s", positive=True),
-                           share)
+        fine = _coil_plant(
+            fine,
+            s * ref,
+            plant_dt,
+            cfg.number("virtual_rig", "coil_amplifier_period_s", positive=True),
+            share,
+        )
         # the nearest kernel coil (the amplifier's hold has no kernel parameter)
-        truth_parameters.update(coil_time_constant_s=s * ref,
-                                coil_lag_shape=share * (1.0 - share))
+        truth_parameters.update(coil_time_constant_s=s * ref, coil_lag_shape=share * (1.0 - share))
     if effect == "spool_friction":
         truth_parameters["spool_coulomb_friction_n"] = s * ref
         band = s * ref / true["coil_force_n_per_a"]
@@ -633,17 +784,30 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         form = _plant_form(effect, s, ref, true, truth_parameters, cfg, piston)
     # a stiff form acts before every plant substep (the kernel steps one substep at a time)
     steps_per_plant_step = plant_substeps if form is not None and form.every_substep else 1
-    sim = BatchSimulator(parameter_array([load_parameters(cylinder, params=true)]),
-                         plant_dt / steps_per_plant_step,
-                         plant_substeps // steps_per_plant_step)
+    sim = BatchSimulator(
+        parameter_array([load_parameters(cylinder, params=true)]),
+        plant_dt / steps_per_plant_step,
+        plant_substeps // steps_per_plant_step,
+    )
     first = sim.outputs[:, 0].copy()
     if effect in LINE_EFFECTS and s > 0.0:
-        segments = max(2, int(round(true["tube_length_m"] / cfg.number(
-            "virtual_rig", "line_segment_length_m", positive=True))))
+        segments = max(
+            2,
+            int(
+                round(
+                    true["tube_length_m"]
+                    / cfg.number("virtual_rig", "line_segment_length_m", positive=True)
+                )
+            ),
+        )
         truth_parameters.update(tube_volume_fraction=0.0)  # the line holds its own air
         line = segmented_line_rollout(
-            line_constants(true, segments), segments, fine, plant_dt,
-            int(cfg.number("virtual_rig", "line_substeps", positive=True)))
+            line_constants(true, segments),
+            segments,
+            fine,
+            plant_dt,
+            int(cfg.number("virtual_rig", "line_substeps", positive=True)),
+        )
         rows = np.tile(first, (fine.size, 1))  # the rod stays at the clamp
         rows[:, [L.O_P1, L.O_P2, L.O_F]] = line[1:]
     elif form is None:
@@ -654,7 +818,7 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
         for k in range(fine.size):
             for _ in range(steps_per_plant_step):
                 form.before_step(sim, k, h)
-                rows[k] = sim.step(fine[k:k + 1])[:, 0]
+                rows[k] = sim.step(fine[k : k + 1])[:, 0]
             form.correct_output(rows[k])
     rows = np.vstack([first[None, :], rows])  # rows[j] = state at j * plant_dt
 
@@ -678,18 +842,30 @@ def run_rig(effect: str = "none", strength: float = 1.0, seed: int = 0,
             y = q * np.round(y / q)
         channels[ch] = y
 
-    rig = {"cylinder": cylinder, "tube_length_m": float(tube_length_m),
-           "supply_pressure_pa": float(nominal["supply_pressure_pa"]),
-           "ambient_pressure_pa": float(nominal["ambient_pressure_pa"]),
-           "temperature_k": float(nominal["temperature_k"]), "piston": piston_rig,
-           "notes": "synthetic (virtual rig) recording made by "
-                    "pneumatic_env.studies.virtual_rig"}
-    truth = {"effect": effect, "strength": s, "seed": int(seed), "excitation": excitation_kind,
-             "duration_s": duration, "perturbed": bool(perturb),
-             "effect_reference": ref,
-             "plant": (f"segmented line, {segments} volumes per tube"
-                       if effect in LINE_EFFECTS and s > 0.0 else "kernel"),
-             "parameters": {k: float(v) for k, v in truth_parameters.items()}}
+    rig = {
+        "cylinder": cylinder,
+        "tube_length_m": float(tube_length_m),
+        "supply_pressure_pa": float(nominal["supply_pressure_pa"]),
+        "ambient_pressure_pa": float(nominal["ambient_pressure_pa"]),
+        "temperature_k": float(nominal["temperature_k"]),
+        "piston": piston_rig,
+        "notes": "synthetic (virtual rig) recording made by pneumatic_env.studies.virtual_rig",
+    }
+    truth = {
+        "effect": effect,
+        "strength": s,
+        "seed": int(seed),
+        "excitation": excitation_kind,
+        "duration_s": duration,
+        "perturbed": bool(perturb),
+        "effect_reference": ref,
+        "plant": (
+            f"segmented line, {segments} volumes per tube"
+            if effect in LINE_EFFECTS and s > 0.0
+            else "kernel"
+        ),
+        "parameters": {k: float(v) for k, v in truth_parameters.items()},
+    }
     return RigResult(t=t, channels=channels, rig=rig, truth=truth)
 
 
@@ -701,8 +877,9 @@ def make_recording(out_dir, name: str | None = None, overwrite: bool = False, **
     if name is None:
         tr = result.truth
         name = f"rig_{tr['effect']}_s{tr['strength']:g}_seed{tr['seed']}"
-    path = write_recording(out_dir / name, result.t, result.channels, result.rig,
-                           overwrite=overwrite)
+    path = write_recording(
+        out_dir / name, result.t, result.channels, result.rig, overwrite=overwrite
+    )
     truth_path = out_dir / f"{name}.truth.json"
     if truth_path.exists() and not overwrite:
         raise FileExistsError(f"{truth_path} exists; pass overwrite=True to replace it")
@@ -712,22 +889,37 @@ def make_recording(out_dir, name: str | None = None, overwrite: bool = False, **
 
 # --------------------------------------------------------------------------- CLI
 
+
 def add_arguments(p) -> None:
-    p.add_argument("--effect", default="none", choices=RIG_EFFECTS,
-                   help="extra effect in the plant (default: none)")
-    p.add_argument("--strength", type=float, default=1.0,
-                   help="effect strength; 1 = the realistic value of configs/identification.yaml")
+    p.add_argument(
+        "--effect",
+        default="none",
+        choices=RIG_EFFECTS,
+        help="extra effect in the plant (default: none)",
+    )
+    p.add_argument(
+        "--strength",
+        type=float,
+        default=1.0,
+        help="effect strength; 1 = the realistic value of configs/identification.yaml",
+    )
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.add_argument("--seed", type=int, default=0, help="seed of perturbation, excitation and noise")
     p.add_argument("--name", default=None, help="recording name (default: rig_EFFECT_sS_seedN)")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
-                   help="recording length in s (default: virtual_rig.duration_s)")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="recording length in s (default: virtual_rig.duration_s)",
+    )
     p.add_argument("--cylinder", default="numatics")
     p.add_argument("--tube-length", type=float, default=0.5, metavar="M")
     p.add_argument("--piston", default="fixed", choices=tuple(PISTON_MODES))
     p.add_argument("--excitation", default="identification", choices=EXCITATIONS)
-    p.add_argument("--no-perturb", action="store_true",
-                   help="use the configs' default base parameters exactly")
+    p.add_argument(
+        "--no-perturb", action="store_true", help="use the configs' default base parameters exactly"
+    )
     p.add_argument("--overwrite", action="store_true")
 
 
@@ -735,14 +927,25 @@ def run(args) -> int:
     import sys
 
     try:
-        path = make_recording(args.out, name=args.name, overwrite=args.overwrite,
-                              effect=args.effect, strength=args.strength, seed=args.seed,
-                              duration_s=args.duration, cylinder=args.cylinder,
-                              tube_length_m=args.tube_length, piston=args.piston,
-                              excitation_kind=args.excitation, perturb=not args.no_perturb)
+        path = make_recording(
+            args.out,
+            name=args.name,
+            overwrite=args.overwrite,
+            effect=args.effect,
+            strength=args.strength,
+            seed=args.seed,
+            duration_s=args.duration,
+            cylinder=args.cylinder,
+            tube_length_m=args.tube_length,
+            piston=args.piston,
+            excitation_kind=args.excitation,
+            perturb=not args.no_perturb,
+        )
     except (FileExistsError, ValueError) as exc:
         print(f"pneumatic-env rig: {exc}", file=sys.stderr)
         return 2
-    print(f"{path}: synthetic (virtual rig) recording, effect {args.effect} "
-          f"strength {args.strength:g}, seed {args.seed}")
+    print(
+        f"{path}: synthetic (virtual rig) recording, effect {args.effect} "
+        f"strength {args.strength:g}, seed {args.seed}"
+    )
     return 0

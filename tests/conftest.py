@@ -4,6 +4,7 @@
 over about 15 s carry ``@pytest.mark.slow``, so ``python -m pytest -q -m "not slow"`` is the
 quick run.
 """
+
 from __future__ import annotations
 
 import numba
@@ -28,9 +29,11 @@ def assert_error_names(error, field, value=NO_VALUE, rule=()) -> str:
     """
     exc = getattr(error, "value", error)
     message = str(exc)
-    fragments = [*([field] if isinstance(field, str) else field),
-                 *([] if value is NO_VALUE else [repr(value)]),
-                 *([rule] if isinstance(rule, str) else rule)]
+    fragments = [
+        *([field] if isinstance(field, str) else field),
+        *([] if value is NO_VALUE else [repr(value)]),
+        *([rule] if isinstance(rule, str) else rule),
+    ]
     missing = [f for f in fragments if f not in message]
     assert not missing, f"the error {message!r} does not name {missing}"
     return message
@@ -51,8 +54,9 @@ def numba_threads() -> int:
     return numba.get_num_threads()
 
 
-def run_batch(param_sets, currents, control_dt_s=None, substeps=None, initial=None,
-              parallel=False) -> np.ndarray:
+def run_batch(
+    param_sets, currents, control_dt_s=None, substeps=None, initial=None, parallel=False
+) -> np.ndarray:
     """Open-loop run of one BatchSimulator over ``param_sets`` (one env each).
 
     ``currents`` is (n_steps,) for a current common to all envs or (n_steps, n_envs);
@@ -60,9 +64,12 @@ def run_batch(param_sets, currents, control_dt_s=None, substeps=None, initial=No
     ``substeps`` default to ``load_numerics()``.
     """
     num = load_numerics()
-    sim = BatchSimulator(parameter_array(list(param_sets)),
-                         control_dt_s or num["control_dt_s"], substeps or num["substeps"],
-                         parallel=parallel)
+    sim = BatchSimulator(
+        parameter_array(list(param_sets)),
+        control_dt_s or num["control_dt_s"],
+        substeps or num["substeps"],
+        parallel=parallel,
+    )
     if initial is not None:
         sim.reset(initial=initial)
     currents = np.asarray(currents, dtype=float)
@@ -83,8 +90,10 @@ def volumes(param: dict, x) -> tuple[np.ndarray, np.ndarray]:
     a1, a2, _ = areas(param)
     half = 0.5 * param["stroke_m"]
     x = np.asarray(x, dtype=float)
-    return (param["dead_volume_cap_m3"] + a1 * (half + x),
-            param["dead_volume_rod_m3"] + a2 * (half - x))
+    return (
+        param["dead_volume_cap_m3"] + a1 * (half + x),
+        param["dead_volume_rod_m3"] + a2 * (half - x),
+    )
 
 
 def first_crossing_time(t_s: np.ndarray, values: np.ndarray, threshold: float) -> float:

@@ -1,4 +1,5 @@
 """Tests of the agents package: controllers, SB3 adapter, policy export, PPO smoke run."""
+
 from __future__ import annotations
 
 import copy
@@ -23,11 +24,19 @@ ID_05 = pneumatic_env.env_id("ForceTrack", "Numatics", "0.5")
 
 # --------------------------------------------------------------------------- controllers
 
+
 def _pid(ctx, **over):
-    gains = dict(kp_a_per_n=0.008, ki_a_per_n_s=0.1, kd_a_s_per_n=1e-5, derivative_filter_s=0.002,
-                 rate_feedforward_a_s_per_n=0.0, reference_lead_s=0.005,
-                 antiwindup_tracking_s=0.02, deadband_ramp_a=0.01,
-                 deadband_compensation=True)
+    gains = dict(
+        kp_a_per_n=0.008,
+        ki_a_per_n_s=0.1,
+        kd_a_s_per_n=1e-5,
+        derivative_filter_s=0.002,
+        rate_feedforward_a_s_per_n=0.0,
+        reference_lead_s=0.005,
+        antiwindup_tracking_s=0.02,
+        deadband_ramp_a=0.01,
+        deadband_compensation=True,
+    )
     gains.update(over)
     return PIDController(ctx, **gains)
 
@@ -42,8 +51,10 @@ def test_step_reaches_target_on_short_tube(controller, cylinder):
     env = make_env(variant, 2, n, **spec.env_options)
     ctrl = spec.build(ControllerContext.from_env(env))
     step_time = 0.1
-    refs = [{"kind": "step", "amplitude": 0.5, "step_time_s": step_time},
-            {"kind": "step", "amplitude": -0.5, "step_time_s": step_time}]
+    refs = [
+        {"kind": "step", "amplitude": 0.5, "step_time_s": step_time},
+        {"kind": "step", "amplitude": -0.5, "step_time_s": step_time},
+    ]
     tr = closed_loop(env, ctrl, refs, [0, 1], n)
     scale = env.unwrapped.reference_scale
     t = (np.arange(n) + 1) * env.unwrapped.control_dt_s
@@ -56,8 +67,10 @@ def test_step_reaches_target_on_short_tube(controller, cylinder):
 
 def test_batched_controller_equals_separate_runs():
     """Each row of a batched PID keeps its own state: a batch of two = two runs of one."""
-    refs = [{"kind": "sine", "amplitude": 0.3, "frequency_hz": 5.0},
-            {"kind": "random_step", "amplitude": 0.5, "hold_min_s": 0.05, "hold_max_s": 0.1}]
+    refs = [
+        {"kind": "sine", "amplitude": 0.3, "frequency_hz": 5.0},
+        {"kind": "random_step", "amplitude": 0.5, "hold_min_s": 0.05, "hold_max_s": 0.1},
+    ]
     n = 200
     env = make_env("Numatics-0.5m", 2, n, preview_steps=20)
     both = closed_loop(env, _pid(ControllerContext.from_env(env)), refs, [3, 4], n)
@@ -87,8 +100,9 @@ def test_normalised_observation_gives_the_same_current():
     """A classical controller acts the same on the normalised and on the SI observation."""
     cur = []
     for normalize in (False, True):
-        env = gym.make(ID_05, max_episode_steps=50, preview_steps=20,
-                       normalize_observation=normalize)
+        env = gym.make(
+            ID_05, max_episode_steps=50, preview_steps=20, normalize_observation=normalize
+        )
         ctrl = _pid(ControllerContext.from_env(env))
         obs, _ = env.reset(seed=7)
         out = []
@@ -118,27 +132,37 @@ def test_pid_back_calculation_bounds_the_integrator():
 
 def test_zero_controller_keeps_the_valve_closed():
     env = make_env("Airpel-2m", 1, 100, preview_steps=20)
-    tr = closed_loop(env, ZeroController(ControllerContext.from_env(env)),
-                     [{"kind": "sine", "amplitude": 0.3, "frequency_hz": 5.0}], [0], 100)
+    tr = closed_loop(
+        env,
+        ZeroController(ControllerContext.from_env(env)),
+        [{"kind": "sine", "amplitude": 0.3, "frequency_hz": 5.0}],
+        [0],
+        100,
+    )
     assert np.all(tr["current_a"] == 0) and np.all(np.abs(tr["force_n"]) < 1e-6)
 
 
 # --------------------------------------------------------------------------- sliding mode model
 
+
 def test_force_rate_matches_choked_flow_by_hand():
     """Valve fully open, both chambers at ambient: Fdot from Eqs. 14, 30, 39 (choked) by hand."""
     p = load_parameters("numatics", tube_length_m=2.0, piston_mode="fixed")
     m = model_constants(p)
-    pa, ps, T, R = (p["ambient_pressure_pa"], p["supply_pressure_pa"], p["temperature_k"],
-                    p["gas_constant_j_per_kg_k"])
+    pa, ps, T, R = (
+        p["ambient_pressure_pa"],
+        p["supply_pressure_pa"],
+        p["temperature_k"],
+        p["gas_constant_j_per_kg_k"],
+    )
     rh, nh = p["hole_radius_m"], p["holes_per_path"]
-    a_open = nh * math.pi * rh ** 2  # Eq. 44 past full opening
+    a_open = nh * math.pi * rh**2  # Eq. 44 past full opening
     c1 = 0.040418  # paper, Eq. 40
     mdot = p["discharge_coefficient"] * a_open * ps / math.sqrt(T) * c1  # Eq. 39, choked
     mu, d = p["air_viscosity_pa_s"], p["tube_inner_diameter_m"]
     re = 4 * mdot / (math.pi * d * mu)
     assert re > 2300  # turbulent: Eq. 35
-    r_t = 0.158 * mu * re ** 0.75 / d ** 2
+    r_t = 0.158 * mu * re**0.75 / d**2
     tau = p["tube_length_m"] / math.sqrt(1.4 * R * T)
     phi = math.exp(-r_t * R * T * tau / (2 * pa))  # Eq. 30 at the chamber end (P1 = Pa)
     a1 = math.pi * p["bore_diameter_m"] ** 2 / 4
@@ -159,8 +183,9 @@ def test_inversion_hits_the_wanted_force_rate():
     p2 = np.array([3e5, 2e5, 4e5, 5e5, 3e5, 2e5])
     want = np.array([3000.0, -3000.0, 1000.0, 8000.0, -6000.0, -500.0])
     spool, rate = np.empty(n), np.empty(n)
-    invert_force_rate(m, p1, p2, np.zeros(n), want, np.linspace(0, 2 * p["hole_radius_m"], 25),
-                      200.0, spool, rate)
+    invert_force_rate(
+        m, p1, p2, np.zeros(n), want, np.linspace(0, 2 * p["hole_radius_m"], 25), 200.0, spool, rate
+    )
     np.testing.assert_allclose(rate, want, rtol=0.03)
     assert np.all(np.sign(spool) == np.sign(want))
     for i in range(n):  # the reported rate is the model's at the returned spool position
@@ -168,6 +193,7 @@ def test_inversion_hits_the_wanted_force_rate():
 
 
 # --------------------------------------------------------------------------- configs
+
 
 def test_agent_config_refuses_bare_numbers(tmp_path):
     path = tmp_path / "bad.yaml"
@@ -188,14 +214,17 @@ def test_shipped_controller_configs_load():
 
 # --------------------------------------------------------------------------- SB3 adapter
 
+
 def _adapter(n, steps, **kw):
     from pneumatic_env.agents.sb3 import make_sb3_vec_env
+
     return make_sb3_vec_env(ID_05, n, episode_steps=steps, **kw)
 
 
 def test_adapter_rollout_equals_dummy_vec_env():
     """Same seeds and actions: the adapter and SB3's DummyVecEnv over single envs agree."""
     from stable_baselines3.common.vec_env import DummyVecEnv
+
     n, T = 3, 7
     a = _adapter(n, T, normalize_action=False)
     d = DummyVecEnv([lambda: gym.make(ID_05, max_episode_steps=T) for _ in range(n)])
@@ -216,8 +245,9 @@ def test_adapter_rollout_equals_dummy_vec_env():
             assert ia[i]["TimeLimit.truncated"] == id_[i]["TimeLimit.truncated"]
             if da[i]:
                 n_done += 1
-                np.testing.assert_allclose(ia[i]["terminal_observation"],
-                                           id_[i]["terminal_observation"], rtol=1e-6)
+                np.testing.assert_allclose(
+                    ia[i]["terminal_observation"], id_[i]["terminal_observation"], rtol=1e-6
+                )
     assert n_done == 3 * n  # three episodes of T steps per env, all truncated
 
 
@@ -230,8 +260,9 @@ def test_adapter_spaces_shapes_and_action_scaling():
     assert rew.shape == (4,) and rew.dtype == np.float32 and done.dtype == bool
     assert len(infos) == 4
     i_max = a.venv.unwrapped.coil_current_max_a
-    np.testing.assert_allclose([inf["coil_current_a"] for inf in infos],
-                               [i_max, -0.5 * i_max, 0.0, i_max])  # 3.0 is clipped to 1
+    np.testing.assert_allclose(
+        [inf["coil_current_a"] for inf in infos], [i_max, -0.5 * i_max, 0.0, i_max]
+    )  # 3.0 is clipped to 1
     assert a.get_attr("render_mode") == [None] * 4
     assert a.env_is_wrapped(gym.Wrapper) == [False] * 4
 
@@ -251,6 +282,7 @@ def test_adapter_seeding():
 
 def test_adapter_refuses_next_step_autoreset():
     from pneumatic_env.agents.sb3 import SB3VecEnv
+
     venv = gym.vector.SyncVectorEnv([lambda: gym.make(ID_05, max_episode_steps=5)])
     with pytest.raises(ValueError, match="autoreset_mode = SAME_STEP"):
         SB3VecEnv(venv)
@@ -258,6 +290,7 @@ def test_adapter_refuses_next_step_autoreset():
 
 def test_sb3_check_env_on_single_env():
     from stable_baselines3.common.env_checker import check_env
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # unbounded observations, [-2, 2] A action box
         check_env(gym.make(ID_05, max_episode_steps=20, normalize_observation=True))
@@ -265,19 +298,35 @@ def test_sb3_check_env_on_single_env():
 
 # --------------------------------------------------------------------------- learning
 
+
 @pytest.fixture(scope="module")
 def ppo_run(tmp_path_factory):
     """A few thousand PPO steps on 0.1 s episodes holding half the force scale."""
     from pneumatic_env.agents.train import train
+
     cfg = copy.deepcopy(load_agent_config("ppo-numatics-2m"))
     scale = force_scale(load_parameters("numatics", tube_length_m=0.5))
-    cfg.update(n_envs=8, episode_steps=100,
-               env_kwargs={"normalize_observation": True, "preview_steps": 5,
-                           "reference": {"kind": "step", "amplitude": 0.5 * scale}})
+    cfg.update(
+        n_envs=8,
+        episode_steps=100,
+        env_kwargs={
+            "normalize_observation": True,
+            "preview_steps": 5,
+            "reference": {"kind": "step", "amplitude": 0.5 * scale},
+        },
+    )
     cfg["hyperparameters"].update(n_steps=64, batch_size=128, n_epochs=5, learning_rate=1e-3)
     out = tmp_path_factory.mktemp("ppo")
-    summary = train("ppo", ID_05, cfg, timesteps=4096, seed=0, out=out, progress_bar=False,
-                    eval_seeds=(1, 2, 3, 4))
+    summary = train(
+        "ppo",
+        ID_05,
+        cfg,
+        timesteps=4096,
+        seed=0,
+        out=out,
+        progress_bar=False,
+        eval_seeds=(1, 2, 3, 4),
+    )
     return out, summary
 
 
@@ -293,7 +342,9 @@ def test_ppo_smoke_beats_zero_current(ppo_run):
 
 def test_exported_ppo_policy_matches_sb3_predict(ppo_run):
     from stable_baselines3 import PPO
+
     from pneumatic_env.agents.policy import NumpyPolicy
+
     out, _ = ppo_run
     model = PPO.load(out / "model.zip", device="cpu")
     policy = NumpyPolicy(out / "model.npz")
@@ -305,12 +356,26 @@ def test_exported_ppo_policy_matches_sb3_predict(ppo_run):
 
 def test_exported_sac_policy_matches_sb3_predict(tmp_path):
     from stable_baselines3 import SAC
+
     from pneumatic_env.agents.policy import NumpyPolicy, export_policy
+
     env = _adapter(2, 20, normalize_observation=True)
-    model = SAC("MlpPolicy", env, seed=1, device="cpu", learning_starts=10,
-                policy_kwargs={"net_arch": [16, 16]})
-    path = export_policy(model, tmp_path / "sac.npz", env_id=ID_05, preview_steps=10,
-                         normalize_observation=True, action_scale_a=2.0)
+    model = SAC(
+        "MlpPolicy",
+        env,
+        seed=1,
+        device="cpu",
+        learning_starts=10,
+        policy_kwargs={"net_arch": [16, 16]},
+    )
+    path = export_policy(
+        model,
+        tmp_path / "sac.npz",
+        env_id=ID_05,
+        preview_steps=10,
+        normalize_observation=True,
+        action_scale_a=2.0,
+    )
     policy = NumpyPolicy(path)
     obs = np.random.default_rng(1).normal(size=(16, policy.obs_dim)).astype(np.float32)
     expected, _ = model.predict(obs, deterministic=True)

@@ -1,5 +1,6 @@
 """Effects beyond the paper's model (docs/effects.md): off at their neutral value, and each
 does what its physics says."""
+
 import math
 
 import gymnasium as gym
@@ -9,16 +10,19 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 import pneumatic_env  # noqa: F401  (registers the environments)
+from conftest import areas, run_batch
 from pneumatic_env.params import ConfigError, load_parameters, parameter_array, parameter_info
 from pneumatic_env.physics import effects as E
 from pneumatic_env.physics import kernel
 from pneumatic_env.physics import layout as L
-from pneumatic_env.physics.flow import (flow_constants, orifice_mass_flow, reduced_flow,
-                                        subsonic_reduced_flow)
+from pneumatic_env.physics.flow import (
+    flow_constants,
+    orifice_mass_flow,
+    reduced_flow,
+    subsonic_reduced_flow,
+)
 from pneumatic_env.physics.valve import orifice_area, steady_spool_position
 from pneumatic_env.simulator import BatchSimulator
-
-from conftest import areas, run_batch
 
 NEUTRAL = L.EFFECT_NEUTRAL_VALUES
 # one setting per effect that switches it on
@@ -56,6 +60,7 @@ def _sim(param_sets, initial=None):
 
 # --------------------------------------------------------------------------- configs
 
+
 def test_defaults_are_neutral_and_documented():
     values = load_parameters()
     for name, neutral in NEUTRAL.items():
@@ -65,8 +70,11 @@ def test_defaults_are_neutral_and_documented():
         assert info["source"].startswith("assumed: ")
     assert parameter_info("flow_law")["names"] == {0: "paper", 1: "iso6358"}
     assert load_parameters(flow_law="iso6358")["flow_law"] == 1.0
-    with pytest.raises(ConfigError, match=r"override 'coil_time_constant_s' = -0.001 is not "
-                                          r"allowed: must be in \[0.0, 1.0\] s"):
+    with pytest.raises(
+        ConfigError,
+        match=r"override 'coil_time_constant_s' = -0.001 is not "
+        r"allowed: must be in \[0.0, 1.0\] s",
+    ):
         load_parameters(coil_time_constant_s=-0.001)
 
 
@@ -78,8 +86,9 @@ def test_neutral_sub_models_return_the_paper_quantity_exactly():
     c1, c2, p_cr = flow_constants(1.4, 287.0)
     slope = subsonic_reduced_flow(0.995, 1.4, c2) / 0.005
     for r in (0.3, 0.6, 0.9, 0.998):
-        assert (reduced_flow(r, 1.4, c1, c2, p_cr, 0.995, slope, 0)
-                == reduced_flow(r, 1.4, c1, c2, p_cr, 0.995, slope))
+        assert reduced_flow(r, 1.4, c1, c2, p_cr, 0.995, slope, 0) == reduced_flow(
+            r, 1.4, c1, c2, p_cr, 0.995, slope
+        )
 
 
 def test_effects_switch_per_environment():
@@ -113,14 +122,17 @@ def test_effect_through_gym_make():
 
 # --------------------------------------------------------------------------- 1 tube volume
 
+
 def test_tube_volume_adds_whole_tube_to_each_dead_volume():
     p = load_parameters(tube_length_m=2.0)
     tube = math.pi / 4 * p["tube_inner_diameter_m"] ** 2 * 2.0
     assert tube == pytest.approx(16.1e-6, rel=0.01)  # model-notes: a 2 m tube holds ~16 cm^3
     with_fraction = load_parameters(tube_length_m=2.0, tube_volume_fraction=1.0)
-    bigger_dead = load_parameters(tube_length_m=2.0,
-                                  dead_volume_cap_m3=p["dead_volume_cap_m3"] + tube,
-                                  dead_volume_rod_m3=p["dead_volume_rod_m3"] + tube)
+    bigger_dead = load_parameters(
+        tube_length_m=2.0,
+        dead_volume_cap_m3=p["dead_volume_cap_m3"] + tube,
+        dead_volume_rod_m3=p["dead_volume_rod_m3"] + tube,
+    )
     out = run_batch([p, with_fraction, bigger_dead], np.full(60, 0.6))
     np.testing.assert_allclose(out[:, :, 1], out[:, :, 2], rtol=1e-9, atol=1e-9)
     # the larger volume fills more slowly
@@ -128,6 +140,7 @@ def test_tube_volume_adds_whole_tube_to_each_dead_volume():
 
 
 # --------------------------------------------------------------------------- 2 rod-seal leak
+
 
 def test_rod_seal_leak_empties_chamber_2_into_the_atmosphere():
     area = 1e-8
@@ -140,8 +153,9 @@ def test_rod_seal_leak_empties_chamber_2_into_the_atmosphere():
     assert np.all(out[:, L.O_P1, 0] == 4e5)
     assert np.all(np.diff(out[:, L.O_P2, 0]) < 0)
     # every kilogram leaving chamber 2 (isothermal outflow, alpha_out = 1) is counted as exhaust
-    np.testing.assert_allclose(out[:, L.O_EXHAUST, 0], (5e5 - out[:, L.O_P2, 0]) * v2 / gas_rt,
-                               rtol=1e-9)
+    np.testing.assert_allclose(
+        out[:, L.O_EXHAUST, 0], (5e5 - out[:, L.O_P2, 0]) * v2 / gas_rt, rtol=1e-9
+    )
     # first millisecond: choked flow of Eq. 39, C_f A P2 C1 / sqrt(T)
     c1 = math.sqrt(1.4 / 287.0 * (2 / 2.4) ** (2.4 / 0.4))
     choked = p["discharge_coefficient"] * area * 5e5 * c1 / math.sqrt(p["temperature_k"])
@@ -149,6 +163,7 @@ def test_rod_seal_leak_empties_chamber_2_into_the_atmosphere():
 
 
 # --------------------------------------------------------------------------- 3 null leak
+
 
 def test_null_leak_holds_centred_chambers_at_the_leak_balance_pressure():
     leak = 1e-6
@@ -166,17 +181,21 @@ def test_null_leak_holds_centred_chambers_at_the_leak_balance_pressure():
     # equal areas on the supply and exhaust side; Eq. 14 is steady where
     # alpha_in mdot_in = alpha_out mdot_out
     a_in, a_out = p["alpha_in"], p["alpha_out"]
-    p_eq = brentq(lambda q: a_in * ps * m_r(q / ps) - a_out * q * m_r(pa / q),
-                  pa * 1.001, ps * 0.999)
+    p_eq = brentq(
+        lambda q: a_in * ps * m_r(q / ps) - a_out * q * m_r(pa / q), pa * 1.001, ps * 0.999
+    )
     assert out[-1, L.O_P1, 1] == pytest.approx(p_eq, rel=2e-3)
     assert out[-1, L.O_P2, 1] == pytest.approx(p_eq, rel=2e-3)
 
 
 # --------------------------------------------------------------------------- 4 exhaust C_f
 
+
 def test_exhaust_discharge_ratio_scales_the_choked_blow_down():
-    sets = [load_parameters(tube_length_m=0.0),
-            load_parameters(tube_length_m=0.0, exhaust_discharge_ratio=0.5)]
+    sets = [
+        load_parameters(tube_length_m=0.0),
+        load_parameters(tube_length_m=0.0, exhaust_discharge_ratio=0.5),
+    ]
     out = run_batch(sets, np.full(40, -1.5), initial={"p1": 5e5})
     p1 = out[:, L.O_P1, :]
     choked = np.all(p1 > 2.0e5, axis=1) & (p1[:, 0] < 5e5 - 1.0)
@@ -187,6 +206,7 @@ def test_exhaust_discharge_ratio_scales_the_choked_blow_down():
 
 
 # --------------------------------------------------------------------------- 5 ISO 6358
+
 
 def test_iso_flow_law_follows_the_ellipse_between_b_and_the_linear_region():
     b = 0.3
@@ -200,24 +220,28 @@ def test_iso_flow_law_follows_the_ellipse_between_b_and_the_linear_region():
     full = p["discharge_coefficient"] * area * ps * c1 / math.sqrt(p["temperature_k"])
     for r in (0.2, 0.3, 0.45, 0.6, 0.9, 0.99):
         p1 = r * ps
-        flow = kernel.valve_chamber_flows(c, x_s, p1, 1e5, p1, 1e5, c.inv_sqrt_t,
-                                          c.inv_sqrt_t, c.ambient_pa)[0]
+        flow = kernel.valve_chamber_flows(
+            c, x_s, p1, 1e5, p1, 1e5, c.inv_sqrt_t, c.inv_sqrt_t, c.ambient_pa
+        )[0]
         expected = full * math.sqrt(1 - (max(r - b, 0.0) / (1 - b)) ** 2)
         assert flow == pytest.approx(expected, rel=1e-12), r
-        paper = kernel.valve_chamber_flows(c_paper, x_s, p1, 1e5, p1, 1e5, c.inv_sqrt_t,
-                                           c.inv_sqrt_t, c.ambient_pa)[0]
+        paper = kernel.valve_chamber_flows(
+            c_paper, x_s, p1, 1e5, p1, 1e5, c.inv_sqrt_t, c.inv_sqrt_t, c.ambient_pa
+        )[0]
         if r > 0.528:  # the paper's law is subsonic there and differs
             assert abs(paper - flow) > 1e-3 * full
     # above flow_linear_ratio: the straight line to zero at r = 1, continuous at r_lin
     r_lin = p["flow_linear_ratio"]
     at_lin = full * math.sqrt(1 - ((r_lin - b) / (1 - b)) ** 2)
     r = 0.5 * (r_lin + 1)
-    flow = kernel.valve_chamber_flows(c, x_s, r * ps, 1e5, r * ps, 1e5, c.inv_sqrt_t,
-                                      c.inv_sqrt_t, c.ambient_pa)[0]
+    flow = kernel.valve_chamber_flows(
+        c, x_s, r * ps, 1e5, r * ps, 1e5, c.inv_sqrt_t, c.inv_sqrt_t, c.ambient_pa
+    )[0]
     assert flow == pytest.approx(at_lin * (1 - r) / (1 - r_lin), rel=1e-9)
 
 
 # --------------------------------------------------------------------------- 6 supply droop
+
 
 def test_supply_droop_lowers_the_supply_pressure_by_resistance_times_flow():
     resistance = 5e6
@@ -226,27 +250,31 @@ def test_supply_droop_lowers_the_supply_pressure_by_resistance_times_flow():
     x_s = 1.5e-3  # fully open to chamber 1; path b is shut
 
     def flow(consts, p1):
-        return kernel.valve_chamber_flows(consts, x_s, p1, 1e5, p1, 1e5, consts.inv_sqrt_t,
-                                          consts.inv_sqrt_t, consts.ambient_pa)[0]
+        return kernel.valve_chamber_flows(
+            consts, x_s, p1, 1e5, p1, 1e5, consts.inv_sqrt_t, consts.inv_sqrt_t, consts.ambient_pa
+        )[0]
 
     def ideal_flow(supply_pa, p1):  # no resistance, supply at supply_pa
         return flow(_constants(tube_length_m=0.0, supply_pressure_pa=supply_pa), p1)
 
     for p1 in (1.5e5, 4.5e5, 6.0e5, 6.45e5):  # choked, subsonic, near the linear region
         drooped = flow(c, p1)
-        at_valve = brentq(lambda q: q - ps + resistance * ideal_flow(q, p1), p1 + 1e-6, ps)
+        at_valve = brentq(lambda q, p1=p1: q - ps + resistance * ideal_flow(q, p1), p1 + 1e-6, ps)
         assert at_valve < ps
         assert drooped == pytest.approx(ideal_flow(at_valve, p1), rel=1e-8), p1
         assert drooped == pytest.approx((ps - at_valve) / resistance, rel=1e-6), p1
     assert ps - resistance * flow(c, 1.5e5) < ps - 2e4
     # no flow, no droop: the chamber still fills to the supply pressure, later
-    out = run_batch([load_parameters(),
-                     load_parameters(supply_resistance_pa_s_per_kg=resistance)], np.full(300, 1.0))
+    out = run_batch(
+        [load_parameters(), load_parameters(supply_resistance_pa_s_per_kg=resistance)],
+        np.full(300, 1.0),
+    )
     assert out[10, L.O_P1, 1] < out[10, L.O_P1, 0] - 5e3
     assert out[-1, L.O_P1, 1] == pytest.approx(ps, rel=1e-4)
 
 
 # --------------------------------------------------------------------------- 6b exhaust vent
+
 
 def test_exhaust_vent_passes_what_the_valve_exhausts():
     """The exhaust node behind a vent holds no air: at its pressure (an independent root of
@@ -257,63 +285,112 @@ def test_exhaust_vent_passes_what_the_valve_exhausts():
     k, pa, inv_sqrt_t = p["heat_capacity_ratio"], p["ambient_pressure_pa"], c.inv_sqrt_t
 
     def eq39(area, discharge, p_from, p_to):
-        return orifice_mass_flow(area, discharge, p_from, p_to, inv_sqrt_t, k, c.c1, c.c2,
-                                 c.critical_ratio, c.linear_ratio, c.linear_slope)
+        return orifice_mass_flow(
+            area,
+            discharge,
+            p_from,
+            p_to,
+            inv_sqrt_t,
+            k,
+            c.c1,
+            c.c2,
+            c.critical_ratio,
+            c.linear_ratio,
+            c.linear_slope,
+        )
 
     for x_s in (-1.5e-3, -1.05e-3):  # chamber 1 exhausts through path b: fully, barely open
-        area_b = orifice_area(-x_s, p["hole_radius_m"], p["spool_half_width_m"],
-                              p["holes_per_path"])
+        area_b = orifice_area(
+            -x_s, p["hole_radius_m"], p["spool_half_width_m"], p["holes_per_path"]
+        )
         for p1 in (1.3e5, 2.5e5, 6.0e5):
-            at_node = brentq(lambda q: eq39(area_b, c.discharge_ex, p1, q) - eq39(vent, 1.0, q, pa),
-                             pa, p1, xtol=1e-9)
-            flows = kernel.valve_chamber_flows(c, x_s, p1, 3e5, p1, 3e5, inv_sqrt_t, inv_sqrt_t,
-                                               pa)
+            at_node = brentq(
+                lambda q, area_b=area_b, p1=p1: (
+                    eq39(area_b, c.discharge_ex, p1, q) - eq39(vent, 1.0, q, pa)
+                ),
+                pa,
+                p1,
+                xtol=1e-9,
+            )
+            flows = kernel.valve_chamber_flows(c, x_s, p1, 3e5, p1, 3e5, inv_sqrt_t, inv_sqrt_t, pa)
             exhausted = flows[1]
             assert exhausted == pytest.approx(eq39(vent, 1.0, at_node, pa), rel=1e-8), (x_s, p1)
-            assert exhausted == pytest.approx(eq39(area_b, c.discharge_ex, p1, at_node),
-                                              rel=1e-8), (x_s, p1)
+            assert exhausted == pytest.approx(
+                eq39(area_b, c.discharge_ex, p1, at_node), rel=1e-8
+            ), (x_s, p1)
             assert pa < at_node < p1
             open_exhaust = _constants(tube_length_m=0.0)
-            assert exhausted < kernel.valve_chamber_flows(
-                open_exhaust, x_s, p1, 3e5, p1, 3e5, inv_sqrt_t, inv_sqrt_t, pa)[1]
+            assert (
+                exhausted
+                < kernel.valve_chamber_flows(
+                    open_exhaust, x_s, p1, 3e5, p1, 3e5, inv_sqrt_t, inv_sqrt_t, pa
+                )[1]
+            )
     # no flow, no back-pressure: a vented chamber still empties to the atmosphere, later
-    out = run_batch([load_parameters(), load_parameters(exhaust_vent_area_m2=vent)],
-                    np.full(400, -1.0), initial={"p1": 6e5})
+    out = run_batch(
+        [load_parameters(), load_parameters(exhaust_vent_area_m2=vent)],
+        np.full(400, -1.0),
+        initial={"p1": 6e5},
+    )
     assert out[5, L.O_P1, 1] > out[5, L.O_P1, 0] + 5e3
     assert out[-1, L.O_P1, 1] == pytest.approx(pa, rel=1e-3)
-    with pytest.raises(ConfigError, match=r"^override 'exhaust_vent_area_m2' = 2e-06 is not "
-                                          r"allowed: must be 0: the exhaust back-pressure is "
-                                          r"not implemented with the transmission line "
-                                          r"\(tube_waves = 1\)$"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^override 'exhaust_vent_area_m2' = 2e-06 is not "
+        r"allowed: must be 0: the exhaust back-pressure is "
+        r"not implemented with the transmission line "
+        r"\(tube_waves = 1\)$",
+    ):
         load_parameters(tube_waves=1, exhaust_vent_area_m2=vent)
 
 
-@pytest.mark.parametrize("volume_m3, tolerance, lagging_step", [(1e-5, 0.005, 19),
-                                                                (1e-6, 0.03, 1)])
+@pytest.mark.parametrize("volume_m3, tolerance, lagging_step", [(1e-5, 0.005, 19), (1e-6, 0.03, 1)])
 def test_muffler_node_follows_an_independent_solution(volume_m3, tolerance, lagging_step):
     """A muffler node (``exhaust_volume_m3``), the valve's inputs held: the kernel's
     backward-Euler steps against solve_ivp of dP_e/dt = (R T / V) (valve in - vent out),
     Eq. 39 flows; to the tolerance (of the rise to the steady pressure) over 20 ms. With
     no volume the first step lands on the quasi-static pressure."""
     vent, x_s, p1, p2, h = 1.5e-6, -1.5e-3, 4e5, 3e5, 5e-5  # chamber 1 exhausts (path b)
-    p = load_parameters(tube_length_m=0.0, exhaust_vent_area_m2=vent,
-                        exhaust_volume_m3=volume_m3)
+    p = load_parameters(tube_length_m=0.0, exhaust_vent_area_m2=vent, exhaust_volume_m3=volume_m3)
     c = _constants(tube_length_m=0.0, exhaust_vent_area_m2=vent, exhaust_volume_m3=volume_m3)
     k, pa, inv_sqrt_t = p["heat_capacity_ratio"], p["ambient_pressure_pa"], c.inv_sqrt_t
     area_b = orifice_area(-x_s, p["hole_radius_m"], p["spool_half_width_m"], p["holes_per_path"])
     storage = volume_m3 / (p["gas_constant_j_per_kg_k"] * p["temperature_k"])
 
     def rate(_, pe):
-        valve = orifice_mass_flow(area_b, c.discharge_ex, p1, pe[0], inv_sqrt_t, k, c.c1, c.c2,
-                                  c.critical_ratio, c.linear_ratio, c.linear_slope)
-        vented = orifice_mass_flow(vent, 1.0, pe[0], pa, inv_sqrt_t, k, c.c1, c.c2,
-                                   c.critical_ratio, c.linear_ratio, c.linear_slope)
+        valve = orifice_mass_flow(
+            area_b,
+            c.discharge_ex,
+            p1,
+            pe[0],
+            inv_sqrt_t,
+            k,
+            c.c1,
+            c.c2,
+            c.critical_ratio,
+            c.linear_ratio,
+            c.linear_slope,
+        )
+        vented = orifice_mass_flow(
+            vent,
+            1.0,
+            pe[0],
+            pa,
+            inv_sqrt_t,
+            k,
+            c.c1,
+            c.c2,
+            c.critical_ratio,
+            c.linear_ratio,
+            c.linear_slope,
+        )
         return [(valve - vented) / storage]
 
     steps = 400
     times = h * np.arange(1, steps + 1)
-    reference = solve_ivp(rate, (0.0, times[-1]), [pa], t_eval=times, method="LSODA",
-                          rtol=1e-10, atol=1e-6).y[0]
+    reference = solve_ivp(
+        rate, (0.0, times[-1]), [pa], t_eval=times, method="LSODA", rtol=1e-10, atol=1e-6
+    ).y[0]
     history = np.zeros((3, L.N_HISTORY, 1))
     y = (x_s, 0.0, p1, p2, 0.0, 0.0, 0.0, c.temperature, c.temperature)
     node, ours = pa, []
@@ -324,13 +401,14 @@ def test_muffler_node_follows_an_independent_solution(volume_m3, tolerance, lagg
     assert rise > 2e5  # the steady back-pressure: close to p1, the valve no longer choked
     assert np.max(np.abs(np.array(ours) - reference)) < tolerance * rise
     assert reference[lagging_step] < pa + 0.5 * rise  # the volume makes it lag
-    quasi_static = kernel.exhaust_pressure_at_valve(c, 0.0, area_b, p1, p2, inv_sqrt_t,
-                                                    inv_sqrt_t, 0.0, pa)
+    quasi_static = kernel.exhaust_pressure_at_valve(
+        c, 0.0, area_b, p1, p2, inv_sqrt_t, inv_sqrt_t, 0.0, pa
+    )
     assert quasi_static == pytest.approx(reference[-1], rel=1e-6)
-    no_volume = _constants(tube_length_m=0.0, exhaust_vent_area_m2=vent,
-                           exhaust_volume_m3=1e-12)
-    assert kernel.exhaust_node_after_substep(no_volume, history, 0, 0, y, pa, h) == \
-        pytest.approx(quasi_static, rel=1e-5)
+    no_volume = _constants(tube_length_m=0.0, exhaust_vent_area_m2=vent, exhaust_volume_m3=1e-12)
+    assert kernel.exhaust_node_after_substep(no_volume, history, 0, 0, y, pa, h) == pytest.approx(
+        quasi_static, rel=1e-5
+    )
 
 
 def test_muffler_delays_the_back_pressure_and_lets_the_chamber_empty():
@@ -338,21 +416,25 @@ def test_muffler_delays_the_back_pressure_and_lets_the_chamber_empty():
     it empties as with no vent, later slower than with a vent alone; in the end it reaches
     ambient, and so does the muffler; the node stays at ambient with the effect off."""
     vent = 1.5e-6
-    sets = [load_parameters(), load_parameters(exhaust_vent_area_m2=vent),
-            load_parameters(exhaust_vent_area_m2=vent, exhaust_volume_m3=1e-5)]
+    sets = [
+        load_parameters(),
+        load_parameters(exhaust_vent_area_m2=vent),
+        load_parameters(exhaust_vent_area_m2=vent, exhaust_volume_m3=1e-5),
+    ]
     sim = _sim(sets, initial={"p1": 6e5})
     out = sim.rollout(np.full((400, 3), -1.0))
     open_vent, quasi_static, muffler = (out[:, L.O_P1, j] for j in range(3))
     assert abs(muffler[4] - open_vent[4]) < 0.2 * abs(quasi_static[4] - open_vent[4])
     assert muffler[60] > quasi_static[60] + 1e4
     assert muffler[-1] == pytest.approx(sets[0]["ambient_pressure_pa"], rel=1e-3)
-    assert sim.state[L.S_EXHAUST_NODE, 2] == pytest.approx(sets[0]["ambient_pressure_pa"],
-                                                           rel=1e-3)
-    np.testing.assert_array_equal(sim.state[L.S_EXHAUST_NODE, :2],
-                                  [sets[0]["ambient_pressure_pa"]] * 2)
+    assert sim.state[L.S_EXHAUST_NODE, 2] == pytest.approx(sets[0]["ambient_pressure_pa"], rel=1e-3)
+    np.testing.assert_array_equal(
+        sim.state[L.S_EXHAUST_NODE, :2], [sets[0]["ambient_pressure_pa"]] * 2
+    )
 
 
 # --------------------------------------------------------------------------- 7 coil lag
+
 
 def test_coil_lag_is_a_first_order_lag_of_the_current():
     tau = 0.004
@@ -371,8 +453,9 @@ def test_coil_lag_is_a_first_order_lag_of_the_current():
     assert np.all(sim.state[L.S_COIL] == 0.0)
 
 
-@pytest.mark.parametrize("coil_tau, force_tau", [(0.002, 0.001), (0.0015, 0.0015),
-                                                (0.002, 0.0), (0.003, 1e-8)])
+@pytest.mark.parametrize(
+    "coil_tau, force_tau", [(0.002, 0.001), (0.0015, 0.0015), (0.002, 0.0), (0.003, 1e-8)]
+)
 def test_coil_and_force_lags_match_an_independent_linear_simulation(coil_tau, force_tau):
     """The coil lag and the force lag behind it are two cascaded first-order lags of the held
     command: the kernel's exact solution equals SciPy's simulation of
@@ -380,10 +463,12 @@ def test_coil_and_force_lags_match_an_independent_linear_simulation(coil_tau, fo
     included, where the closed form has its removable singularity, and a vanishing force
     lag). The parameters are the total T = tau_c + tau_f and shape tau_c tau_f / T^2."""
     from scipy.signal import lsim
+
     total = coil_tau + force_tau
-    shape = coil_tau * force_tau / total ** 2
-    assert E.coil_time_constants(total, shape) == pytest.approx((coil_tau, force_tau),
-                                                                rel=1e-6, abs=1e-15)
+    shape = coil_tau * force_tau / total**2
+    assert E.coil_time_constants(total, shape) == pytest.approx(
+        (coil_tau, force_tau), rel=1e-6, abs=1e-15
+    )
     rng = np.random.default_rng(3)
     command = rng.uniform(-1.0, 1.0, 12)
     sim = _sim([load_parameters(coil_time_constant_s=total, coil_lag_shape=shape)])
@@ -410,8 +495,10 @@ def test_coil_and_force_lags_match_an_independent_linear_simulation(coil_tau, fo
 def test_the_force_lag_drives_the_spool():
     """With a force lag the spool follows the force current (Eq. 38 with K_f j): it lags
     the spool of the coil lag alone, and settles at the same position (Eq. 46)."""
-    sets = [load_parameters(coil_time_constant_s=0.002),
-            load_parameters(coil_time_constant_s=0.004, coil_lag_shape=0.25)]
+    sets = [
+        load_parameters(coil_time_constant_s=0.002),
+        load_parameters(coil_time_constant_s=0.004, coil_lag_shape=0.25),
+    ]
     sim = _sim(sets)
     sim.step(np.full(2, 0.5))
     assert 0.0 < sim.outputs[L.O_X_S, 1] < 0.5 * sim.outputs[L.O_X_S, 0]
@@ -421,6 +508,7 @@ def test_the_force_lag_drives_the_spool():
 
 
 # --------------------------------------------------------------------------- 8 heat transfer
+
 
 def test_closed_chamber_cools_to_the_wall_at_constant_mass():
     h_a = 0.05
@@ -457,6 +545,7 @@ def test_adiabatic_filling_heats_the_gas_as_the_first_law_says():
 
 # --------------------------------------------------------------------------- 9 Stribeck
 
+
 def test_stribeck_friction_falls_from_static_to_dynamic_with_speed():
     v_s = 0.02
     p = load_parameters(piston_mode="free", stribeck_velocity_m_per_s=v_s)
@@ -467,9 +556,25 @@ def test_stribeck_friction_falls_from_static_to_dynamic_with_speed():
     mass = p["piston_mass_kg"] + p["load_mass_kg"]
     f_sf, f_df = p["static_friction_n"], p["dynamic_friction_n"]
     for v in (1e-4, 0.01, 0.02, 0.2):
-        accel = kernel.derivatives(c, 0.0, 0.0, 0.0, p1, p2, 0.0, v, T_S, T_S, 1.0, 0.0,
-                                   p1, p2, (p1, p2, p1, p2), c.ambient_pa)[5]
-        friction = f_df + (f_sf - f_df) * math.exp(-(v / v_s) ** 2)
+        accel = kernel.derivatives(
+            c,
+            0.0,
+            0.0,
+            0.0,
+            p1,
+            p2,
+            0.0,
+            v,
+            T_S,
+            T_S,
+            1.0,
+            0.0,
+            p1,
+            p2,
+            (p1, p2, p1, p2),
+            c.ambient_pa,
+        )[5]
+        friction = f_df + (f_sf - f_df) * math.exp(-((v / v_s) ** 2))
         expected = (applied - p["viscous_friction_n_s_per_m"] * v - friction) / mass
         assert accel == pytest.approx(expected, rel=1e-12), v
     assert E.stribeck_friction(0.0, f_df, f_sf, v_s) == f_sf
@@ -477,6 +582,7 @@ def test_stribeck_friction_falls_from_static_to_dynamic_with_speed():
 
 
 # --------------------------------------------------------------------------- LuGre friction
+
 
 @pytest.mark.parametrize("velocity", [0.0, 1e-7, 3e-3, 0.05, -0.2])
 def test_lugre_bristle_step_is_the_exact_solution_at_a_held_velocity(velocity):
@@ -525,16 +631,22 @@ def test_lugre_pre_sliding_is_a_spring_and_breakaway_follows_the_friction_curve(
     little as the rod moves). Well above the static friction both slide."""
     sigma0 = 1e5
     mass = load_parameters()["piston_mass_kg"] + load_parameters()["load_mass_kg"]
-    lugre = {"lugre_stiffness_n_per_m": sigma0,
-             "lugre_damping_n_s_per_m": 2.0 * math.sqrt(sigma0 * mass)}  # critically damped
+    lugre = {
+        "lugre_stiffness_n_per_m": sigma0,
+        "lugre_damping_n_s_per_m": 2.0 * math.sqrt(sigma0 * mass),
+    }  # critically damped
     sim, p = _held_rod(0.25)
     assert sim.state[L.S_X, 0] == 0.0
     sim, p = _held_rod(0.25, **lugre)
     x, z, g = sim.state[L.S_X, 0], sim.state[L.S_BRISTLE, 0], p["dynamic_friction_n"]
     assert sim.state[L.S_V, 0] == pytest.approx(0.0, abs=1e-9)
     a1, a2, ar = areas(p)
-    net = (sim.state[L.S_P1, 0] * a1 - sim.state[L.S_P2, 0] * a2
-           - p["ambient_pressure_pa"] * ar - p["load_force_n"])
+    net = (
+        sim.state[L.S_P1, 0] * a1
+        - sim.state[L.S_P2, 0] * a2
+        - p["ambient_pressure_pa"] * ar
+        - p["load_force_n"]
+    )
     assert sigma0 * z == pytest.approx(net, rel=1e-6)
     # the bristles take each substep's starting velocity (operator splitting): 0.7 % here
     assert z == pytest.approx(g / sigma0 * -math.expm1(-sigma0 * x / g), rel=0.02)
@@ -549,9 +661,13 @@ def test_stiff_lugre_bristles_split_the_substep_and_match_a_fine_one():
     at the default 200 us substep: ``refinement`` splits it (h sqrt(sigma0 / M) = 2.8), and
     the rod follows a run at 80 substeps per ms."""
     mass = load_parameters()["piston_mass_kg"]
-    lugre = dict(piston_mode="free", tube_length_m=0.5, lugre_stiffness_n_per_m=1e7,
-                 lugre_damping_n_s_per_m=2.0 * math.sqrt(1e7 * mass),
-                 stribeck_velocity_m_per_s=0.01)
+    lugre = dict(
+        piston_mode="free",
+        tube_length_m=0.5,
+        lugre_stiffness_n_per_m=1e7,
+        lugre_damping_n_s_per_m=2.0 * math.sqrt(1e7 * mass),
+        stribeck_velocity_m_per_s=0.01,
+    )
     c = kernel.env_constants(parameter_array(load_parameters(**lugre)), 0, 2e-4)
     y = (0.0, 0.0, 3e5, 3e5, 0.0, 0.0, 0.0, T_S, T_S)
     assert kernel.refinement(c, y, 2e-4) >= 8
@@ -566,6 +682,7 @@ def test_stiff_lugre_bristles_split_the_substep_and_match_a_fine_one():
 
 
 # --------------------------------------------------------------------------- 10 spool friction
+
 
 def test_spool_friction_is_a_play_of_half_width_friction_over_coil_force():
     """The settled spool sits at Eq. 46's position of the play's current: it does not move
@@ -601,26 +718,31 @@ def test_spool_friction_is_a_play_of_half_width_friction_over_coil_force():
     assert np.all(sim.state[L.S_PLAY] == 0.0)
 
 
-
 # --------------------------------------------------------------------------- 11 tube waves
+
 
 def test_segmented_line_reference_conserves_the_air():
     from pneumatic_env.studies.reference_solution import simulate_segmented_line
+
     ref = simulate_segmented_line(load_parameters(tube_length_m=2.0), 0.5, 0.03, n_segments=10)
     assert ref["line_mass_kg"] > 0.0 and ref["chamber_mass_kg"] > 0.0
     assert ref["line_mass_kg"] + ref["chamber_mass_kg"] == pytest.approx(
-        ref["valve_mass_kg"], rel=1e-6)
+        ref["valve_mass_kg"], rel=1e-6
+    )
 
 
-@pytest.mark.parametrize("tube_length_m, current_a, tolerance", [
-    (0.5, 0.5, 0.01), (2.0, 0.5, 0.05), (2.0, -0.3, 0.05)])
-def test_transmission_line_follows_an_independent_segmented_line(tube_length_m, current_a,
-                                                                  tolerance):
+@pytest.mark.parametrize(
+    "tube_length_m, current_a, tolerance", [(0.5, 0.5, 0.01), (2.0, 0.5, 0.05), (2.0, -0.3, 0.05)]
+)
+def test_transmission_line_follows_an_independent_segmented_line(
+    tube_length_m, current_a, tolerance
+):
     """Chamber pressures of a current step through the transmission line against a
     30-segment finite-volume line (SciPy, ``reference_solution.simulate_segmented_line``),
     which conserves the air and so fills the chambers much faster than the paper's
     attenuated tube (Eq. 30 removes the flow it attenuates)."""
     from pneumatic_env.studies.tube_study import tube_model_errors
+
     errors = tube_model_errors(tube_length_m, current_a)
     assert errors["transmission line"] < tolerance
     assert errors["paper tube (Eqs. 30, 31)"] > 3.0 * errors["transmission line"]
@@ -629,13 +751,22 @@ def test_transmission_line_follows_an_independent_segmented_line(tube_length_m, 
 def test_line_chamber_flow_solves_its_end_equation():
     """m (Z_c + R(m)/2) = W_in - P at the chamber end, laminar and turbulent (Eqs. 33, 35)."""
     from pneumatic_env.physics.tube import line_chamber_flow, line_resistance, sound_speed
+
     c = _constants(tube_length_m=2.0, tube_waves=1)
     p = 5e5
     for drive in (-3e5, -2e4, -50.0, 50.0, 1e3, 2e4, 3e5):
-        m = line_chamber_flow(p + drive, p, c.line_impedance, c.line_friction,
-                              c.tube_diameter, c.viscosity, c.reynolds_turbulent)
-        resistance = line_resistance(m, p, c.line_friction, c.tube_diameter, c.viscosity,
-                                     c.reynolds_turbulent)
+        m = line_chamber_flow(
+            p + drive,
+            p,
+            c.line_impedance,
+            c.line_friction,
+            c.tube_diameter,
+            c.viscosity,
+            c.reynolds_turbulent,
+        )
+        resistance = line_resistance(
+            m, p, c.line_friction, c.tube_diameter, c.viscosity, c.reynolds_turbulent
+        )
         assert m * (c.line_impedance + 0.5 * resistance) == pytest.approx(drive, rel=1e-9)
     area = math.pi / 4 * load_parameters()["tube_inner_diameter_m"] ** 2
     assert c.line_impedance == pytest.approx(sound_speed(1.4, 287.0, T_S) / area, rel=1e-3)
@@ -645,8 +776,9 @@ def test_transmission_line_delays_by_the_tube_and_rings():
     """Nothing reaches the chamber before the wave, tau = L_t / c (Eq. 31); the filled
     chamber overshoots the supply pressure and settles on it (a reflected wave)."""
     p = load_parameters(tube_length_m=3.0, tube_waves=1)
-    tau = 3.0 / math.sqrt(p["heat_capacity_ratio"] * p["gas_constant_j_per_kg_k"]
-                          * p["temperature_k"])
+    tau = 3.0 / math.sqrt(
+        p["heat_capacity_ratio"] * p["gas_constant_j_per_kg_k"] * p["temperature_k"]
+    )
     out = run_batch([p], np.full(300, 1.0))[:, :, 0]
     before = int(tau / 1e-3)  # whole control steps before the wave arrives
     assert before == 8
@@ -658,17 +790,23 @@ def test_transmission_line_delays_by_the_tube_and_rings():
 
 
 def test_transmission_line_refuses_what_it_cannot_do():
-    with pytest.raises(ConfigError, match=r"^override 'tube_volume_fraction' = 0.5 is not "
-                                          r"allowed: must be 0: the transmission line holds "
-                                          r"the tube's air itself \(tube_waves = 1\)$"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^override 'tube_volume_fraction' = 0.5 is not "
+        r"allowed: must be 0: the transmission line holds "
+        r"the tube's air itself \(tube_waves = 1\)$",
+    ):
         load_parameters(tube_waves=1, tube_volume_fraction=0.5)
     with pytest.raises(ConfigError, match=r"^override 'tube_coupling' = 1.0 is not allowed"):
         load_parameters(tube_waves=1, tube_coupling="literal")
-    with pytest.raises(ValueError, match=r"^tube_waves = 1 \(transmission line\) of environment "
-                                         r"1 needs a tube delay L_t/c of at least one substep "
-                                         r"\(5e-05 s\); tube_length_m = 0.01 gives 2.91\d*e-05 s: "
-                                         r"use a tube of at least 0.0172 m or more substeps, or "
-                                         r"tube_waves = 0$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^tube_waves = 1 \(transmission line\) of environment "
+        r"1 needs a tube delay L_t/c of at least one substep "
+        r"\(5e-05 s\); tube_length_m = 0.01 gives 2.91\d*e-05 s: "
+        r"use a tube of at least 0.0172 m or more substeps, or "
+        r"tube_waves = 0$",
+    ):
         _sim([load_parameters(), load_parameters(tube_length_m=0.01, tube_waves=1)])
     sim = _sim([load_parameters(), load_parameters()])
     before = sim.params.copy()

@@ -4,6 +4,7 @@ Single env (gym.make) and native vector env (gym.make_vec) of every registered i
 Gymnasium's env checker, exact single/vector equality through same-step autoreset,
 seeding, action and keyword validation, parameter overrides, rendering, reward bounds.
 """
+
 from __future__ import annotations
 
 import gc
@@ -24,25 +25,32 @@ POSITION_ID = "pneumatic_env/PositionTrack-Airpel-2m-v0"
 EPISODE = 50  # short episodes so a few hundred steps cross several truncations
 SHORT = dict(max_episode_steps=EPISODE)
 RANDOMIZED = dict(
-    domain_randomization={"supply_pressure_pa": 0.2, "tube_length_m": (0.5, 3.0),
-                          "dynamic_friction_n": 0.5},
+    domain_randomization={
+        "supply_pressure_pa": 0.2,
+        "tube_length_m": (0.5, 3.0),
+        "dynamic_friction_n": 0.5,
+    },
     sensor_noise={"p1": 1000.0, "p2": 1000.0, "x": 1e-4, "f": 0.5},
     sensor_lag_s=2e-3,
 )
 # Gymnasium's checker recommends a normalised action space and finite observation bounds;
 # the action is a coil current in A and sensor noise makes the observation unbounded.
-KNOWN_CHECKER_WARNINGS = ("Box observation space minimum value is -infinity",
-                          "Box observation space maximum value is infinity",
-                          "we recommend using a symmetric and normalized space")
+KNOWN_CHECKER_WARNINGS = (
+    "Box observation space minimum value is -infinity",
+    "Box observation space maximum value is infinity",
+    "we recommend using a symmetric and normalized space",
+)
 
 
 def _actions(n_steps, shape, seed=0, low=-2.5, high=2.5):
     """Random currents, some beyond the +-2 A range (they must be clipped)."""
-    return np.random.default_rng(seed).uniform(low, high, size=(n_steps,) + shape).astype(
-        np.float32)
+    return (
+        np.random.default_rng(seed).uniform(low, high, size=(n_steps,) + shape).astype(np.float32)
+    )
 
 
 # --------------------------------------------------------------------------- env checker
+
 
 @pytest.mark.parametrize("env_id", pneumatic_env.registered_ids())
 def test_check_env_passes(env_id):
@@ -51,8 +59,11 @@ def test_check_env_passes(env_id):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         check_env(env.unwrapped)
-    unexpected = [str(w.message) for w in caught
-                  if not any(k in str(w.message) for k in KNOWN_CHECKER_WARNINGS)]
+    unexpected = [
+        str(w.message)
+        for w in caught
+        if not any(k in str(w.message) for k in KNOWN_CHECKER_WARNINGS)
+    ]
     assert not unexpected
     env.close()
 
@@ -71,6 +82,7 @@ def test_registered_ids_cover_tasks_cylinders_tubes():
 
 
 # --------------------------------------------------------------------------- single == vector
+
 
 @pytest.mark.parametrize("env_id", [FORCE_ID, POSITION_ID])
 @pytest.mark.parametrize("extra", [{}, RANDOMIZED], ids=["plain", "randomized-noisy"])
@@ -135,6 +147,7 @@ def test_vector_env_references_over_several_blocks_are_the_single_envs():
     blocks, at reset and after a partial autoreset, env i's reference is the single env's
     with seed 11 + i."""
     from pneumatic_env.envs.tasks import REFERENCE_BLOCK_ENVS
+
     n = 2 * REFERENCE_BLOCK_ENVS + 3
     venv = gym.make_vec(FORCE_ID, num_envs=n, max_episode_steps=3)
     venv.reset(seed=11)
@@ -158,6 +171,7 @@ def test_vector_env_references_over_several_blocks_are_the_single_envs():
 
 
 # --------------------------------------------------------------------------- seeding
+
 
 @pytest.mark.parametrize("env_id", [FORCE_ID, POSITION_ID])
 def test_same_seed_same_episode(env_id):
@@ -199,18 +213,21 @@ def test_different_seeds_give_different_references(env_id):
 
 # --------------------------------------------------------------------------- actions
 
+
 def test_bad_actions_single_env():
     env = gym.make(FORCE_ID)
     env.reset(seed=0)
     for bad, shown in ((np.nan, "nan"), (np.inf, "inf"), (-np.inf, "-inf")):
         with pytest.raises(ValueError) as err:
             env.step(np.array([bad], dtype=np.float32))
-        assert str(err.value) == (f"action contains {shown}: the coil current must be finite, "
-                                  f"in [-2.0, 2.0] A")
+        assert str(err.value) == (
+            f"action contains {shown}: the coil current must be finite, in [-2.0, 2.0] A"
+        )
     with pytest.raises(ValueError) as err:
         env.step(np.zeros(2, dtype=np.float32))
-    assert str(err.value) == ("action has shape (2,), expected (1, 1) or (1,): one coil "
-                              "current (A) per environment")
+    assert str(err.value) == (
+        "action has shape (2,), expected (1, 1) or (1,): one coil current (A) per environment"
+    )
 
 
 def test_bad_actions_vector_env():
@@ -218,12 +235,14 @@ def test_bad_actions_vector_env():
     venv.reset(seed=0)
     with pytest.raises(ValueError) as err:
         venv.step(np.zeros((3, 2), dtype=np.float32))
-    assert str(err.value) == ("action has shape (3, 2), expected (3, 1) or (3,): one coil "
-                              "current (A) per environment")
+    assert str(err.value) == (
+        "action has shape (3, 2), expected (3, 1) or (3,): one coil current (A) per environment"
+    )
     with pytest.raises(ValueError) as err:
         venv.step(np.array([[0.1], [np.nan], [0.0]], dtype=np.float32))
-    assert str(err.value) == ("action contains nan: the coil current must be finite, "
-                              "in [-2.0, 2.0] A")
+    assert str(err.value) == (
+        "action contains nan: the coil current must be finite, in [-2.0, 2.0] A"
+    )
 
 
 def test_out_of_range_actions_are_clipped_and_reported():
@@ -246,36 +265,48 @@ def test_out_of_range_actions_are_clipped_and_reported():
 
 # --------------------------------------------------------------------------- keyword validation
 
-@pytest.mark.parametrize("make", [gym.make, lambda i, **kw: gym.make_vec(i, num_envs=2, **kw)],
-                         ids=["single", "vector"])
+
+@pytest.mark.parametrize(
+    "make", [gym.make, lambda i, **kw: gym.make_vec(i, num_envs=2, **kw)], ids=["single", "vector"]
+)
 def test_bad_keyword_arguments(make):
     with pytest.raises(ConfigError) as err:
         make(FORCE_ID, supply_presure_pa=5e5)
-    assert str(err.value) == ("override 'supply_presure_pa' is not a known parameter; "
-                              "did you mean 'supply_pressure_pa'?")
-    with pytest.raises(ConfigError, match=r"^override 'supply_pressure_pa' = -1\.0 is not "
-                                          r"allowed: must be in "):
+    assert str(err.value) == (
+        "override 'supply_presure_pa' is not a known parameter; did you mean 'supply_pressure_pa'?"
+    )
+    with pytest.raises(
+        ConfigError,
+        match=r"^override 'supply_pressure_pa' = -1\.0 is not "
+        r"allowed: must be in ",
+    ):
         make(FORCE_ID, supply_pressure_pa=-1.0)
     with pytest.raises(ValueError) as err:
         make(FORCE_ID, reference_steps=0)
     assert str(err.value) == "reference_steps = 0 is not allowed: must be an integer >= 1"
     with pytest.raises(ValueError) as err:
         make(FORCE_ID, sensor_noise={"q": 1.0})
-    assert str(err.value) == ("sensor_noise key = 'q' is not allowed: must be one of "
-                              "['p1', 'p2', 'x', 'f']")
+    assert str(err.value) == (
+        "sensor_noise key = 'q' is not allowed: must be one of ['p1', 'p2', 'x', 'f']"
+    )
     with pytest.raises(ValueError) as err:
         make(FORCE_ID, sensor_noise={"f": -1.0})
-    assert str(err.value) == ("sensor_noise['f'] = -1.0 is not allowed: must be a finite "
-                              "number >= 0")
+    assert str(err.value) == (
+        "sensor_noise['f'] = -1.0 is not allowed: must be a finite number >= 0"
+    )
     with pytest.raises(ValueError) as err:
         make(FORCE_ID, effort_weight=np.nan)
     assert str(err.value) == "effort_weight = nan is not allowed: must be a finite number >= 0"
     with pytest.raises(ValueError) as err:
         make(FORCE_ID, task="Balance")
-    assert str(err.value) == ("task = 'Balance' is not known: allowed "
-                              "['ForceTrack', 'PositionTrack']")
-    with pytest.raises(ValueError, match=r"^domain_randomization\['supply_pressure_pa'\] = 1\.5 "
-                                         r"is not allowed: "):
+    assert str(err.value) == (
+        "task = 'Balance' is not known: allowed ['ForceTrack', 'PositionTrack']"
+    )
+    with pytest.raises(
+        ValueError,
+        match=r"^domain_randomization\['supply_pressure_pa'\] = 1\.5 "
+        r"is not allowed: ",
+    ):
         make(FORCE_ID, domain_randomization={"supply_pressure_pa": 1.5})
 
 
@@ -300,6 +331,7 @@ def test_bad_render_mode_vector_env():
 
 # --------------------------------------------------------------------------- parameters
 
+
 def _steady_force(env, n_steps=300, current=1.0):
     env.reset(seed=0)
     for _ in range(n_steps):
@@ -318,24 +350,28 @@ def test_parameter_override_changes_the_steady_force():
     lowered = _steady_force(gym.make(FORCE_ID, supply_pressure_pa=5e5))
     assert default == pytest.approx(_clamped_steady_force(load_parameters()), rel=1e-3)
     assert lowered == pytest.approx(
-        _clamped_steady_force(load_parameters(supply_pressure_pa=5e5)), rel=1e-3)
+        _clamped_steady_force(load_parameters(supply_pressure_pa=5e5)), rel=1e-3
+    )
 
 
 def test_params_file_from_save_parameters(tmp_path):
     path = tmp_path / "fitted.yaml"
-    save_parameters(path, {"supply_pressure_pa": 5.0e5, "dynamic_friction_n": 0.6},
-                    notes="test fit")
+    save_parameters(
+        path, {"supply_pressure_pa": 5.0e5, "dynamic_friction_n": 0.6}, notes="test fit"
+    )
     env = gym.make(FORCE_ID, params=str(path))
     base = env.unwrapped.base_params
     assert base["supply_pressure_pa"] == 5.0e5 and base["dynamic_friction_n"] == 0.6
     assert base["tube_length_m"] == 0.5 and base["piston_mode"] == 0.0  # the id's own settings
     force = _steady_force(env)
-    assert force == pytest.approx(_steady_force(gym.make(FORCE_ID, supply_pressure_pa=5e5)),
-                                  rel=1e-12)
+    assert force == pytest.approx(
+        _steady_force(gym.make(FORCE_ID, supply_pressure_pa=5e5)), rel=1e-12
+    )
     assert force == pytest.approx(_clamped_steady_force(base), rel=1e-3)
 
 
 # --------------------------------------------------------------------------- rendering
+
 
 def test_render_rgb_array_changes_with_the_state():
     env = gym.make(FORCE_ID, render_mode="rgb_array")
@@ -351,6 +387,7 @@ def test_render_rgb_array_changes_with_the_state():
 
 
 # --------------------------------------------------------------------------- reward, observation
+
 
 @pytest.mark.parametrize("env_id", [FORCE_ID, POSITION_ID])
 def test_reward_formula_and_bounds(env_id):
@@ -369,9 +406,11 @@ def test_reward_formula_and_bounds(env_id):
     for a in _actions(400, (1,), seed=4, low=-3.0, high=3.0):
         _, r, _, _, info = env.step(a)
         applied = info["coil_current_a"]
-        expected = (-min(abs(info["tracking_error"]) / scale, 1.0)
-                    - w_effort * (applied / i_max) ** 2
-                    - w_chatter * ((applied - previous) / (2 * i_max)) ** 2)
+        expected = (
+            -min(abs(info["tracking_error"]) / scale, 1.0)
+            - w_effort * (applied / i_max) ** 2
+            - w_chatter * ((applied - previous) / (2 * i_max)) ** 2
+        )
         assert r == pytest.approx(expected, rel=1e-9, abs=1e-12)
         previous = applied
         rewards.append(r)
@@ -380,10 +419,13 @@ def test_reward_formula_and_bounds(env_id):
     assert rewards.min() < -0.5  # the bound is not trivially met
 
 
-@pytest.mark.parametrize("env_id", [
-    FORCE_ID,
-    POSITION_ID,
-])
+@pytest.mark.parametrize(
+    "env_id",
+    [
+        FORCE_ID,
+        POSITION_ID,
+    ],
+)
 def test_normalized_observation(env_id):
     """normalize_observation=True: O(1) values, the SI observation mapped by
     (p - P_a)/(P_s - P_a), x/(L/2), f/((P_s - P_a) min(A1, A2)), ref/scale."""
@@ -417,9 +459,17 @@ def test_fitted_load_cell_compliance_becomes_a_force_tracking_env(tmp_path):
     from pneumatic_env.ids import MODE_FIXED, MODE_FREE, MODE_SPRING
 
     path = tmp_path / "rig.yaml"
-    save_parameters(path, {"piston_mode": 2, "spring_stiffness_n_per_m": 5e5,
-                           "spring_rest_position_m": 0.0, "static_friction_n": 0.0,
-                           "dynamic_friction_n": 0.0}, notes="fitted load cell")
+    save_parameters(
+        path,
+        {
+            "piston_mode": 2,
+            "spring_stiffness_n_per_m": 5e5,
+            "spring_rest_position_m": 0.0,
+            "static_friction_n": 0.0,
+            "dynamic_friction_n": 0.0,
+        },
+        notes="fitted load cell",
+    )
     env = gym.make(FORCE_ID, params=str(path))
     assert env.unwrapped.base_params["piston_mode"] == MODE_SPRING
     f = _steady_force(env)
@@ -427,8 +477,11 @@ def test_fitted_load_cell_compliance_becomes_a_force_tracking_env(tmp_path):
     assert x > 0.0 and f == pytest.approx(5e5 * x, rel=1e-5)  # the cell reads k x
     # valve open, at rest: the pressures and so the force are the rigid clamp's
     assert f == pytest.approx(_steady_force(gym.make(FORCE_ID)), rel=1e-3)
-    with pytest.raises(ValueError, match=r"piston_mode = 'free' is not allowed for "
-                                         r"ForceTrack: allowed \['fixed', 'spring'\]"):
+    with pytest.raises(
+        ValueError,
+        match=r"piston_mode = 'free' is not allowed for "
+        r"ForceTrack: allowed \['fixed', 'spring'\]",
+    ):
         gym.make(FORCE_ID, piston_mode="free")
     with pytest.warns(UserWarning, match="does not fit PositionTrack"):
         position = gym.make(POSITION_ID, params=str(path))
@@ -437,8 +490,10 @@ def test_fitted_load_cell_compliance_becomes_a_force_tracking_env(tmp_path):
     save_parameters(silent, {"supply_pressure_pa": 5.5e5}, notes="fit")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert gym.make(POSITION_ID, params=str(silent)).unwrapped.base_params[
-            "piston_mode"] == MODE_FREE
+        assert (
+            gym.make(POSITION_ID, params=str(silent)).unwrapped.base_params["piston_mode"]
+            == MODE_FREE
+        )
     assert gym.make(FORCE_ID).unwrapped.base_params["piston_mode"] == MODE_FIXED
 
 
@@ -494,8 +549,10 @@ def test_vector_reset_reference_option_equals_single_envs():
     venv = gym.make_vec(FORCE_ID, num_envs=3, **SHORT)
     vobs, _ = venv.reset(seed=[4, 5, 6], options={"reference": [STEPS, None, samples]})
     envs = [gym.make(FORCE_ID, **SHORT) for _ in range(3)]
-    obs = [env.reset(seed=s, options=o)[0] for env, s, o in zip(
-        envs, (4, 5, 6), ({"reference": STEPS}, None, {"reference": samples}))]
+    obs = [
+        env.reset(seed=s, options=o)[0]
+        for env, s, o in zip(envs, (4, 5, 6), ({"reference": STEPS}, None, {"reference": samples}))
+    ]
     assert np.array_equal(vobs, np.stack(obs))
     for action in _actions(n_steps, (3, 1)):
         vobs, vrew, _, vtrunc, _ = venv.step(action)
@@ -515,14 +572,20 @@ def test_vector_reset_reference_option_equals_single_envs():
     assert np.array_equal(venv2.unwrapped.references[0], venv2.unwrapped.references[1])
 
 
-@pytest.mark.parametrize("options,field,rule", [
-    ({"referense": SINE}, "options key = 'referense'", "must be one of ['reference']"),
-    ({"reference": {"kind": "sine", "amplitude": 1.0}}, "options['reference']",
-     "missing key(s) ['frequency_hz']"),
-    ({"reference": [1.0, np.nan]}, "options['reference']", "finite samples"),
-    ({"reference": "sine"}, "options['reference']", "reference spec"),
-    ([("reference", SINE)], "options", "a dict with keys from ['reference']"),
-])
+@pytest.mark.parametrize(
+    "options,field,rule",
+    [
+        ({"referense": SINE}, "options key = 'referense'", "must be one of ['reference']"),
+        (
+            {"reference": {"kind": "sine", "amplitude": 1.0}},
+            "options['reference']",
+            "missing key(s) ['frequency_hz']",
+        ),
+        ({"reference": [1.0, np.nan]}, "options['reference']", "finite samples"),
+        ({"reference": "sine"}, "options['reference']", "reference spec"),
+        ([("reference", SINE)], "options", "a dict with keys from ['reference']"),
+    ],
+)
 def test_reset_options_errors_single_env(options, field, rule):
     env = gym.make(FORCE_ID)
     with pytest.raises(ValueError) as err:
@@ -531,13 +594,16 @@ def test_reset_options_errors_single_env(options, field, rule):
     assert message.startswith(field) and "is not allowed" in message and rule in message
 
 
-@pytest.mark.parametrize("reference,field,rule", [
-    ([SINE, SINE, SINE], "options['reference'] (3 entries)", "num_envs = 2"),
-    (np.zeros(5), "options['reference'] (shape (5,))", "a 2-D array (2, n_samples)"),
-    (np.zeros((3, 5)), "options['reference'] (shape (3, 5))", "num_envs = 2"),
-    ([SINE, {"kind": "wave"}], "options['reference'][1]", "unknown reference kind 'wave'"),
-    ([None, [0.0, np.inf]], "options['reference'][1]", "finite samples"),
-])
+@pytest.mark.parametrize(
+    "reference,field,rule",
+    [
+        ([SINE, SINE, SINE], "options['reference'] (3 entries)", "num_envs = 2"),
+        (np.zeros(5), "options['reference'] (shape (5,))", "a 2-D array (2, n_samples)"),
+        (np.zeros((3, 5)), "options['reference'] (shape (3, 5))", "num_envs = 2"),
+        ([SINE, {"kind": "wave"}], "options['reference'][1]", "unknown reference kind 'wave'"),
+        ([None, [0.0, np.inf]], "options['reference'][1]", "finite samples"),
+    ],
+)
 def test_reset_options_errors_vector_env(reference, field, rule):
     venv = gym.make_vec(FORCE_ID, num_envs=2)
     venv.reset(seed=1)
@@ -551,8 +617,10 @@ def test_reset_options_errors_vector_env(reference, field, rule):
 
 # --------------------------------------------------------------------------- properties
 
-@pytest.mark.parametrize("make", [gym.make, lambda i, **kw: gym.make_vec(i, num_envs=3, **kw)],
-                         ids=["single", "vector"])
+
+@pytest.mark.parametrize(
+    "make", [gym.make, lambda i, **kw: gym.make_vec(i, num_envs=3, **kw)], ids=["single", "vector"]
+)
 @pytest.mark.parametrize("env_id", [FORCE_ID, POSITION_ID])
 def test_env_properties_are_the_task_core_values(make, env_id):
     env = make(env_id, preview_steps=7, normalize_observation=True, supply_pressure_pa=6e5)
@@ -564,8 +632,9 @@ def test_env_properties_are_the_task_core_values(make, env_id):
     assert e.coil_current_max_a == core.i_max
     assert e.force_scale_n == core.force_scale
     assert e.reference_scale == core.scale
-    assert e.reference_scale == (core.force_scale if "Force" in env_id
-                                 else 0.5 * core.base_params["stroke_m"])
+    assert e.reference_scale == (
+        core.force_scale if "Force" in env_id else 0.5 * core.base_params["stroke_m"]
+    )
     assert e.preview_steps == 7 and e.normalize_observation is True
     assert e.task is core.task and e.reference_spec is core.reference_spec
     assert e.observation_scales.supply_pa == 6e5
@@ -582,6 +651,7 @@ def test_env_properties_are_the_task_core_values(make, env_id):
 def test_controller_inverts_the_env_normalisation():
     """Controller.observation_si undoes normalize_observation (one definition of the scales)."""
     from pneumatic_env.agents.base import ControllerContext, ZeroController
+
     raw_env, norm_env = gym.make(FORCE_ID), gym.make(FORCE_ID, normalize_observation=True)
     raw, norm = [raw_env.reset(seed=2)[0]], [norm_env.reset(seed=2)[0]]
     for a in _actions(100, (1,), seed=1):
@@ -594,29 +664,41 @@ def test_controller_inverts_the_env_normalisation():
 
 # --------------------------------------------------------------------------- ids, public API
 
+
 def test_env_id_and_parse_env_id_round_trip():
     from pneumatic_env.ids import EnvId, env_id, parse_env_id
+
     for name in pneumatic_env.registered_ids():
         parts = parse_env_id(name)
         assert env_id(*parts) == parts.id == name
         spec = gym.spec(name)
-        assert spec.kwargs == {"task": parts.task, "cylinder": parts.cylinder_id,
-                               "tube_length_m": parts.tube_length_m}
+        assert spec.kwargs == {
+            "task": parts.task,
+            "cylinder": parts.cylinder_id,
+            "tube_length_m": parts.tube_length_m,
+        }
     assert parse_env_id("ForceTrack-Airpel-0.5m-v0") == EnvId("ForceTrack", "Airpel", "0.5")
     assert env_id("PositionTrack", "airpel-E16D3.0N", 2.0) == POSITION_ID
     assert env_id("ForceTrack", "NUMATICS", "0.5") == FORCE_ID
     assert pneumatic_env.make("ForceTrack", "numatics", 0.5).spec.id == FORCE_ID
 
 
-@pytest.mark.parametrize("call,field", [
-    (lambda: pneumatic_env.env_id("Balance", "Numatics", 2), "task = 'Balance'"),
-    (lambda: pneumatic_env.env_id("ForceTrack", "festo", 2), "cylinder = 'festo'"),
-    (lambda: pneumatic_env.env_id("ForceTrack", "Numatics", 1.5), "tube = 1.5"),
-    (lambda: pneumatic_env.parse_env_id("pneumatic_env/ForceTrack-Numatics-2m-v1"),
-     "env id = 'pneumatic_env/ForceTrack-Numatics-2m-v1'"),
-    (lambda: pneumatic_env.parse_env_id("ForceTrack-Numatics-7m-v0"),
-     "env id = 'ForceTrack-Numatics-7m-v0'"),
-])
+@pytest.mark.parametrize(
+    "call,field",
+    [
+        (lambda: pneumatic_env.env_id("Balance", "Numatics", 2), "task = 'Balance'"),
+        (lambda: pneumatic_env.env_id("ForceTrack", "festo", 2), "cylinder = 'festo'"),
+        (lambda: pneumatic_env.env_id("ForceTrack", "Numatics", 1.5), "tube = 1.5"),
+        (
+            lambda: pneumatic_env.parse_env_id("pneumatic_env/ForceTrack-Numatics-2m-v1"),
+            "env id = 'pneumatic_env/ForceTrack-Numatics-2m-v1'",
+        ),
+        (
+            lambda: pneumatic_env.parse_env_id("ForceTrack-Numatics-7m-v0"),
+            "env id = 'ForceTrack-Numatics-7m-v0'",
+        ),
+    ],
+)
 def test_bad_ids_are_refused(call, field):
     with pytest.raises(ValueError) as err:
         call()
@@ -625,15 +707,28 @@ def test_bad_ids_are_refused(call, field):
 
 def test_public_api_resolves_and_is_documented():
     import pydoc
+
     assert len(pneumatic_env.__all__) == len(set(pneumatic_env.__all__))
     for name in pneumatic_env.__all__:
         assert getattr(pneumatic_env, name) is not None, name
-    assert pneumatic_env.PneumaticTrackingVectorEnv is gym.make_vec(
-        FORCE_ID, num_envs=2).unwrapped.__class__
+    assert (
+        pneumatic_env.PneumaticTrackingVectorEnv
+        is gym.make_vec(FORCE_ID, num_envs=2).unwrapped.__class__
+    )
     text = pydoc.render_doc(pneumatic_env, renderer=pydoc.plaintext)
-    for name in ("make", "make_vec", "env_id", "parse_env_id", "registered_ids",
-                 "load_parameters", "read_recording", "simulate_recording", "BatchSimulator",
-                 "PneumaticTrackingEnv", "TaskSpec"):
+    for name in (
+        "make",
+        "make_vec",
+        "env_id",
+        "parse_env_id",
+        "registered_ids",
+        "load_parameters",
+        "read_recording",
+        "simulate_recording",
+        "BatchSimulator",
+        "PneumaticTrackingEnv",
+        "TaskSpec",
+    ):
         assert f"\n    {name}(" in text or f"class {name}" in text, name
     with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
         pneumatic_env.nonexistent  # noqa: B018
@@ -642,19 +737,28 @@ def test_public_api_resolves_and_is_documented():
 def test_importing_the_package_loads_no_heavy_dependency():
     import subprocess
     import sys
+
     heavy = ("torch", "matplotlib", "stable_baselines3")
-    code = ("import sys, pneumatic_env; pneumatic_env.registered_ids(); "
-            f"print([m for m in {heavy!r} if m in sys.modules])")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True)
+    code = (
+        "import sys, pneumatic_env; pneumatic_env.registered_ids(); "
+        f"print([m for m in {heavy!r} if m in sys.modules])"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
 
 
 def test_env_docstrings_state_spaces_reward_options_and_episode_end():
     for cls in (pneumatic_env.PneumaticTrackingEnv, pneumatic_env.PneumaticTrackingVectorEnv):
         doc = cls.__doc__
-        for section in ("## Description", "## Action Space", "## Observation Space",
-                        "## Rewards", "## Starting State", "## Episode End", "## Arguments",
-                        "## Version History"):
+        for section in (
+            "## Description",
+            "## Action Space",
+            "## Observation Space",
+            "## Rewards",
+            "## Starting State",
+            "## Episode End",
+            "## Arguments",
+            "## Version History",
+        ):
             assert section in doc, (cls.__name__, section)
         assert 'options={"reference"' in doc and "terminated`` is always False" in doc

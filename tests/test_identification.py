@@ -3,6 +3,7 @@
 The recordings come from the virtual rig (synthetic, never measured): short (1 s at 1 kHz;
 1.5 s for the sliding rod's Stribeck friction), few candidates per diagnosis.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -14,17 +15,21 @@ import numpy as np
 import pytest
 
 from pneumatic_env.identification.calibrate import calibrate, prepare_datasets
-from pneumatic_env.identification.candidates import (SENSOR_NEUTRAL, apply_sensor_model,
-                                                     available_candidates, candidate_table,
-                                                     separating_experiment)
+from pneumatic_env.identification.candidates import (
+    SENSOR_NEUTRAL,
+    apply_sensor_model,
+    available_candidates,
+    candidate_table,
+    separating_experiment,
+)
 from pneumatic_env.identification.checks import BadDataError, check_recordings, read_checked
 from pneumatic_env.identification.config import load_config
 from pneumatic_env.identification.diagnose import diagnose, phase_masks
 from pneumatic_env.identification.report import write_report
-from pneumatic_env.studies.virtual_rig import make_recording
 from pneumatic_env.params import load_parameters
 from pneumatic_env.physics.layout import EFFECT_NEUTRAL_VALUES, PARAMETER_NAMES
 from pneumatic_env.recording import RecordingError, read_recording, write_recording
+from pneumatic_env.studies.virtual_rig import make_recording
 
 DURATION_S = 1.0
 # A few candidates that cover a plant effect and the three sensor-side effects.
@@ -37,8 +42,9 @@ def rig_dir(tmp_path_factory) -> Path:
 
 
 def _rig(rig_dir: Path, effect: str, seed: int, duration_s: float = DURATION_S, **kw) -> Path:
-    name = "_".join([effect, str(seed), f"{duration_s:g}s"]
-                    + [f"{k}{v}" for k, v in sorted(kw.items())])
+    name = "_".join(
+        [effect, str(seed), f"{duration_s:g}s"] + [f"{k}{v}" for k, v in sorted(kw.items())]
+    )
     csv = rig_dir / f"{name}.csv"
     if not csv.exists():
         make_recording(rig_dir, name=name, effect=effect, seed=seed, duration_s=duration_s, **kw)
@@ -66,6 +72,7 @@ def leak_diagnoses(rig_dir):
 
 # --------------------------------------------------------------------------- calibration
 
+
 def test_calibration_recovers_perturbed_parameters_within_their_confidence_intervals(rig_dir):
     # 1.5 s, as in the evaluation: at 1 s the rod side's dead volume lands 0.1 % outside
     # its very narrow confidence interval (a small bias of the coarser fitting model)
@@ -77,7 +84,9 @@ def test_calibration_recovers_perturbed_parameters_within_their_confidence_inter
     identified = [n for n in res.values if res.identified[n]]
     # the rig's supply, spool damping and overlap are perturbed from the configs and
     # must be found; the data pin them down
-    assert {"supply_pressure_pa", "spool_damping_n_s_per_m", "spool_half_width_m"} <= set(identified)
+    assert {"supply_pressure_pa", "spool_damping_n_s_per_m", "spool_half_width_m"} <= set(
+        identified
+    )
     for name in identified:
         lo, hi = res.ci[name]
         assert lo <= truth[name] <= hi, (name, truth[name], (lo, hi))
@@ -89,8 +98,9 @@ def test_calibration_recovers_perturbed_parameters_within_their_confidence_inter
 def test_calibration_flags_parameters_the_data_cannot_identify(rig_dir):
     csv = _rig(rig_dir, "none", 1)
     # with the rod clamped the piston never moves: friction has no effect on the data
-    cal = calibrate([read_checked(csv)], fit=["supply_pressure_pa", "dynamic_friction_n"],
-                    max_nfev=4)
+    cal = calibrate(
+        [read_checked(csv)], fit=["supply_pressure_pa", "dynamic_friction_n"], max_nfev=4
+    )
     assert cal.result.identified["supply_pressure_pa"]
     assert not cal.result.identified["dynamic_friction_n"]
     assert any("no sensitivity" in f for f in cal.result.flags["dynamic_friction_n"])
@@ -101,8 +111,12 @@ def test_calibration_never_reads_the_sidecar_notes(rig_dir, tmp_path):
     rec = read_checked(csv)
     misleading = dict(rec.rig, notes="leakage 1e-7 m^2 and a 5 ms sensor lag (this is a lie)")
     write_recording(tmp_path / "renamed", rec.t, rec.channels, misleading)
-    fits = [calibrate([read_checked(p)], fit=["supply_pressure_pa", "discharge_coefficient"],
-                      max_nfev=4).result.values for p in (csv, tmp_path / "renamed.csv")]
+    fits = [
+        calibrate(
+            [read_checked(p)], fit=["supply_pressure_pa", "discharge_coefficient"], max_nfev=4
+        ).result.values
+        for p in (csv, tmp_path / "renamed.csv")
+    ]
     assert fits[0] == fits[1]
 
 
@@ -112,8 +126,9 @@ def test_saved_fit_is_accepted_by_load_parameters_and_gym_make(rig_dir, tmp_path
     import pneumatic_env  # noqa: F401  (registers the environments)
 
     csv = _rig(rig_dir, "none", 1)
-    cal = calibrate([read_checked(csv)], fit=["supply_pressure_pa", "discharge_coefficient"],
-                    max_nfev=6)
+    cal = calibrate(
+        [read_checked(csv)], fit=["supply_pressure_pa", "discharge_coefficient"], max_nfev=6
+    )
     path = tmp_path / "fit.yaml"
     cal.save(path)
     loaded = load_parameters(params=path)
@@ -125,6 +140,7 @@ def test_saved_fit_is_accepted_by_load_parameters_and_gym_make(rig_dir, tmp_path
 
 
 # --------------------------------------------------------------------------- diagnosis
+
 
 @pytest.mark.parametrize("seed", [1, 2])
 def test_leakage_is_diagnosed_and_lowers_the_heldout_error(leak_diagnoses, seed):
@@ -148,19 +164,22 @@ def test_leakage_diagnosis_is_stable_across_noise_seeds(leak_diagnoses, rig_dir)
     for seed in (1, 2):
         fit = leak_diagnoses[seed].final.all_values()
         truth = _truth(_rig(rig_dir, "leakage", seed))
-        ratios.append(fit["leakage_area_m2"] * fit["discharge_coefficient"]
-                      / (truth["effect_reference"] * truth["parameters"]["discharge_coefficient"]))
+        ratios.append(
+            fit["leakage_area_m2"]
+            * fit["discharge_coefficient"]
+            / (truth["effect_reference"] * truth["parameters"]["discharge_coefficient"])
+        )
     assert abs(ratios[0] - ratios[1]) < 0.25 * max(ratios)
 
 
-def test_ablation_refuses_a_candidate_whose_effect_does_not_carry_the_improvement(
-        leak_diagnoses):
+def test_ablation_refuses_a_candidate_whose_effect_does_not_carry_the_improvement(leak_diagnoses):
     """``diagnose._improvement_is_the_basin`` (the moving-piston acceptance rule) keeps a
     candidate whose effect, switched off at its fitted values, costs the held-out error,
     and refuses one whose effect is too weak to matter, with a reason naming both errors."""
     from dataclasses import replace
 
     from pneumatic_env.identification.diagnose import _improvement_is_the_basin, _mean, _Split
+
     cfg = load_config()
     diag = leak_diagnoses[1]
     split = _Split(diag.datasets, "time", cfg)
@@ -174,14 +193,18 @@ def test_ablation_refuses_a_candidate_whose_effect_does_not_carry_the_improvemen
     weak = replace(score, fit=fit, heldout_mean=_mean(split.heldout_nrmse(fit)[0]), reasons=[])
     assert _improvement_is_the_basin(weak, diag.base, 0.10, split, cfg)
     assert not weak.accepted
-    assert weak.reasons[0].startswith("with leakage switched off at its fitted values the "
-                                      "held-out NRMSE is ")
+    assert weak.reasons[0].startswith(
+        "with leakage switched off at its fitted values the held-out NRMSE is "
+    )
 
 
 def test_sensor_lag_is_diagnosed(rig_dir):
     csv = _rig(rig_dir, "pressure_sensor_lag", 3)
-    diag = diagnose([read_checked(csv)], candidates=["pressure_sensor_lag", "channel_time_skew",
-                                                     "leakage"], max_effects=1)
+    diag = diagnose(
+        [read_checked(csv)],
+        candidates=["pressure_sensor_lag", "channel_time_skew", "leakage"],
+        max_effects=1,
+    )
     assert diag.selected == ["pressure_sensor_lag"]
     tau = diag.final.values["pressure_sensor_time_constant_s"]
     reference = _truth(csv)["effect_reference"]
@@ -196,16 +219,19 @@ def test_tube_volume_needs_a_second_tube_length(rig_dir):
     # fitted at once the volume scales with the length and the effect is identified.
     # 70 % of the tube volume (strength 0.7): inside the range [0, 1] of the fraction
     long_tube = _rig(rig_dir, "tube_volume", 6, tube_length_m=2.0, strength=0.7)  # same rig ...
-    one = diagnose([read_checked(long_tube)], candidates=["tube_volume", "leakage"],
-                   max_effects=1)
+    one = diagnose([read_checked(long_tube)], candidates=["tube_volume", "leakage"], max_effects=1)
     assert one.selected == []
     score = next(s for s in one.scores if s.name == "tube_volume")
     assert score.relative_improvement > 0.5  # it clearly explains the data ...
     assert any("collinear with dead_volume" in r for r in score.reasons)  # ... but not alone
     assert "tube length" in one.suggestion
     short_tube = _rig(rig_dir, "tube_volume", 6, tube_length_m=0.5, strength=0.7)  # short tube
-    both = diagnose([read_checked(short_tube), read_checked(long_tube)],
-                    candidates=["tube_volume", "leakage"], max_effects=1, holdout="time")
+    both = diagnose(
+        [read_checked(short_tube), read_checked(long_tube)],
+        candidates=["tube_volume", "leakage"],
+        max_effects=1,
+        holdout="time",
+    )
     assert both.selected == ["tube_volume"]
     lo, hi = both.final.ci["tube_volume_fraction"]
     assert lo <= _truth(long_tube)["parameters"]["tube_volume_fraction"] <= hi
@@ -243,25 +269,32 @@ def effect_diagnoses(rig_dir):
     def get(effect):
         if effect not in cache:
             csv = _rig(rig_dir, effect, 1, EFFECT_DURATIONS_S.get(effect, DURATION_S))
-            cache[effect] = csv, diagnose([read_checked(csv)],
-                                          candidates=[effect, EFFECT_RIVALS[effect]],
-                                          max_effects=1)
+            cache[effect] = (
+                csv,
+                diagnose(
+                    [read_checked(csv)], candidates=[effect, EFFECT_RIVALS[effect]], max_effects=1
+                ),
+            )
         return cache[effect]
+
     return get
 
 
 @pytest.mark.parametrize("effect", sorted(EFFECT_RIVALS))
 def test_effect_at_realistic_strength_is_diagnosed(effect_diagnoses, effect):
     _, diag = effect_diagnoses(effect)
-    assert diag.selected == [effect], [(s.name, s.relative_improvement, s.reasons)
-                                       for s in diag.scores]
+    assert diag.selected == [effect], [
+        (s.name, s.relative_improvement, s.reasons) for s in diag.scores
+    ]
     before = np.mean(list(diag.baseline_nrmse.values()))
     after = np.mean(list(diag.after_nrmse.values()))
     assert after < 0.85 * before
 
 
-@pytest.mark.parametrize("effect, law_parameter", [("stribeck", "stribeck_velocity_m_per_s"),
-                                                   ("lugre", "lugre_stiffness_n_per_m")])
+@pytest.mark.parametrize(
+    "effect, law_parameter",
+    [("stribeck", "stribeck_velocity_m_per_s"), ("lugre", "lugre_stiffness_n_per_m")],
+)
 def test_friction_law_is_diagnosed_on_a_moving_rod(rig_dir, effect, law_parameter):
     """A friction law shows only where the rod slides (spring rod, 1.5 s).
 
@@ -275,8 +308,9 @@ def test_friction_law_is_diagnosed_on_a_moving_rod(rig_dir, effect, law_paramete
     """
     csv = _rig(rig_dir, effect, 1, duration_s=1.5, piston="spring")
     diag = diagnose([read_checked(csv)], candidates=[effect], max_effects=1)
-    assert diag.selected == [effect], [(s.name, s.relative_improvement, s.reasons)
-                                       for s in diag.scores]
+    assert diag.selected == [effect], [
+        (s.name, s.relative_improvement, s.reasons) for s in diag.scores
+    ]
     before = np.mean(list(diag.baseline_nrmse.values()))
     after = np.mean(list(diag.after_nrmse.values()))
     assert after < 0.5 * before
@@ -295,15 +329,19 @@ def test_muffler_vent_and_volume_are_recovered(effect_diagnoses):
         assert abs(diag.final.values[name] / truth[name] - 1.0) < 0.2, name
 
 
-def test_load_cell_stiffness_is_recovered_and_the_rest_position_follows_the_clamp(
-        effect_diagnoses):
+def test_load_cell_stiffness_is_recovered_and_the_rest_position_follows_the_clamp(effect_diagnoses):
     csv, diag = effect_diagnoses("load_cell_compliance")
     assert diag.selected == ["load_cell_compliance"]
     truth = _truth(csv)["parameters"]["spring_stiffness_n_per_m"]
     lo, hi = diag.final.ci["spring_stiffness_n_per_m"]
     assert 0.7 * truth < diag.final.values["spring_stiffness_n_per_m"] < 1.3 * truth
-    assert lo < hi < load_config().raw["candidates"]["load_cell_compliance"]["parameters"][
-        "spring_stiffness_n_per_m"]["plausible_max"]
+    assert (
+        lo
+        < hi
+        < load_config().raw["candidates"]["load_cell_compliance"]["parameters"][
+            "spring_stiffness_n_per_m"
+        ]["plausible_max"]
+    )
     # the rest position is each recording's clamp position, not a number in the config
     ds = diag.datasets[0]
     values = diag.final.dataset_values(ds)
@@ -315,6 +353,7 @@ def test_a_transmission_line_excludes_a_tube_storage_volume():
     """Greedy selection never combines an effect that fixes a parameter with one that fits
     it: the transmission line holds the tube's air itself (tube_volume_fraction = 0)."""
     from pneumatic_env.identification.diagnose import _conflicts
+
     table = candidate_table()
     assert _conflicts(table["tube_waves"], [table["tube_volume"]])
     assert _conflicts(table["tube_volume"], [table["tube_waves"]])
@@ -327,17 +366,25 @@ def test_scoped_and_per_recording_overrides():
     from pneumatic_env.identification.calibrate import Dataset, dataset_overrides
 
     def ds(mode, values):
-        return Dataset(name=mode, recording=None, values=values, channels=(), scales={},
-                       usable={}, dt_s=1e-3, substeps=10, initial=None, moving=False,
-                       rod_mode=mode)
+        return Dataset(
+            name=mode,
+            recording=None,
+            values=values,
+            channels=(),
+            scales={},
+            usable={},
+            dt_s=1e-3,
+            substeps=10,
+            initial=None,
+            moving=False,
+            rod_mode=mode,
+        )
 
     cand = candidate_table()["load_cell_compliance"]
     overrides = {**cand.set, "spring_stiffness_n_per_m": 1e6, "supply_pressure_pa": 6e5}
-    clamped = dataset_overrides(ds("fixed", {"fixed_position_m": 0.01}), overrides,
-                                cand.scopes())
+    clamped = dataset_overrides(ds("fixed", {"fixed_position_m": 0.01}), overrides, cand.scopes())
     assert clamped["spring_rest_position_m"] == 0.01 and clamped["piston_mode"] == 2
-    spring = dataset_overrides(ds("spring", {"fixed_position_m": 0.0}), overrides,
-                               cand.scopes())
+    spring = dataset_overrides(ds("spring", {"fixed_position_m": 0.0}), overrides, cand.scopes())
     assert spring == {"supply_pressure_pa": 6e5}  # only the unscoped base value
 
 
@@ -361,8 +408,9 @@ def test_effect_outside_the_catalog_gets_no_confident_wrong_answer(rig_dir):
 
 def test_report_files_and_diagnosis_json_keys(none_diagnosis, tmp_path):
     csv, diag = none_diagnosis
-    digest = {p: hashlib.sha256(p.read_bytes()).hexdigest()
-              for p in (csv, csv.with_suffix(".json"))}
+    digest = {
+        p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (csv, csv.with_suffix(".json"))
+    }
     data = write_report(diag, tmp_path / "report")
     on_disk = json.loads((tmp_path / "report" / "diagnosis.json").read_text())
     assert on_disk == data
@@ -374,8 +422,13 @@ def test_report_files_and_diagnosis_json_keys(none_diagnosis, tmp_path):
     assert scores == sorted(scores, reverse=True)
     for cand in on_disk["candidates"]:
         assert {"name", "parameters", "heldout_nrmse", "score"} <= set(cand)
-    for name in ("report.md", "fitted_base.yaml", "fitted_final.yaml",
-                 f"fit_{csv.stem}.png", f"residuals_{csv.stem}.png"):
+    for name in (
+        "report.md",
+        "fitted_base.yaml",
+        "fitted_final.yaml",
+        f"fit_{csv.stem}.png",
+        f"residuals_{csv.stem}.png",
+    ):
         assert (tmp_path / "report" / name).is_file()
     load_parameters(params=tmp_path / "report" / "fitted_final.yaml")
     for p, h in digest.items():  # the inputs are untouched
@@ -401,32 +454,45 @@ def test_report_refuses_to_overwrite_an_input(none_diagnosis, tmp_path):
 
 # --------------------------------------------------------------------------- candidates
 
+
 def test_candidate_table_is_consistent_with_the_kernel_and_its_configs():
     table = candidate_table()
-    assert {"leakage", "pressure_sensor_offset", "pressure_sensor_lag",
-            "channel_time_skew"} <= set(table)
+    assert {"leakage", "pressure_sensor_offset", "pressure_sensor_lag", "channel_time_skew"} <= set(
+        table
+    )
     for cand in table.values():
         for p in cand.parameters:
             assert p.lower <= p.initial <= p.upper
             assert p.plausible_min <= p.plausible_max
-            switched_by_another = any(q.neutral is not None and not math.isinf(q.neutral)
-                                      for q in cand.parameters if q is not p)
-            if cand.kind == "plant" and cand.available and (p.neutral is None
-                                                            or math.isinf(p.neutral)):
+            switched_by_another = any(
+                q.neutral is not None and not math.isinf(q.neutral)
+                for q in cand.parameters
+                if q is not p
+            )
+            if (
+                cand.kind == "plant"
+                and cand.available
+                and (p.neutral is None or math.isinf(p.neutral))
+            ):
                 if switched_by_another:  # a shape (the coil lag's): the kernel's default
                     default = load_parameters()[p.name]  # is allowed, or is the parameter's
-                    assert (p.lower <= default <= p.upper  # own off value (LuGre's damping)
-                            or default == EFFECT_NEUTRAL_VALUES.get(p.name)), (cand.name, p.name)
+                    assert (
+                        p.lower <= default <= p.upper  # own off value (LuGre's damping)
+                        or default == EFFECT_NEUTRAL_VALUES.get(p.name)
+                    ), (cand.name, p.name)
                     continue
                 # off only in a limit (a rigid load cell) or by a switch (the transmission
                 # line): the kernel's defaults do not switch on what the candidate `set`s,
                 # or the kernel's default is its own off value, outside the fitted range
                 # (a vent area of 0: no vent, the limit A -> inf of an open exhaust)
                 defaults = load_parameters()
-                off_by_default = (defaults[p.name] == EFFECT_NEUTRAL_VALUES.get(p.name)
-                                  and not p.lower <= defaults[p.name] <= p.upper)
-                assert off_by_default or any(defaults[k] != v for k, v in cand.set.items()
-                                             if not isinstance(v, str)), cand.name
+                off_by_default = (
+                    defaults[p.name] == EFFECT_NEUTRAL_VALUES.get(p.name)
+                    and not p.lower <= defaults[p.name] <= p.upper
+                )
+                assert off_by_default or any(
+                    defaults[k] != v for k, v in cand.set.items() if not isinstance(v, str)
+                ), cand.name
             elif cand.kind == "plant" and cand.available:
                 # the neutral value is the kernel's default: the effect is off by default
                 assert load_parameters()[p.name] == pytest.approx(p.neutral)
@@ -440,6 +506,7 @@ def test_candidate_table_is_consistent_with_the_kernel_and_its_configs():
 
 def test_unknown_candidate_name_is_a_clear_error():
     from pneumatic_env.params import ConfigError
+
     with pytest.raises(ConfigError, match="candidate 'leakagee' is not declared"):
         available_candidates(["leakagee"])
 
@@ -449,9 +516,17 @@ def test_sensor_model_matches_closed_forms():
     n = 200
     step = np.zeros((n, 1))
     step[50:] = 1.0
-    out = apply_sensor_model({"p1": step, "f": step},
-                             [{"pressure_sensor_time_constant_s": 0.01,
-                               "pressure_offset_p1_pa": 5.0, "channel_skew_s": 0.003}], dt)
+    out = apply_sensor_model(
+        {"p1": step, "f": step},
+        [
+            {
+                "pressure_sensor_time_constant_s": 0.01,
+                "pressure_offset_p1_pa": 5.0,
+                "channel_skew_s": 0.003,
+            }
+        ],
+        dt,
+    )
     # skew: a 3-sample delay of every output channel
     assert np.array_equal(out["f"][:, 0], np.concatenate([np.zeros(53), np.ones(n - 53)]))
     # lag of a held step: 1 - exp(-k dt / tau) after the (delayed) step; then the offset
@@ -479,11 +554,12 @@ def test_phase_masks_follow_the_valve_dead_band():
     assert not ph["flow"][:100].any() and ph["rest"][:100].all()
     assert ph["flow"][100:200].all()
     window = int(round(cfg.diagnosis("after_flow_window_s") / dt))
-    assert ph["after_flow"][200:200 + window].all() and ph["rest"][200 + window + 1:500].all()
+    assert ph["after_flow"][200 : 200 + window].all() and ph["rest"][200 + window + 1 : 500].all()
     assert ph["reversal"][500] and not ph["reversal"][100]
 
 
 # --------------------------------------------------------------------------- bad data
+
 
 def _copy_with(src: Path, dst: Path, **changes) -> Path:
     rec = read_checked(src)
@@ -495,10 +571,13 @@ def _copy_with(src: Path, dst: Path, **changes) -> Path:
     return dst.with_suffix(".csv")
 
 
-@pytest.mark.parametrize("change,needle", [
-    ({"p1": lambda p: p - 101325.0}, "gauge"),
-    ({"p2": lambda p: p / 1e5}, "bar"),
-])
+@pytest.mark.parametrize(
+    "change,needle",
+    [
+        ({"p1": lambda p: p - 101325.0}, "gauge"),
+        ({"p2": lambda p: p / 1e5}, "bar"),
+    ],
+)
 def test_wrong_pressure_units_are_refused(rig_dir, tmp_path, change, needle):
     bad = _copy_with(_rig(rig_dir, "none", 1), tmp_path / "bad", **change)
     with pytest.warns(Warning):
@@ -517,6 +596,7 @@ def test_position_in_millimetres_is_refused(rig_dir, tmp_path):
 
 def test_identify_cli_refuses_bad_units_with_exit_status_2(rig_dir, tmp_path, capsys):
     from pneumatic_env.cli import main
+
     bad = _copy_with(_rig(rig_dir, "none", 1), tmp_path / "bad", p1=lambda p: p - 101325.0)
     status = main(["identify", str(bad), "--report", str(tmp_path / "rep"), "--quiet"])
     assert status == 2
@@ -541,20 +621,33 @@ def test_clipped_samples_are_left_out_of_the_fit(rig_dir, tmp_path):
 def test_no_usable_output_is_refused(rig_dir, tmp_path):
     src = read_checked(_rig(rig_dir, "none", 1))
     # rod clamped and only x recorded: x is the clamp position, nothing to fit
-    write_recording(tmp_path / "onlyx", src.t, {"i_c": src.i_c, "x": np.zeros_like(src.t)},
-                    src.rig, overwrite=True)
+    write_recording(
+        tmp_path / "onlyx",
+        src.t,
+        {"i_c": src.i_c, "x": np.zeros_like(src.t)},
+        src.rig,
+        overwrite=True,
+    )
     with pytest.raises(BadDataError, match="no usable output channel"):
         prepare_datasets([read_checked(tmp_path / "onlyx.csv")])
 
 
 def test_no_excitation_and_too_short_are_refused(rig_dir, tmp_path):
     src = read_checked(_rig(rig_dir, "none", 1))
-    write_recording(tmp_path / "quiet", src.t, {"i_c": np.full_like(src.t, 0.01),
-                                                "p1": src.channels["p1"]}, src.rig)
+    write_recording(
+        tmp_path / "quiet",
+        src.t,
+        {"i_c": np.full_like(src.t, 0.01), "p1": src.channels["p1"]},
+        src.rig,
+    )
     with pytest.raises(BadDataError, match="dead band"):
         prepare_datasets([read_checked(tmp_path / "quiet.csv")])
-    write_recording(tmp_path / "short", src.t[:20], {"i_c": src.i_c[:20],
-                                                     "p1": src.channels["p1"][:20]}, src.rig)
+    write_recording(
+        tmp_path / "short",
+        src.t[:20],
+        {"i_c": src.i_c[:20], "p1": src.channels["p1"][:20]},
+        src.rig,
+    )
     issues = check_recordings([read_checked(tmp_path / "short.csv")], raise_on_error=False)
     assert "too_short" in {i.code for i in issues}
 
@@ -577,11 +670,16 @@ def test_broken_files_are_rejected_by_the_reader(rig_dir, tmp_path):
 
 def test_missing_position_with_a_moving_piston_warns_and_skips_friction(rig_dir, tmp_path):
     src = read_checked(_rig(rig_dir, "none", 2, piston="spring"))
-    write_recording(tmp_path / "nox", src.t, {"i_c": src.i_c, "p1": src.channels["p1"],
-                                              "p2": src.channels["p2"]}, src.rig)
+    write_recording(
+        tmp_path / "nox",
+        src.t,
+        {"i_c": src.i_c, "p1": src.channels["p1"], "p2": src.channels["p2"]},
+        src.rig,
+    )
     datasets, issues = prepare_datasets([read_checked(tmp_path / "nox.csv")])
     assert "no_position" in {i.code for i in issues}
     from pneumatic_env.identification.calibrate import base_fit_parameters
+
     names = {p.name for p in base_fit_parameters(datasets)}
     assert not names & {"static_friction_n", "dynamic_friction_n", "viscous_friction_n_s_per_m"}
     assert math.isfinite(datasets[0].scales["p1"])
@@ -589,10 +687,15 @@ def test_missing_position_with_a_moving_piston_warns_and_skips_friction(rig_dir,
 
 def test_bad_static_friction_restarts_are_refused_with_the_field_and_value(tmp_path):
     from pneumatic_env.params import ConfigError
+
     text = Path(load_config().path).read_text(encoding="utf-8")
     bad = tmp_path / "identification.yaml"
-    bad.write_text(text.replace("value: [0.8, 0.85, 0.92, 1.08]", "value: [0.9, -1.0]"),
-                   encoding="utf-8")
-    with pytest.raises(ConfigError, match=r"fit\.static_friction_restarts = \[0\.9, -1\.0\] is "
-                                          r"not allowed: must be a list of finite numbers > 0"):
+    bad.write_text(
+        text.replace("value: [0.8, 0.85, 0.92, 1.08]", "value: [0.9, -1.0]"), encoding="utf-8"
+    )
+    with pytest.raises(
+        ConfigError,
+        match=r"fit\.static_friction_restarts = \[0\.9, -1\.0\] is "
+        r"not allowed: must be a list of finite numbers > 0",
+    ):
         load_config(bad).positive_numbers("fit", "static_friction_restarts")

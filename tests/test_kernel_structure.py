@@ -2,6 +2,7 @@
 their tables, and the kernel's ``Constants`` carry each field from its named source
 through ``env_constants`` and the batch path's cache (``store_constants`` /
 ``load_constants``)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -24,8 +25,9 @@ def test_the_layout_check_catches_a_wrong_row():
     """``layout._check_rows`` (run at import) refuses two swapped rows and a missing one."""
     namespace = dict(vars(L))
     L._check_rows(namespace)
-    swapped = dict(namespace, P_BORE_DIAMETER_M=L.P_ROD_DIAMETER_M,
-                   P_ROD_DIAMETER_M=L.P_BORE_DIAMETER_M)
+    swapped = dict(
+        namespace, P_BORE_DIAMETER_M=L.P_ROD_DIAMETER_M, P_ROD_DIAMETER_M=L.P_BORE_DIAMETER_M
+    )
     with pytest.raises(AssertionError, match="P_BORE_DIAMETER_M"):
         L._check_rows(swapped)
     missing = {k: v for k, v in namespace.items() if k != "S_T2_K"}
@@ -47,24 +49,42 @@ def test_constants_round_trip_through_the_chunk_cache():
 
 
 # Constants fields that copy one parameter row as it is
-COPIED = {"k": "heat_capacity_ratio", "gas": "gas_constant_j_per_kg_k",
-          "temperature": "temperature_k", "linear_ratio": "flow_linear_ratio",
-          "supply_pa": "supply_pressure_pa", "ambient_pa": "ambient_pressure_pa",
-          "viscosity": "air_viscosity_pa_s", "alpha_in": "alpha_in", "alpha_out": "alpha_out",
-          "alpha_motion": "alpha_motion", "spool_damping": "spool_damping_n_s_per_m",
-          "spool_spring": "spool_spring_n_per_m", "coil_force": "coil_force_n_per_a",
-          "discharge": "discharge_coefficient", "hole_radius": "hole_radius_m",
-          "half_width": "spool_half_width_m", "holes": "holes_per_path",
-          "tube_diameter": "tube_inner_diameter_m", "reynolds_turbulent": "reynolds_turbulent",
-          "dynamic_friction": "dynamic_friction_n", "static_friction": "static_friction_n",
-          "viscous": "viscous_friction_n_s_per_m", "leak_area": "leakage_area_m2",
-          "load_force": "load_force_n", "spring_k": "spring_stiffness_n_per_m",
-          "spring_rest": "spring_rest_position_m", "null_leak": "valve_null_leak_area_m2",
-          "seal_leak": "rod_seal_leak_area_m2",
-          "supply_resistance": "supply_resistance_pa_s_per_kg",
-          "exhaust_vent": "exhaust_vent_area_m2", "heat_conductance": "wall_heat_transfer_w_per_k",
-          "stribeck_v": "stribeck_velocity_m_per_s", "lugre_stiffness": "lugre_stiffness_n_per_m",
-          "lugre_damping": "lugre_damping_n_s_per_m"}
+COPIED = {
+    "k": "heat_capacity_ratio",
+    "gas": "gas_constant_j_per_kg_k",
+    "temperature": "temperature_k",
+    "linear_ratio": "flow_linear_ratio",
+    "supply_pa": "supply_pressure_pa",
+    "ambient_pa": "ambient_pressure_pa",
+    "viscosity": "air_viscosity_pa_s",
+    "alpha_in": "alpha_in",
+    "alpha_out": "alpha_out",
+    "alpha_motion": "alpha_motion",
+    "spool_damping": "spool_damping_n_s_per_m",
+    "spool_spring": "spool_spring_n_per_m",
+    "coil_force": "coil_force_n_per_a",
+    "discharge": "discharge_coefficient",
+    "hole_radius": "hole_radius_m",
+    "half_width": "spool_half_width_m",
+    "holes": "holes_per_path",
+    "tube_diameter": "tube_inner_diameter_m",
+    "reynolds_turbulent": "reynolds_turbulent",
+    "dynamic_friction": "dynamic_friction_n",
+    "static_friction": "static_friction_n",
+    "viscous": "viscous_friction_n_s_per_m",
+    "leak_area": "leakage_area_m2",
+    "load_force": "load_force_n",
+    "spring_k": "spring_stiffness_n_per_m",
+    "spring_rest": "spring_rest_position_m",
+    "null_leak": "valve_null_leak_area_m2",
+    "seal_leak": "rod_seal_leak_area_m2",
+    "supply_resistance": "supply_resistance_pa_s_per_kg",
+    "exhaust_vent": "exhaust_vent_area_m2",
+    "heat_conductance": "wall_heat_transfer_w_per_k",
+    "stribeck_v": "stribeck_velocity_m_per_s",
+    "lugre_stiffness": "lugre_stiffness_n_per_m",
+    "lugre_damping": "lugre_damping_n_s_per_m",
+}
 
 
 def test_env_constants_take_each_field_from_its_named_parameter():

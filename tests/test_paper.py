@@ -1,4 +1,5 @@
 """The paper's experiments (pneumatic_env.studies.paper) against the facts the paper states."""
+
 import json
 import math
 
@@ -114,8 +115,13 @@ def test_cli_writes_figures_and_table(tmp_path, capsys):
     assert main(["paper", "--out", str(out), "--quick"]) == 0
     assert "extra delay" in capsys.readouterr().out
     pngs = sorted(p.name for p in out.glob("*.png"))
-    assert pngs == ["clamped_step.png", "free_sine.png", "tube_outlet_flow.png",
-                    "valve_flow_vs_current.png", "valve_flow_vs_downstream.png"]
+    assert pngs == [
+        "clamped_step.png",
+        "free_sine.png",
+        "tube_outlet_flow.png",
+        "valve_flow_vs_current.png",
+        "valve_flow_vs_downstream.png",
+    ]
     for name in pngs:
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     table = json.loads((out / "table.json").read_text())

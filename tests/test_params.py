@@ -41,6 +41,7 @@ def _copy_configs(tmp_path, monkeypatch):
 
 # --------------------------------------------------------------------------- the configs
 
+
 def test_every_parameter_defined_once_with_value_unit_source():
     cfg = config_dir()
     seen = {}
@@ -61,7 +62,8 @@ def test_every_parameter_defined_once_with_value_unit_source():
             info = parameter_info(name, cylinder=canonical)
             assert info["unit"] and info["source"]
             assert info["source"].startswith(
-                ("paper ", "assumed: ", "assumed, chosen by measurement: ")), (name, info["source"])
+                ("paper ", "assumed: ", "assumed, chosen by measurement: ")
+            ), (name, info["source"])
             if name in DISCRETE_PARAMETERS:
                 assert set(info["allowed"]) == set(DISCRETE_PARAMETERS[name])
             else:
@@ -70,8 +72,10 @@ def test_every_parameter_defined_once_with_value_unit_source():
 
 def test_numerics_not_in_parameter_rows():
     numerics_yaml = yaml.safe_load((config_dir() / "numerics.yaml").read_text())
-    assert load_numerics() == {"control_dt_s": float(numerics_yaml["control_dt_s"]["value"]),
-                               "substeps": int(numerics_yaml["substeps"]["value"])}
+    assert load_numerics() == {
+        "control_dt_s": float(numerics_yaml["control_dt_s"]["value"]),
+        "substeps": int(numerics_yaml["substeps"]["value"]),
+    }
     assert isinstance(load_numerics()["substeps"], int)
     assert load_numerics(substeps=40)["substeps"] == 40
     with pytest.raises(ConfigError) as exc:
@@ -115,6 +119,7 @@ def test_reference_values_from_model_notes():
 
 # --------------------------------------------------------------------------- selection
 
+
 def test_cylinder_aliases_case_insensitive():
     ref = load_parameters(AIRPEL)
     assert load_parameters("airpel") == ref
@@ -130,18 +135,24 @@ def test_unknown_cylinder_lists_known():
     # a guard of the wording: the whole sentence
     assert str(exc.value) == (
         "unknown cylinder 'festo'; known cylinders: 'numatics-0750D02-03A' (alias "
-        "'numatics'), 'airpel-E16D3.0N' (alias 'airpel')")
+        "'numatics'), 'airpel-E16D3.0N' (alias 'airpel')"
+    )
 
 
 def test_overrides_params_and_discrete_names(tmp_path):
-    v = load_parameters(tube_length_m=2.0, tube_coupling="literal", piston_mode="Spring",
-                        spring_stiffness_n_per_m=500)
+    v = load_parameters(
+        tube_length_m=2.0,
+        tube_coupling="literal",
+        piston_mode="Spring",
+        spring_stiffness_n_per_m=500,
+    )
     assert v["tube_length_m"] == 2.0
     assert v["tube_coupling"] == 1.0 and v["piston_mode"] == 2.0
     assert v["spring_stiffness_n_per_m"] == 500.0
-    v = load_parameters(params={"supply_pressure_pa": 5e5,
-                                "load_mass_kg": {"value": 0.2, "unit": "kg"}},
-                        supply_pressure_pa=4e5)
+    v = load_parameters(
+        params={"supply_pressure_pa": 5e5, "load_mass_kg": {"value": 0.2, "unit": "kg"}},
+        supply_pressure_pa=4e5,
+    )
     assert v["supply_pressure_pa"] == 4e5 and v["load_mass_kg"] == 0.2
     with pytest.raises(ConfigError) as exc:
         load_parameters(params={"load_mass_kg": {"value": 200, "unit": "g"}})
@@ -149,6 +160,7 @@ def test_overrides_params_and_discrete_names(tmp_path):
 
 
 # --------------------------------------------------------------------------- error messages
+
 
 def _error(**kw):
     with pytest.raises(ConfigError) as exc:
@@ -160,12 +172,14 @@ def _error(**kw):
 def test_unknown_field_suggests_close_match():
     # a guard of the wording: the whole sentence
     assert _error(suply_pressure_pa=5e5) == (
-        "override 'suply_pressure_pa' is not a known parameter; did you mean "
-        "'supply_pressure_pa'?")
-    assert_error_names(_error(alpha=1.2), ("override", "'alpha'"),
-                       rule=("'alpha_in'", "'alpha_out'"))
-    assert_error_names(_error(params={"bore_diam": 0.02}), ("params", "'bore_diam'"),
-                       rule="'bore_diameter_m'")
+        "override 'suply_pressure_pa' is not a known parameter; did you mean 'supply_pressure_pa'?"
+    )
+    assert_error_names(
+        _error(alpha=1.2), ("override", "'alpha'"), rule=("'alpha_in'", "'alpha_out'")
+    )
+    assert_error_names(
+        _error(params={"bore_diam": 0.02}), ("params", "'bore_diam'"), rule="'bore_diameter_m'"
+    )
     assert_error_names(_error(bore=0.02), "'bore'", rule="'bore_diameter_m'")
     assert_error_names(_error(zzz=1), "'zzz'", rule="pneumatic_env.physics.layout.PARAMETER_NAMES")
 
@@ -173,47 +187,79 @@ def test_unknown_field_suggests_close_match():
 def test_out_of_range():
     # a guard of the wording: the whole sentence
     assert _error(supply_pressure_pa=-3.0) == (
-        "override 'supply_pressure_pa' = -3.0 is not allowed: must be in "
-        "[100000.0, 2000000.0] Pa")
+        "override 'supply_pressure_pa' = -3.0 is not allowed: must be in [100000.0, 2000000.0] Pa"
+    )
     assert_error_names(_error(discharge_coefficient=0), "discharge_coefficient", 0, "(0.0, 1.0]")
 
 
 def test_nan_and_non_numeric():
-    assert_error_names(_error(temperature_k=float("nan")), "temperature_k", float("nan"),
-                       ("finite number", "(0.0, inf] K"))
-    assert_error_names(_error(load_mass_kg="heavy"), "load_mass_kg", "heavy",
-                       ("number", "[0.0, inf] kg"))
+    assert_error_names(
+        _error(temperature_k=float("nan")),
+        "temperature_k",
+        float("nan"),
+        ("finite number", "(0.0, inf] K"),
+    )
+    assert_error_names(
+        _error(load_mass_kg="heavy"), "load_mass_kg", "heavy", ("number", "[0.0, inf] kg")
+    )
     assert_error_names(_error(load_mass_kg="0.5"), "load_mass_kg", "0.5", "[0.0, inf] kg")
     assert_error_names(_error(load_mass_kg=True), "load_mass_kg", True, "[0.0, inf] kg")
 
 
 def test_cross_field_rules():
-    assert_error_names(_error(supply_pressure_pa=1.005e5), "supply_pressure_pa", 100500.0,
-                       ("greater than", "ambient_pressure_pa = 101325.0 Pa"))
-    assert_error_names(_error(ambient_pressure_pa=1.5e5, params={"supply_pressure_pa": 1.2e5}),
-                       "ambient_pressure_pa", 150000.0,
-                       ("less than", "supply_pressure_pa = 120000.0 Pa"))
-    assert_error_names(_error(rod_diameter_m=19.05e-3), "rod_diameter_m", 0.01905,
-                       ("less than", "bore_diameter_m = 0.01905 m"))
-    assert_error_names(_error(cylinder="airpel", bore_diameter_m=4e-3), "bore_diameter_m",
-                       0.004, ("greater than", "rod_diameter_m = 0.00476 m"))
-    assert_error_names(_error(fixed_position_m=-0.04), "fixed_position_m", -0.04,
-                       "+-stroke_m/2 = 0.0381 m")
-    assert_error_names(_error(spring_rest_position_m=0.05), "spring_rest_position_m", 0.05,
-                       "+-stroke_m/2 = 0.0381 m")
-    assert_error_names(_error(alpha_in=1.5), "alpha_in", 1.5,
-                       ("at most", "heat_capacity_ratio = 1.4"))
-    assert_error_names(_error(flow_linear_ratio=0.5), "flow_linear_ratio", 0.5,
-                       ("(P_cr, 1)", "(0.528"))
+    assert_error_names(
+        _error(supply_pressure_pa=1.005e5),
+        "supply_pressure_pa",
+        100500.0,
+        ("greater than", "ambient_pressure_pa = 101325.0 Pa"),
+    )
+    assert_error_names(
+        _error(ambient_pressure_pa=1.5e5, params={"supply_pressure_pa": 1.2e5}),
+        "ambient_pressure_pa",
+        150000.0,
+        ("less than", "supply_pressure_pa = 120000.0 Pa"),
+    )
+    assert_error_names(
+        _error(rod_diameter_m=19.05e-3),
+        "rod_diameter_m",
+        0.01905,
+        ("less than", "bore_diameter_m = 0.01905 m"),
+    )
+    assert_error_names(
+        _error(cylinder="airpel", bore_diameter_m=4e-3),
+        "bore_diameter_m",
+        0.004,
+        ("greater than", "rod_diameter_m = 0.00476 m"),
+    )
+    assert_error_names(
+        _error(fixed_position_m=-0.04), "fixed_position_m", -0.04, "+-stroke_m/2 = 0.0381 m"
+    )
+    assert_error_names(
+        _error(spring_rest_position_m=0.05),
+        "spring_rest_position_m",
+        0.05,
+        "+-stroke_m/2 = 0.0381 m",
+    )
+    assert_error_names(
+        _error(alpha_in=1.5), "alpha_in", 1.5, ("at most", "heat_capacity_ratio = 1.4")
+    )
+    assert_error_names(
+        _error(flow_linear_ratio=0.5), "flow_linear_ratio", 0.5, ("(P_cr, 1)", "(0.528")
+    )
     assert load_parameters(fixed_position_m=0.0381)["fixed_position_m"] == 0.0381
 
 
 def test_bad_discrete_value():
     for value in ("delayed", 0.5, 2):
-        assert_error_names(_error(tube_coupling=value), "tube_coupling", value,
-                           ("0 ('command')", "1 ('literal')"))
-    assert_error_names(_error(piston_mode="clamped"), "piston_mode", "clamped",
-                       ("0 ('fixed')", "1 ('free')", "2 ('spring')"))
+        assert_error_names(
+            _error(tube_coupling=value), "tube_coupling", value, ("0 ('command')", "1 ('literal')")
+        )
+    assert_error_names(
+        _error(piston_mode="clamped"),
+        "piston_mode",
+        "clamped",
+        ("0 ('fixed')", "1 ('free')", "2 ('spring')"),
+    )
 
 
 def test_malformed_config_files(tmp_path, monkeypatch):
@@ -221,15 +267,14 @@ def test_malformed_config_files(tmp_path, monkeypatch):
     load_parameters()  # the copy is valid
     air = cfg / "air.yaml"
     text = air.read_text()
-    air.write_text(text.replace('  unit: Pa s\n', ''))
+    air.write_text(text.replace("  unit: Pa s\n", ""))
     with pytest.raises(ConfigError) as exc:
         load_parameters()
     assert_error_names(exc, (str(air), "air_viscosity_pa_s"), rule="'unit'")
     air.write_text(text.replace("value: 6.5e+5", "value: 5.0e+4"))
     with pytest.raises(ConfigError) as exc:
         load_parameters()
-    assert_error_names(exc, (str(air), "supply_pressure_pa"), 50000.0,
-                       "[100000.0, 2000000.0] Pa")
+    assert_error_names(exc, (str(air), "supply_pressure_pa"), 50000.0, "[100000.0, 2000000.0] Pa")
     air.write_text(text + "\nbroken: [\n")
     with pytest.raises(ConfigError) as exc:
         load_parameters()
@@ -249,8 +294,10 @@ def test_malformed_config_files(tmp_path, monkeypatch):
 def test_cylinder_file_overrides_and_custom_cylinder(tmp_path, monkeypatch):
     cfg = _copy_configs(tmp_path, monkeypatch)
     src = (cfg / "cylinders" / f"{AIRPEL}.yaml").read_text()
-    extra = ('\nsupply_pressure_pa:\n  value: 4.0e+5\n  unit: Pa\n'
-             '  source: "assumed: test"\n  min: 1.0e+5\n  max: 1.0e+6\n')
+    extra = (
+        "\nsupply_pressure_pa:\n  value: 4.0e+5\n  unit: Pa\n"
+        '  source: "assumed: test"\n  min: 1.0e+5\n  max: 1.0e+6\n'
+    )
     (cfg / "cylinders" / "my-cyl.yaml").write_text(src + extra)
     assert load_parameters("MY-CYL")["supply_pressure_pa"] == 4e5
     assert load_parameters(cfg / "cylinders" / "my-cyl.yaml")["supply_pressure_pa"] == 4e5
@@ -259,13 +306,15 @@ def test_cylinder_file_overrides_and_custom_cylinder(tmp_path, monkeypatch):
 
 # --------------------------------------------------------------------------- save / array
 
+
 def test_save_load_round_trip(tmp_path):
     values = load_parameters("airpel", tube_length_m=2.0, tube_coupling="literal")
     values["dynamic_friction_n"] = 0.8123456789012345
     values["dead_volume_cap_m3"] = 1.2345678901234567e-7
     path = tmp_path / "fit.yaml"
-    save_parameters(path, values, notes="step response 2026-01-01",
-                    uncertainties={"dynamic_friction_n": 0.01})
+    save_parameters(
+        path, values, notes="step response 2026-01-01", uncertainties={"dynamic_friction_n": 0.01}
+    )
     assert load_parameters(params=path) == values
     assert load_parameters(AIRPEL, params=str(path)) == values
     doc = _raw(path)
@@ -273,8 +322,9 @@ def test_save_load_round_trip(tmp_path):
     assert doc["dynamic_friction_n"]["source"] == "fitted: step response 2026-01-01"
     assert doc["dynamic_friction_n"]["uncertainty"] == 0.01
     assert doc["dynamic_friction_n"]["unit"] == "N"
-    assert doc["static_friction_n"]["source"] == parameter_info("static_friction_n", AIRPEL)[
-        "source"]
+    assert (
+        doc["static_friction_n"]["source"] == parameter_info("static_friction_n", AIRPEL)["source"]
+    )
     assert doc["tube_coupling"]["value"] == 1
     # a partial set is filled from the configs
     save_parameters(path, {"supply_pressure_pa": 5.5e5})

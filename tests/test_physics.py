@@ -5,6 +5,7 @@ equations (Richer & Hurmuzlu 2000, corrected as in docs/model.md), the whole mod
 against physical invariants, the paper's stated facts and the independent SciPy
 reference solution (studies/reference_solution.py).
 """
+
 from __future__ import annotations
 
 import functools
@@ -19,8 +20,12 @@ from pneumatic_env.params import load_numerics, load_parameters, parameter_array
 from pneumatic_env.physics import kernel, vecmath
 from pneumatic_env.physics import layout as L
 from pneumatic_env.physics.flow import flow_constants, orifice_mass_flow, reduced_flow
-from pneumatic_env.physics.tube import (reynolds_number, sound_speed, tube_attenuation,
-                                        tube_resistance)
+from pneumatic_env.physics.tube import (
+    reynolds_number,
+    sound_speed,
+    tube_attenuation,
+    tube_resistance,
+)
 from pneumatic_env.physics.valve import orifice_area, steady_spool_position
 from pneumatic_env.simulator import INITIAL_STATE_KEYS, BatchSimulator
 
@@ -33,6 +38,7 @@ def _sound_speed(p):
 
 
 # --------------------------------------------------------------------------- flow (Eqs. 39, 40, 52)
+
 
 @pytest.fixture(scope="module")
 def flow_args():
@@ -56,8 +62,9 @@ def test_reduced_flow_branches_and_continuity(flow_args):
     for r in np.linspace(0.0, p_cr, 7):  # choked: C1
         assert m_r(r) == c1
     for r in (0.6, 0.8, 0.9, 0.99):  # subsonic branch of Eq. 52, written out here
-        assert m_r(r) == pytest.approx(c2 * r ** (1 / k) * math.sqrt(1 - r ** ((k - 1) / k)),
-                                       rel=1e-12)
+        assert m_r(r) == pytest.approx(
+            c2 * r ** (1 / k) * math.sqrt(1 - r ** ((k - 1) / k)), rel=1e-12
+        )
     eps = 1e-10
     assert m_r(p_cr + eps) == pytest.approx(c1, rel=1e-8)  # continuous at P_cr
     assert m_r(r_lin - eps) == pytest.approx(m_r(r_lin + eps), rel=1e-6)  # and at r_lin
@@ -75,8 +82,9 @@ def test_reduced_flow_non_increasing_above_critical_ratio(flow_args):
 
 def _mass_flow(area, p_from, p_to, flow_args, cf=0.25, temperature=293.15):
     k, c1, c2, p_cr, r_lin, slope = flow_args
-    return orifice_mass_flow(area, cf, p_from, p_to, 1 / math.sqrt(temperature), k, c1, c2,
-                             p_cr, r_lin, slope)
+    return orifice_mass_flow(
+        area, cf, p_from, p_to, 1 / math.sqrt(temperature), k, c1, c2, p_cr, r_lin, slope
+    )
 
 
 def test_orifice_mass_flow_choked_value_antisymmetry_and_zeros(flow_args, default_params):
@@ -100,10 +108,13 @@ def test_orifice_mass_flow_choked_value_antisymmetry_and_zeros(flow_args, defaul
 
 # --------------------------------------------------------------------------- valve (Eqs. 38, 41-46)
 
+
 def _eq44_area(x_s, r_h, p_w, n_h):
     """The paper's Eq. 44 in its arctangent form, for p_w - R_h < x_s < p_w + R_h."""
-    return n_h * (2 * r_h ** 2 * math.atan(math.sqrt((r_h - p_w + x_s) / (r_h + p_w - x_s)))
-                  - (p_w - x_s) * math.sqrt(r_h ** 2 - (p_w - x_s) ** 2))
+    return n_h * (
+        2 * r_h**2 * math.atan(math.sqrt((r_h - p_w + x_s) / (r_h + p_w - x_s)))
+        - (p_w - x_s) * math.sqrt(r_h**2 - (p_w - x_s) ** 2)
+    )
 
 
 def test_orifice_area_matches_eq44_and_eq41(default_params):
@@ -113,8 +124,9 @@ def test_orifice_area_matches_eq44_and_eq41(default_params):
         area = orifice_area(float(x_s), r_h, p_w, n_h)
         assert area == pytest.approx(_eq44_area(x_s, r_h, p_w, n_h), rel=1e-12)
         x_e = x_s - (p_w - r_h)  # Eq. 41: twice the integral of the half chord, per hole
-        segment, _ = quad(lambda xi: math.sqrt(xi * (2 * r_h - xi)), 0.0, x_e, epsabs=0,
-                          epsrel=1e-12)
+        segment, _ = quad(
+            lambda xi: math.sqrt(xi * (2 * r_h - xi)), 0.0, x_e, epsabs=0, epsrel=1e-12
+        )
         assert area == pytest.approx(n_h * 2 * segment, rel=1e-9)
 
 
@@ -122,7 +134,7 @@ def test_orifice_area_closed_open_continuous_monotone(default_params):
     r_h, p_w = default_params["hole_radius_m"], default_params["spool_half_width_m"]
     n_h = default_params["holes_per_path"]
     area = lambda x: orifice_area(float(x), r_h, p_w, n_h)  # noqa: E731
-    full = math.pi * n_h * r_h ** 2
+    full = math.pi * n_h * r_h**2
     for x_s in (-2e-3, -(p_w - r_h), 0.0, 0.5 * (p_w - r_h), p_w - r_h):  # inside the overlap
         assert area(x_s) == 0.0
     for x_s in (p_w + r_h, p_w + r_h + 1e-6, 5e-3):
@@ -139,15 +151,19 @@ def test_orifice_area_closed_open_continuous_monotone(default_params):
 def test_steady_spool_position_eq46(default_params):
     k_s, k_fc = default_params["spool_spring_n_per_m"], default_params["coil_force_n_per_a"]
     for i in (-2.0, -0.3, 0.0, 0.8, 1.5):
-        assert steady_spool_position(i, k_s, k_fc) == pytest.approx(k_fc * i / (2 * k_s),
-                                                                    rel=1e-15, abs=0.0)
+        assert steady_spool_position(i, k_s, k_fc) == pytest.approx(
+            k_fc * i / (2 * k_s), rel=1e-15, abs=0.0
+        )
 
 
 def test_simulated_spool_settles_at_eq46(default_params):
     currents = np.array([-1.5, -0.3, 0.05, 0.8, 2.0])
     out = run_batch([default_params] * len(currents), np.tile(currents, (200, 1)))
-    expected = default_params["coil_force_n_per_a"] * currents / (
-        2 * default_params["spool_spring_n_per_m"])
+    expected = (
+        default_params["coil_force_n_per_a"]
+        * currents
+        / (2 * default_params["spool_spring_n_per_m"])
+    )
     np.testing.assert_allclose(out[-1, L.O_X_S], expected, rtol=1e-9)
 
 
@@ -165,17 +181,19 @@ def test_exhaust_path_is_the_supply_path_mirrored(default_params):
 
 # --------------------------------------------------------------------------- tube (Eqs. 30-35)
 
+
 def test_tube_resistance_laminar_turbulent_switch(default_params):
     d = default_params["tube_inner_diameter_m"]
     mu = default_params["air_viscosity_pa_s"]
     re_t = default_params["reynolds_turbulent"]
     assert re_t == 2300.0
-    laminar = 32 * mu / d ** 2
+    laminar = 32 * mu / d**2
     for re in (0.0, 100.0, 2000.0, float(np.nextafter(re_t, 0.0))):
         assert tube_resistance(re, d, mu, re_t) == pytest.approx(laminar, rel=1e-14)
     for re in (re_t, 5000.0, 4e4):
-        assert tube_resistance(re, d, mu, re_t) == pytest.approx(0.158 * mu * re ** 0.75 / d ** 2,
-                                                                 rel=1e-12)
+        assert tube_resistance(re, d, mu, re_t) == pytest.approx(
+            0.158 * mu * re**0.75 / d**2, rel=1e-12
+        )
     mdot = 5e-3
     assert reynolds_number(mdot, d, mu) == pytest.approx(4 * mdot / (math.pi * d * mu), rel=1e-14)
     assert reynolds_number(-mdot, d, mu) == reynolds_number(mdot, d, mu)
@@ -189,11 +207,12 @@ def test_tube_attenuation(default_params):
     tau = 2.0 / _sound_speed(p)
     for mdot in (1e-5, 8e-3):  # laminar (Re about 0.2) and turbulent (Re about 176000)
         re = 4 * mdot / (math.pi * d * mu)
-        r_t = 32 * mu / d ** 2 if re < re_t else 0.158 * mu * re ** 0.75 / d ** 2
+        r_t = 32 * mu / d**2 if re < re_t else 0.158 * mu * re**0.75 / d**2
         for pressure in (1.2e5, 6e5):
             expected = math.exp(-r_t * rt * tau / (2 * pressure))
             assert tube_attenuation(mdot, pressure, rt, tau, d, mu, re_t) == pytest.approx(
-                expected, rel=1e-12)
+                expected, rel=1e-12
+            )
             assert 0.0 < expected < 1.0
     assert sound_speed(K_AIR, R_AIR, 293.15) == pytest.approx(343.2, abs=0.05)
 
@@ -214,14 +233,21 @@ def test_tube_delay_is_length_over_sound_speed():
 
 # --------------------------------------------------------------------------- chambers (Eq. 14)
 
+
 @pytest.mark.parametrize("cylinder", CYLINDERS)
 def test_closed_valve_moving_piston_is_polytropic(cylinder):
     """Valve closed (i = 0 is inside the overlap), no leakage: a load moves the piston and each
     chamber follows P V^alpha = const (Eq. 14 without flow)."""
-    params = [load_parameters(cylinder, piston_mode="free", load_force_n=40.0),
-              load_parameters(cylinder, piston_mode="free", load_force_n=-30.0, load_mass_kg=0.2),
-              load_parameters(cylinder, piston_mode="spring", spring_stiffness_n_per_m=5000.0,
-                              spring_rest_position_m=0.02)]
+    params = [
+        load_parameters(cylinder, piston_mode="free", load_force_n=40.0),
+        load_parameters(cylinder, piston_mode="free", load_force_n=-30.0, load_mass_kg=0.2),
+        load_parameters(
+            cylinder,
+            piston_mode="spring",
+            spring_stiffness_n_per_m=5000.0,
+            spring_rest_position_m=0.02,
+        ),
+    ]
     p10, p20 = 3.0e5, 2.5e5
     out = run_batch(params, np.zeros(500), initial={"p1": p10, "p2": p20})
     for j, p in enumerate(params):
@@ -232,16 +258,17 @@ def test_closed_valve_moving_piston_is_polytropic(cylinder):
         v1, v2 = volumes(p, x)
         v10, v20 = volumes(p, 0.0)
         alpha = p["alpha_motion"]
-        np.testing.assert_allclose(out[:, L.O_P1, j] * v1 ** alpha, p10 * v10 ** alpha, rtol=1e-6)
-        np.testing.assert_allclose(out[:, L.O_P2, j] * v2 ** alpha, p20 * v20 ** alpha, rtol=1e-6)
+        np.testing.assert_allclose(out[:, L.O_P1, j] * v1**alpha, p10 * v10**alpha, rtol=1e-6)
+        np.testing.assert_allclose(out[:, L.O_P2, j] * v2**alpha, p20 * v20**alpha, rtol=1e-6)
 
 
 @pytest.mark.parametrize("cylinder,position", [("numatics", 0.01), ("airpel", -0.02)])
 def test_leakage_conserves_mass_and_equalises(cylinder, position):
     """Closed valve, rod clamped, leakage between the chambers, alpha_in = alpha_out = 1:
     the air mass (P1 V1 + P2 V2) / (R T) is conserved and the pressures equalise."""
-    p = load_parameters(cylinder, leakage_area_m2=5e-7, alpha_in=1.0, alpha_out=1.0,
-                        fixed_position_m=position)
+    p = load_parameters(
+        cylinder, leakage_area_m2=5e-7, alpha_in=1.0, alpha_out=1.0, fixed_position_m=position
+    )
     p10, p20 = 6e5, 1.5e5
     out = run_batch([p], np.zeros(500), initial={"p1": p10, "p2": p20})[:, :, 0]
     v1, v2 = volumes(p, position)
@@ -255,6 +282,7 @@ def test_leakage_conserves_mass_and_equalises(cylinder, position):
 
 # --------------------------------------------------------------------------- long random rollouts
 
+
 def _random_currents(rng, n_steps, n_envs, i_max=2.0):
     """Piecewise-constant currents in [-i_max, i_max], held 5-150 steps."""
     out = np.empty((n_steps, n_envs))
@@ -262,7 +290,7 @@ def _random_currents(rng, n_steps, n_envs, i_max=2.0):
         k = 0
         while k < n_steps:
             hold = int(rng.integers(5, 150))
-            out[k:k + hold, j] = rng.uniform(-i_max, i_max)
+            out[k : k + hold, j] = rng.uniform(-i_max, i_max)
             k += hold
     return out
 
@@ -272,10 +300,17 @@ def _all_configurations(coupling):
     for cyl in CYLINDERS:
         for length in (0.0, 0.5, 1.0, 2.0, 3.0):
             common = dict(tube_length_m=length, tube_coupling=coupling)
-            sets += [load_parameters(cyl, piston_mode="fixed", fixed_position_m=0.02, **common),
-                     load_parameters(cyl, piston_mode="free", **common),
-                     load_parameters(cyl, piston_mode="spring", spring_stiffness_n_per_m=3000.0,
-                                     spring_rest_position_m=-0.01, **common)]
+            sets += [
+                load_parameters(cyl, piston_mode="fixed", fixed_position_m=0.02, **common),
+                load_parameters(cyl, piston_mode="free", **common),
+                load_parameters(
+                    cyl,
+                    piston_mode="spring",
+                    spring_stiffness_n_per_m=3000.0,
+                    spring_rest_position_m=-0.01,
+                    **common,
+                ),
+            ]
     return sets
 
 
@@ -312,11 +347,11 @@ def test_random_rollouts_stay_physical(coupling):
 
 # --------------------------------------------------------------------------- the paper's facts
 
+
 def test_long_tube_more_than_doubles_time_to_final_force():
     """Rod clamped at mid-stroke, 0.5 A step: the time to 95 % of the final force with the 2 m
     tube is more than twice that with the 0.5 m tube (paper Sec. 4)."""
-    params = [load_parameters(tube_length_m=length, fixed_position_m=0.0)
-              for length in (0.5, 2.0)]
+    params = [load_parameters(tube_length_m=length, fixed_position_m=0.0) for length in (0.5, 2.0)]
     out = run_batch(params, np.full(300, 0.5))
     dt = load_numerics()["control_dt_s"]
     t = np.arange(1, 301) * dt
@@ -324,8 +359,9 @@ def test_long_tube_more_than_doubles_time_to_final_force():
     a1 = areas(params[0])[0]
     p = params[0]
     for j in range(2):  # steady state: P1 = P_s, P2 = P_a, so F = (P_s - P_a) A1
-        assert f[-1, j] == pytest.approx((p["supply_pressure_pa"] - p["ambient_pressure_pa"]) * a1,
-                                         rel=1e-4)
+        assert f[-1, j] == pytest.approx(
+            (p["supply_pressure_pa"] - p["ambient_pressure_pa"]) * a1, rel=1e-4
+        )
     t95 = [first_crossing_time(t, f[:, j], 0.95 * f[-1, j]) for j in range(2)]
     assert t95[1] > 2.0 * t95[0]
 
@@ -363,9 +399,10 @@ def _kernel_and_reference(cylinder, overrides, command):
     return _solve_both(cylinder, overrides, command)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _solve_both(cylinder, overrides, command):
     from pneumatic_env.studies.reference_solution import simulate_reference
+
     num = load_numerics()
     assert num["control_dt_s"] == 1e-3
     p = load_parameters(cylinder, **dict(overrides))
@@ -407,22 +444,34 @@ def test_free_piston_matches_reference_away_from_end_stops(cylinder):
     assert len(arrivals) >= 2  # the run does hit the stops
     mask = np.ones(len(at_stop), dtype=bool)
     for k in arrivals:
-        mask[k:k + 10] = False
+        mask[k : k + 10] = False
     errors = _errors(p, out, ref, mask)
     assert max(errors.values()) < 1e-3, errors
 
 
 # --------------------------------------------------------------------------- determinism, batches
 
+
 def _mixed_sets():
-    return [load_parameters("numatics", tube_length_m=0.5),
-            load_parameters("airpel", tube_length_m=2.0, piston_mode="free"),
-            load_parameters("numatics", tube_length_m=3.0, piston_mode="spring",
-                            spring_stiffness_n_per_m=4000.0, tube_coupling="literal"),
-            load_parameters("airpel", tube_length_m=0.0, leakage_area_m2=1e-7,
-                            fixed_position_m=-0.01),
-            load_parameters("numatics", tube_length_m=1.0, piston_mode="free",
-                            load_force_n=20.0, supply_pressure_pa=5e5)]
+    return [
+        load_parameters("numatics", tube_length_m=0.5),
+        load_parameters("airpel", tube_length_m=2.0, piston_mode="free"),
+        load_parameters(
+            "numatics",
+            tube_length_m=3.0,
+            piston_mode="spring",
+            spring_stiffness_n_per_m=4000.0,
+            tube_coupling="literal",
+        ),
+        load_parameters("airpel", tube_length_m=0.0, leakage_area_m2=1e-7, fixed_position_m=-0.01),
+        load_parameters(
+            "numatics",
+            tube_length_m=1.0,
+            piston_mode="free",
+            load_force_n=20.0,
+            supply_pressure_pa=5e5,
+        ),
+    ]
 
 
 def test_kernel_is_deterministic_and_batches_are_independent():
@@ -442,8 +491,9 @@ def test_step_by_step_serial_and_parallel_equal_rollout(numba_threads):
     rolled = run_batch(sets, currents)
     num = load_numerics()
     for parallel in (False, True):
-        sim = BatchSimulator(parameter_array(sets), num["control_dt_s"], num["substeps"],
-                             parallel=parallel)
+        sim = BatchSimulator(
+            parameter_array(sets), num["control_dt_s"], num["substeps"], parallel=parallel
+        )
         stepped = np.stack([sim.step(np.ascontiguousarray(c)).copy() for c in currents])
         assert np.array_equal(stepped, rolled), parallel
 
@@ -467,8 +517,7 @@ def test_reset_of_some_envs_restarts_them_and_leaves_the_others():
     fresh = BatchSimulator(parameter_array(sets), num["control_dt_s"], num["substeps"])
     sim = BatchSimulator(parameter_array(sets), num["control_dt_s"], num["substeps"])
     sim.rollout(currents)
-    before = {name: getattr(sim, name).copy()
-              for name in ("state", "history", "outputs", "time_s")}
+    before = {name: getattr(sim, name).copy() for name in ("state", "history", "outputs", "time_s")}
     chosen, others = [1, 3], [0, 2, 4]
     sim.reset(chosen)
     for name, old in before.items():
@@ -480,13 +529,15 @@ def test_reset_of_some_envs_restarts_them_and_leaves_the_others():
 
 # --------------------------------------------------------------------------- BatchSimulator errors
 
+
 def test_batch_simulator_rejects_bad_params(default_params):
     good = parameter_array([default_params])
     with pytest.raises(ValueError) as err:
         BatchSimulator(good[:-1])
     assert str(err.value) == (
         f"params has {L.N_PARAMS - 1} rows, expected {L.N_PARAMS} "
-        "(one per name in pneumatic_env.physics.layout.PARAMETER_NAMES)")
+        "(one per name in pneumatic_env.physics.layout.PARAMETER_NAMES)"
+    )
     bad = np.repeat(good, 3, axis=1)
     bad[L.P_SUPPLY_PRESSURE_PA, 2] = np.nan
     with pytest.raises(ValueError) as err:
@@ -494,13 +545,19 @@ def test_batch_simulator_rejects_bad_params(default_params):
     assert str(err.value) == "params[supply_pressure_pa] of environment 2 is nan, must be finite"
     bad[L.P_SUPPLY_PRESSURE_PA, 2] = default_params["supply_pressure_pa"]
     bad[L.P_TUBE_LENGTH_M, 1] = np.inf
-    with pytest.raises(ValueError, match=r"^params\[tube_length_m\] of environment 1 is inf, "
-                                         r"must be finite$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^params\[tube_length_m\] of environment 1 is inf, "
+        r"must be finite$",
+    ):
         BatchSimulator(bad)
     with pytest.raises(ValueError, match=r"^control_dt_s = 0\.0 is not allowed: must be > 0$"):
         BatchSimulator(good, control_dt_s=0.0)
-    with pytest.raises(ValueError, match=r"^n_substeps = 0 is not allowed: must be an integer "
-                                         r">= 1$"):
+    with pytest.raises(
+        ValueError,
+        match=r"^n_substeps = 0 is not allowed: must be an integer "
+        r">= 1$",
+    ):
         BatchSimulator(good, n_substeps=0)
     sim = BatchSimulator(np.repeat(good, 2, axis=1))
     with pytest.raises(ValueError, match=r"^coil_current_a has shape \(5, 3\), expected \(5, 2\) "):
@@ -511,8 +568,9 @@ def test_batch_simulator_rejects_bad_initial_state(default_params):
     sim = BatchSimulator(parameter_array([default_params]))
     with pytest.raises(ValueError) as err:
         sim.reset(initial={"p3": 2e5, "p1": 2e5})
-    assert str(err.value) == (f"initial state key(s) ['p3'] not known; "
-                              f"allowed: {list(INITIAL_STATE_KEYS)}")
+    assert str(err.value) == (
+        f"initial state key(s) ['p3'] not known; allowed: {list(INITIAL_STATE_KEYS)}"
+    )
     with pytest.raises(ValueError) as err:
         sim.reset(initial={"p1": np.nan})
     assert str(err.value) == "initial['p1'] = nan must be finite"
@@ -522,8 +580,9 @@ def test_batch_simulator_rejects_bad_initial_state(default_params):
     half = 0.5 * default_params["stroke_m"]
     with pytest.raises(ValueError) as err:
         sim.reset(initial={"x": 0.05})
-    assert str(err.value) == (f"initial['x'] = 0.05 is outside the stroke: must be in "
-                              f"[{-half}, {half}] m")
+    assert str(err.value) == (
+        f"initial['x'] = 0.05 is outside the stroke: must be in [{-half}, {half}] m"
+    )
 
 
 def test_batch_simulator_rejects_bad_currents(default_params):
@@ -533,15 +592,16 @@ def test_batch_simulator_rejects_bad_currents(default_params):
     assert str(err.value) == "coil_current_a contains nan: coil currents must be finite (A)"
     with pytest.raises(ValueError) as err:
         sim.step(np.zeros((3, 1)))
-    assert str(err.value) == ("coil_current_a has shape (3, 1), expected (3,) (steps x "
-                              "environments for rollout, environments for step)")
+    assert str(err.value) == (
+        "coil_current_a has shape (3, 1), expected (3,) (steps x "
+        "environments for rollout, environments for step)"
+    )
     with pytest.raises(ValueError, match=r"^coil_current_a has shape \(2,\), expected \(3,\)"):
         sim.step(np.zeros(2))
     before = sim.state.copy()
     with pytest.raises(ValueError):
         sim.step(np.array([0.1, np.inf, 0.0]))
     assert np.array_equal(sim.state, before)  # nothing advanced on bad input
-
 
 
 # --------------------------------------------------------------------------- vectorised batch path
@@ -565,11 +625,18 @@ def test_vectorisable_elementary_functions_match_the_c_library():
 
 def _eligible_sets():
     """Parameter sets the batch path advances with ``base_derivatives``: every rod mode."""
-    return [load_parameters("numatics", tube_length_m=2.0),
-            load_parameters("airpel", tube_length_m=0.5, piston_mode="free", load_mass_kg=0.1),
-            load_parameters("numatics", tube_length_m=1.0, piston_mode="spring",
-                            spring_stiffness_n_per_m=4000.0, exhaust_discharge_ratio=0.8,
-                            tube_volume_fraction=1.0)]
+    return [
+        load_parameters("numatics", tube_length_m=2.0),
+        load_parameters("airpel", tube_length_m=0.5, piston_mode="free", load_mass_kg=0.1),
+        load_parameters(
+            "numatics",
+            tube_length_m=1.0,
+            piston_mode="spring",
+            spring_stiffness_n_per_m=4000.0,
+            exhaust_discharge_ratio=0.8,
+            tube_volume_fraction=1.0,
+        ),
+    ]
 
 
 def test_base_model_rhs_equals_the_general_rhs():
@@ -586,11 +653,27 @@ def test_base_model_rhs_equals_the_general_rhs():
             x, v = rng.uniform(-half, half), rng.uniform(-0.5, 0.5)
             direction = float(rng.integers(-1, 2)) if p["piston_mode"] != "fixed" else 0.0
             coil, v_s = rng.uniform(-2.0, 2.0), rng.uniform(-0.2, 0.2)
-            base = kernel.base_derivatives(c, coil, x_s, v_s, p1, p2, x, v, direction,
-                                           spool_delayed)
-            general = kernel.derivatives(c, coil, x_s, v_s, p1, p2, x, v, c.temperature,
-                                         c.temperature, direction, spool_delayed, p1, p2,
-                                         (p1, p2, p1, p2), c.ambient_pa)
+            base = kernel.base_derivatives(
+                c, coil, x_s, v_s, p1, p2, x, v, direction, spool_delayed
+            )
+            general = kernel.derivatives(
+                c,
+                coil,
+                x_s,
+                v_s,
+                p1,
+                p2,
+                x,
+                v,
+                c.temperature,
+                c.temperature,
+                direction,
+                spool_delayed,
+                p1,
+                p2,
+                (p1, p2, p1, p2),
+                c.ambient_pa,
+            )
             assert base == general
 
 
@@ -606,9 +689,17 @@ def test_batch_path_reproduces_the_general_path_bit_for_bit():
     for step_currents in currents:
         batch.step(np.ascontiguousarray(step_currents))
         for env in range(len(sets)):
-            kernel.advance_env(general.params, general.state, general.history, env,
-                               general.head, float(step_currents[env]), general.control_dt_s,
-                               general.n_substeps, general.outputs)
+            kernel.advance_env(
+                general.params,
+                general.state,
+                general.history,
+                env,
+                general.head,
+                float(step_currents[env]),
+                general.control_dt_s,
+                general.n_substeps,
+                general.outputs,
+            )
         general.advance_clock()
         np.testing.assert_array_equal(batch.outputs, general.outputs)
         moved |= bool(np.any(batch.outputs[L.O_V, 1:] != 0.0))
@@ -625,22 +716,27 @@ def test_vectorised_delay_reads_equal_delayed_value_bit_for_bit():
     rng = np.random.default_rng(5)
     n_slots, n = 9, kernel.CHUNK_ENVS
     history = rng.normal(size=(n_slots, L.N_HISTORY, n))
-    mixed = np.concatenate([[1.0, 2.0, 3.0, 1.5, float(n_slots - 2)],
-                            rng.uniform(1.0, n_slots - 2, n - 5)])
+    mixed = np.concatenate(
+        [[1.0, 2.0, 3.0, 1.5, float(n_slots - 2)], rng.uniform(1.0, n_slots - 2, n - 5)]
+    )
     cases = [(mixed, False)] + [(np.full(n, d), True) for d in (1.0, 2.0, 1.5, 3.7, n_slots - 2.0)]
     for delays, same in cases:
         constants = np.zeros(kernel.N_CACHED_CONSTANTS * n)
-        constants[kernel.C_DELAY_SUBSTEPS * n:(kernel.C_DELAY_SUBSTEPS + 1) * n] = delays
+        constants[kernel.C_DELAY_SUBSTEPS * n : (kernel.C_DELAY_SUBSTEPS + 1) * n] = delays
         assert kernel._same_delay(constants, n) == same
         work = np.zeros(kernel.N_WORK * n)
-        work[kernel.W_START * n:(kernel.W_START + 1) * n] = start = rng.normal(size=n)
+        work[kernel.W_START * n : (kernel.W_START + 1) * n] = start = rng.normal(size=n)
         for head in range(n_slots):
             kernel._delayed_spool_rows(constants, work, history, 0, n, head, same)
             for stage in range(3):
                 row = kernel.W_SPOOL_DELAYED + stage
-                want = [kernel.delayed_value(history, j, L.H_X_S, head, 0.5 * stage, delays[j],
-                                             start[j], start[j]) for j in range(n)]
-                np.testing.assert_array_equal(work[row * n:(row + 1) * n], want)
+                want = [
+                    kernel.delayed_value(
+                        history, j, L.H_X_S, head, 0.5 * stage, delays[j], start[j], start[j]
+                    )
+                    for j in range(n)
+                ]
+                np.testing.assert_array_equal(work[row * n : (row + 1) * n], want)
 
 
 def test_parameters_change_through_set_parameter_and_nowhere_else():
@@ -654,30 +750,38 @@ def test_parameters_change_through_set_parameter_and_nowhere_else():
     currents = 0.6 * np.sin(np.arange(40) * 0.3)
     for k in range(20):
         sim.step(np.full(2, currents[k]))
-    changed = BatchSimulator(parameter_array([base, load_parameters(
-        tube_length_m=0.5, supply_pressure_pa=4e5)]), 1e-3, 5, parallel=False)
+    changed = BatchSimulator(
+        parameter_array([base, load_parameters(tube_length_m=0.5, supply_pressure_pa=4e5)]),
+        1e-3,
+        5,
+        parallel=False,
+    )
     changed.state[:], changed.history[:], changed.head = sim.state, sim.history, sim.head
     sim.set_parameter("supply_pressure_pa", 1, 4e5)
     for k in range(20, 40):
-        np.testing.assert_array_equal(sim.step(np.full(2, currents[k])),
-                                      changed.step(np.full(2, currents[k])))
+        np.testing.assert_array_equal(
+            sim.step(np.full(2, currents[k])), changed.step(np.full(2, currents[k]))
+        )
     h = 1e-3 / 5
     cached = sim.constants[0].reshape(kernel.N_CACHED_CONSTANTS, kernel.CHUNK_ENVS)
     for env in range(2):
         fresh = np.zeros(kernel.N_CACHED_CONSTANTS * kernel.CHUNK_ENVS)
         kernel.store_constants(kernel.env_constants(sim.params, env, h), fresh, env)
         fresh = fresh.reshape(kernel.N_CACHED_CONSTANTS, kernel.CHUNK_ENVS)
-        np.testing.assert_array_equal(cached[:kernel.N_CONSTANTS, env],
-                                      fresh[:kernel.N_CONSTANTS, env])
+        np.testing.assert_array_equal(
+            cached[: kernel.N_CONSTANTS, env], fresh[: kernel.N_CONSTANTS, env]
+        )
     # a parameter of the tube delay goes through set_params (the buffer grows)
     slots = sim.history.shape[0]
     sim.set_parameter("tube_length_m", [0], 3.0)
     assert sim.history.shape[0] > slots and sim.params[L.P_TUBE_LENGTH_M, 0] == 3.0
     with pytest.raises(ValueError) as err:
         sim.set_parameter("supply_pressure", 0, 4e5)
-    assert str(err.value) == ("set_parameter: name = 'supply_pressure' is not a parameter; "
-                              "allowed: the names in pneumatic_env.physics.layout."
-                              "PARAMETER_NAMES")
+    assert str(err.value) == (
+        "set_parameter: name = 'supply_pressure' is not a parameter; "
+        "allowed: the names in pneumatic_env.physics.layout."
+        "PARAMETER_NAMES"
+    )
     with pytest.raises(ValueError) as err:
         sim.set_parameter("load_force_n", 0, np.inf)
     assert str(err.value) == "set_parameter: load_force_n = inf is not allowed: must be finite"

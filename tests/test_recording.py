@@ -111,8 +111,11 @@ def test_properties(tmp_path):
 
 
 def test_rig_is_kept_as_the_file_says(tmp_path):
-    rig = {"cylinder": "Airpel", "tube_length_m": 2, "piston": {"mode": "free", "load_mass_kg": 1,
-                                                             "load_force_n": 0}}
+    rig = {
+        "cylinder": "Airpel",
+        "tube_length_m": 2,
+        "piston": {"mode": "free", "load_mass_kg": 1, "load_force_n": 0},
+    }
     t, ch = _signals(20)
     write_recording(tmp_path / "r", t, ch, rig)
     rec = _read_quiet(tmp_path / "r.json")
@@ -275,14 +278,14 @@ def test_error_t_decreasing(tmp_path):
 
 def test_error_gap_in_time(tmp_path):
     rows = _good_csv()
-    rows = rows[:8] + [r.replace(r.split(",")[0], repr(float(r.split(",")[0]) + 0.01))
-                       for r in rows[8:]]
+    rows = rows[:8] + [
+        r.replace(r.split(",")[0], repr(float(r.split(",")[0]) + 0.01)) for r in rows[8:]
+    ]
     e = _at(_err(tmp_path, "\n".join(rows)), 9, "t", attributes=False)
     assert_error_names(e, "'t'", rule=("gap in time", "0.011 s", "t=0.006", "t=0.017", "0.001 s"))
 
 
-@pytest.mark.parametrize("jitter,ok", [(5e-7, True), (-9e-7, True), (2e-6, False),
-                                       (-5e-6, False)])
+@pytest.mark.parametrize("jitter,ok", [(5e-7, True), (-9e-7, True), (2e-6, False), (-5e-6, False)])
 def test_jitter_threshold(tmp_path, jitter, ok):
     dt = 1e-3
     t = np.arange(30) * dt
@@ -295,17 +298,22 @@ def test_jitter_threshold(tmp_path, jitter, ok):
     else:
         # the first bad step is the one into sample 12, on line 14; a guard of the wording:
         # the whole sentence
-        with pytest.raises(RecordingError, match=r"^run1\.csv line 14, column 't': non-uniform "
-                           r"sampling: step [0-9.e-]+ s found .*, 0\.001 s expected \(relative "
-                           r"deviation [0-9.e-]+, allowed 1e-06\)$"):
+        with pytest.raises(
+            RecordingError,
+            match=r"^run1\.csv line 14, column 't': non-uniform "
+            r"sampling: step [0-9.e-]+ s found .*, 0\.001 s expected \(relative "
+            r"deviation [0-9.e-]+, allowed 1e-06\)$",
+        ):
             _read_quiet(path)
 
 
 def test_error_too_few_rows(tmp_path):
-    assert_error_names(_at(_err(tmp_path, "t,i_c,p1\n0,0,300000\n")), "run1.csv",
-                       rule=("1 data row", "at least 2"))
-    assert_error_names(_at(_err(tmp_path, "t,i_c,p1\n")), "run1.csv",
-                       rule=("0 data rows", "at least 2"))
+    assert_error_names(
+        _at(_err(tmp_path, "t,i_c,p1\n0,0,300000\n")), "run1.csv", rule=("1 data row", "at least 2")
+    )
+    assert_error_names(
+        _at(_err(tmp_path, "t,i_c,p1\n")), "run1.csv", rule=("0 data rows", "at least 2")
+    )
 
 
 def test_error_blank_first_line(tmp_path):
@@ -354,42 +362,68 @@ def _rig(**changes):
 PISTON_MODES = ('"fixed"', '"free"', '"spring"')
 
 
-@pytest.mark.parametrize("changes,key,value,rule", [
-    (dict(format=None), "format", NO_VALUE, ("missing", '"pneumatic-measurement"')),
-    (dict(format="pneumatic"), "format", "pneumatic", '"pneumatic-measurement"'),
-    (dict(version=2), "version", 2, "must be 1"),
-    (dict(version="1"), "version", "1", "must be 1"),
-    (dict(version=True), "version", True, "must be 1"),
-    (dict(cylinder=None), "cylinder", NO_VALUE, ("missing", '"numatics-0750D02-03A"')),
-    (dict(cylinder="festo-DSNU"), "cylinder", "festo-DSNU",
-     ('"numatics-0750D02-03A"', '"airpel-E16D3.0N"', '"numatics"', '"airpel"')),
-    (dict(tube_length_m=None), "tube_length_m", NO_VALUE, ("missing", "positive number", "m")),
-    (dict(tube_length_m=-0.5), "tube_length_m", -0.5, "positive number"),
-    (dict(tube_length_m=0), "tube_length_m", 0, "positive number"),
-    (dict(tube_length_m="0.5"), "tube_length_m", "0.5", "positive number"),
-    (dict(supply_pressure_pa=-1.0), "supply_pressure_pa", -1.0, "positive number"),
-    (dict(temperature_k=0), "temperature_k", 0, "positive number"),
-    (dict(tube_inner_diameter_m="4mm"), "tube_inner_diameter_m", "4mm", "positive number"),
-    (dict(piston=None), "piston", NO_VALUE, "missing"),
-    (dict(piston="fixed"), "piston", NO_VALUE, "object"),
-    (dict(piston={"position_m": 0.0}), "piston.mode", NO_VALUE, ("missing", *PISTON_MODES)),
-    (dict(piston={"mode": "clamped"}), "piston.mode", "clamped", PISTON_MODES),
-    (dict(piston={"mode": "fixed"}), "piston.position_m", NO_VALUE,
-     ("missing", "'fixed'", "position_m")),
-    (dict(piston={"mode": "free", "load_mass_kg": 1.0}), "piston.load_force_n", NO_VALUE,
-     ("missing", "'free'", "load_mass_kg, load_force_n")),
-    (dict(piston={"mode": "spring", "stiffness_n_per_m": 1e3, "load_mass_kg": 1.0}),
-     "piston.rest_position_m", NO_VALUE,
-     ("missing", "'spring'", "stiffness_n_per_m, rest_position_m, load_mass_kg")),
-    (dict(piston={"mode": "free", "load_mass_kg": "heavy", "load_force_n": 0}),
-     "piston.load_mass_kg", "heavy", "finite number"),
-    (dict(piston={"mode": "free", "load_mass_kg": -1, "load_force_n": 0}),
-     "piston.load_mass_kg", -1, "non-negative number"),
-    (dict(initial={"p3": 1e5}), "initial.p3", NO_VALUE, "p1, p2, x, v, x_s"),
-    (dict(initial={"p1": "ambient"}), "initial.p1", "ambient", "finite number"),
-    (dict(initial=[1, 2]), "initial", NO_VALUE, "object"),
-    (dict(notes=3), "notes", 3, "string"),
-])
+@pytest.mark.parametrize(
+    "changes,key,value,rule",
+    [
+        (dict(format=None), "format", NO_VALUE, ("missing", '"pneumatic-measurement"')),
+        (dict(format="pneumatic"), "format", "pneumatic", '"pneumatic-measurement"'),
+        (dict(version=2), "version", 2, "must be 1"),
+        (dict(version="1"), "version", "1", "must be 1"),
+        (dict(version=True), "version", True, "must be 1"),
+        (dict(cylinder=None), "cylinder", NO_VALUE, ("missing", '"numatics-0750D02-03A"')),
+        (
+            dict(cylinder="festo-DSNU"),
+            "cylinder",
+            "festo-DSNU",
+            ('"numatics-0750D02-03A"', '"airpel-E16D3.0N"', '"numatics"', '"airpel"'),
+        ),
+        (dict(tube_length_m=None), "tube_length_m", NO_VALUE, ("missing", "positive number", "m")),
+        (dict(tube_length_m=-0.5), "tube_length_m", -0.5, "positive number"),
+        (dict(tube_length_m=0), "tube_length_m", 0, "positive number"),
+        (dict(tube_length_m="0.5"), "tube_length_m", "0.5", "positive number"),
+        (dict(supply_pressure_pa=-1.0), "supply_pressure_pa", -1.0, "positive number"),
+        (dict(temperature_k=0), "temperature_k", 0, "positive number"),
+        (dict(tube_inner_diameter_m="4mm"), "tube_inner_diameter_m", "4mm", "positive number"),
+        (dict(piston=None), "piston", NO_VALUE, "missing"),
+        (dict(piston="fixed"), "piston", NO_VALUE, "object"),
+        (dict(piston={"position_m": 0.0}), "piston.mode", NO_VALUE, ("missing", *PISTON_MODES)),
+        (dict(piston={"mode": "clamped"}), "piston.mode", "clamped", PISTON_MODES),
+        (
+            dict(piston={"mode": "fixed"}),
+            "piston.position_m",
+            NO_VALUE,
+            ("missing", "'fixed'", "position_m"),
+        ),
+        (
+            dict(piston={"mode": "free", "load_mass_kg": 1.0}),
+            "piston.load_force_n",
+            NO_VALUE,
+            ("missing", "'free'", "load_mass_kg, load_force_n"),
+        ),
+        (
+            dict(piston={"mode": "spring", "stiffness_n_per_m": 1e3, "load_mass_kg": 1.0}),
+            "piston.rest_position_m",
+            NO_VALUE,
+            ("missing", "'spring'", "stiffness_n_per_m, rest_position_m, load_mass_kg"),
+        ),
+        (
+            dict(piston={"mode": "free", "load_mass_kg": "heavy", "load_force_n": 0}),
+            "piston.load_mass_kg",
+            "heavy",
+            "finite number",
+        ),
+        (
+            dict(piston={"mode": "free", "load_mass_kg": -1, "load_force_n": 0}),
+            "piston.load_mass_kg",
+            -1,
+            "non-negative number",
+        ),
+        (dict(initial={"p3": 1e5}), "initial.p3", NO_VALUE, "p1, p2, x, v, x_s"),
+        (dict(initial={"p1": "ambient"}), "initial.p1", "ambient", "finite number"),
+        (dict(initial=[1, 2]), "initial", NO_VALUE, "object"),
+        (dict(notes=3), "notes", 3, "string"),
+    ],
+)
 def test_sidecar_errors(tmp_path, changes, key, value, rule):
     path = _write_json(tmp_path, _rig(**changes))
     with pytest.raises(RecordingError) as info:
@@ -400,37 +434,55 @@ def test_sidecar_errors(tmp_path, changes, key, value, rule):
 
 def test_sidecar_error_wording(tmp_path):
     """A guard of the wording: the whole sentence of one sidecar error."""
-    with pytest.raises(RecordingError, match=r"^run1\.json: key 'cylinder' is 'festo-DSNU', "
-                       r"allowed: \"numatics-0750D02-03A\", \"airpel-E16D3\.0N\" \(or the "
-                       r"aliases \"numatics\", \"airpel\"\)$"):
+    with pytest.raises(
+        RecordingError,
+        match=r"^run1\.json: key 'cylinder' is 'festo-DSNU', "
+        r"allowed: \"numatics-0750D02-03A\", \"airpel-E16D3\.0N\" \(or the "
+        r"aliases \"numatics\", \"airpel\"\)$",
+    ):
         _read_quiet(_write_json(tmp_path, _rig(cylinder="festo-DSNU")))
 
 
-@pytest.mark.parametrize("text,where,rule", [
-    (json.dumps(_rig(), indent=2).replace('"tube_length_m": 0.5', '"tube_length_m": NaN'),
-     "run1.json", ("NaN", "finite")),
-    (json.dumps(_rig(), indent=2).replace('"tube_length_m": 0.5,', '"tube_length_m": 0.5'),
-     ("run1.json", "line 6", "column 3"), ("invalid JSON", "',' delimiter")),
-    ('{"format": "pneumatic-measurement", "format": "x"}', ("run1.json", "'format'"),
-     "duplicate key"),
-    ("[]", "run1.json", ("JSON object", "list")),
-])
+@pytest.mark.parametrize(
+    "text,where,rule",
+    [
+        (
+            json.dumps(_rig(), indent=2).replace('"tube_length_m": 0.5', '"tube_length_m": NaN'),
+            "run1.json",
+            ("NaN", "finite"),
+        ),
+        (
+            json.dumps(_rig(), indent=2).replace('"tube_length_m": 0.5,', '"tube_length_m": 0.5'),
+            ("run1.json", "line 6", "column 3"),
+            ("invalid JSON", "',' delimiter"),
+        ),
+        (
+            '{"format": "pneumatic-measurement", "format": "x"}',
+            ("run1.json", "'format'"),
+            "duplicate key",
+        ),
+        ("[]", "run1.json", ("JSON object", "list")),
+    ],
+)
 def test_sidecar_nan_and_bad_json(tmp_path, text, where, rule):
     with pytest.raises(RecordingError) as info:
         _read_quiet(_write_json(tmp_path, text))
     assert_error_names(info, where, rule=rule)
 
 
-@pytest.mark.parametrize("name", ["numatics", "NUMATICS", "Airpel", "airpel-e16d3.0n",
-                                  "numatics-0750D02-03A"])
+@pytest.mark.parametrize(
+    "name", ["numatics", "NUMATICS", "Airpel", "airpel-e16d3.0n", "numatics-0750D02-03A"]
+)
 def test_cylinder_aliases(tmp_path, name):
     rec = _read_quiet(_write_json(tmp_path, _rig(cylinder=name)))
     assert rec.rig["cylinder"] == name  # kept as the file says
 
 
 def test_unknown_top_level_and_piston_keys_warn(tmp_path):
-    rig = _rig(operator="bob", piston={"mode": "fixed", "position_m": 0.0, "load_mass_kg": 2.0,
-                                       "colour": "red"})
+    rig = _rig(
+        operator="bob",
+        piston={"mode": "fixed", "position_m": 0.0, "load_mass_kg": 2.0, "colour": "red"},
+    )
     with pytest.warns(RecordingWarning) as record:
         rec = read_recording(_write_json(tmp_path, rig))
     messages = [str(w.message) for w in record]
@@ -458,10 +510,14 @@ def test_warning_unknown_column(tmp_path):
     rows = [r + (",temp" if k == 0 else ",21.5") for k, r in enumerate(rows)]
     rows = [r + (",P2" if k == 0 else ",oops") for k, r in enumerate(rows)]  # ignored: never parsed
     path = _write_raw(tmp_path, "\n".join(rows))
-    with pytest.warns(RecordingWarning, match=r"^run1\.csv: unknown column 'temp' ignored; "
-                      r"known columns: t, i_c, p1, p2, x, f, v, x_s, p_s$"):
-        with pytest.warns(RecordingWarning,
-                          match=r"unknown column 'P2' ignored \(did you mean 'p2'\?\)"):
+    with pytest.warns(
+        RecordingWarning,
+        match=r"^run1\.csv: unknown column 'temp' ignored; "
+        r"known columns: t, i_c, p1, p2, x, f, v, x_s, p_s$",
+    ):
+        with pytest.warns(
+            RecordingWarning, match=r"unknown column 'P2' ignored \(did you mean 'p2'\?\)"
+        ):
             rec = read_recording(path)
     assert set(rec.channels) == {"i_c", "p1"}
 
@@ -471,8 +527,11 @@ def test_warning_gauge_pressure(tmp_path):
     ch["p1"] = ch["p1"] - 2.5e5  # about 50 kPa +- 100 kPa: negative values
     messages = _warn_messages(tmp_path, t, ch)
     assert len(messages) == 1
-    assert re.match(r"^w\.csv: p1 looks like gauge pressure: values below ambient "
-                    r"\(min -[0-9.e+]+ Pa\); the format wants absolute Pa$", messages[0])
+    assert re.match(
+        r"^w\.csv: p1 looks like gauge pressure: values below ambient "
+        r"\(min -[0-9.e+]+ Pa\); the format wants absolute Pa$",
+        messages[0],
+    )
 
 
 def test_warning_gauge_pressure_respects_rig_ambient(tmp_path):
@@ -495,8 +554,14 @@ def test_warning_bar(tmp_path):
     ch["p1"] = ch["p1"] / 1e5
     ch["p_s"] = np.full_like(t, 6.5) + 0.01 * np.sin(t * 30)
     messages = _warn_messages(tmp_path, t, ch)
-    assert any(re.match(r"^w\.csv: p1 looks like bar \(max [0-9.]+\); the format wants "
-                        r"absolute Pa$", m) for m in messages)
+    assert any(
+        re.match(
+            r"^w\.csv: p1 looks like bar \(max [0-9.]+\); the format wants "
+            r"absolute Pa$",
+            m,
+        )
+        for m in messages
+    )
     assert any(m.startswith("w.csv: p_s looks like bar") for m in messages)
     assert not any("gauge" in m for m in messages)
 
@@ -505,16 +570,28 @@ def test_warning_millimetres(tmp_path):
     t, ch = _signals()
     ch["x"] = 25.0 * np.sin(2 * np.pi * 2 * t)
     messages = _warn_messages(tmp_path, t, ch)
-    assert any(re.match(r"^w\.csv: x looks like millimetres \(max \|x\| [0-9.]+\); the format "
-                        r"wants metres$", m) for m in messages)
+    assert any(
+        re.match(
+            r"^w\.csv: x looks like millimetres \(max \|x\| [0-9.]+\); the format "
+            r"wants metres$",
+            m,
+        )
+        for m in messages
+    )
 
 
 def test_warning_clipped(tmp_path):
     t, ch = _signals(400)
     ch["f"] = np.minimum(ch["f"], 8.0)  # about a quarter of the samples flat at 8 N
     messages = _warn_messages(tmp_path, t, ch)
-    assert any(re.match(r"^w\.csv: f looks clipped: it sits at its maximum 8\.0 for [0-9.]+% of "
-                        r"the samples \(longest run [0-9]+ samples\)", m) for m in messages)
+    assert any(
+        re.match(
+            r"^w\.csv: f looks clipped: it sits at its maximum 8\.0 for [0-9.]+% of "
+            r"the samples \(longest run [0-9]+ samples\)",
+            m,
+        )
+        for m in messages
+    )
 
 
 def test_clipping_needs_runs_and_ignores_leading_rest(tmp_path):
@@ -567,23 +644,24 @@ def test_writer_refuses_to_overwrite(tmp_path):
     np.testing.assert_array_equal(_read_quiet(tmp_path / "r").channels["p1"], ch2["p1"])
 
 
-@pytest.mark.parametrize("mutate,field,rule", [
-    (lambda t, ch: ch["p1"].__setitem__(3, np.nan), ("'p1'", "sample 3", "nan"),
-     "not allowed"),
-    (lambda t, ch: ch.pop("i_c"), "'i_c'", "missing required channel"),
-    (lambda t, ch: [ch.pop(k) for k in ("p1", "p2", "f")], "channels", "at least one"),
-    (lambda t, ch: ch.__setitem__("temp", ch["p1"]), "'temp'", "unknown channel"),
-    (lambda t, ch: ch.__setitem__("p2", ch["p2"][:-1]), "'p2'", ("(9,)", "(10,)")),
-    (lambda t, ch: t.__setitem__(5, t[5] + 1e-7), ("'t'", "sample 5"), "non-uniform sampling"),
-    (lambda t, ch: t.__setitem__(5, t[4]), ("'t'", "sample 5"), "is not after"),
-])
+@pytest.mark.parametrize(
+    "mutate,field,rule",
+    [
+        (lambda t, ch: ch["p1"].__setitem__(3, np.nan), ("'p1'", "sample 3", "nan"), "not allowed"),
+        (lambda t, ch: ch.pop("i_c"), "'i_c'", "missing required channel"),
+        (lambda t, ch: [ch.pop(k) for k in ("p1", "p2", "f")], "channels", "at least one"),
+        (lambda t, ch: ch.__setitem__("temp", ch["p1"]), "'temp'", "unknown channel"),
+        (lambda t, ch: ch.__setitem__("p2", ch["p2"][:-1]), "'p2'", ("(9,)", "(10,)")),
+        (lambda t, ch: t.__setitem__(5, t[5] + 1e-7), ("'t'", "sample 5"), "non-uniform sampling"),
+        (lambda t, ch: t.__setitem__(5, t[4]), ("'t'", "sample 5"), "is not after"),
+    ],
+)
 def test_writer_validates(tmp_path, mutate, field, rule):
     t, ch = _signals(10)
     mutate(t, ch)
     with pytest.raises(RecordingError) as info:
         write_recording(tmp_path / "w", t, ch, RIG)
-    assert_error_names(info, ("w.csv", *([field] if isinstance(field, str) else field)),
-                       rule=rule)
+    assert_error_names(info, ("w.csv", *([field] if isinstance(field, str) else field)), rule=rule)
     assert list(tmp_path.iterdir()) == []
 
 
@@ -603,8 +681,9 @@ def test_writer_validates_rig(tmp_path):
 
 def test_writer_accepts_numpy_scalars_in_rig(tmp_path):
     t, ch = _signals(10)
-    rig = dict(RIG, tube_length_m=np.float64(1.5),
-               piston={"mode": "fixed", "position_m": np.float32(0.0)})
+    rig = dict(
+        RIG, tube_length_m=np.float64(1.5), piston={"mode": "fixed", "position_m": np.float32(0.0)}
+    )
     write_recording(tmp_path / "w", t, ch, rig)
     assert _read_quiet(tmp_path / "w").rig["tube_length_m"] == 1.5
 
@@ -625,9 +704,14 @@ def test_rig_to_parameter_overrides_fixed():
 
 
 def test_rig_to_parameter_overrides_free():
-    rig = {"format": "pneumatic-measurement", "version": 1, "cylinder": "airpel",
-           "tube_length_m": 2.0, "tube_inner_diameter_m": 0.004,
-           "piston": {"mode": "free", "load_mass_kg": 1.5, "load_force_n": 5.0}}
+    rig = {
+        "format": "pneumatic-measurement",
+        "version": 1,
+        "cylinder": "airpel",
+        "tube_length_m": 2.0,
+        "tube_inner_diameter_m": 0.004,
+        "piston": {"mode": "free", "load_mass_kg": 1.5, "load_force_n": 5.0},
+    }
     assert rig_to_parameter_overrides(rig) == {
         "cylinder": "airpel-E16D3.0N",
         "tube_length_m": 2.0,
@@ -639,11 +723,19 @@ def test_rig_to_parameter_overrides_free():
 
 
 def test_rig_to_parameter_overrides_spring():
-    rig = {"format": "pneumatic-measurement", "version": 1, "cylinder": "Numatics",
-           "tube_length_m": 1,
-           "piston": {"mode": "spring", "stiffness_n_per_m": 2000, "rest_position_m": -0.01,
-                      "load_mass_kg": 0.2},
-           "initial": {"p1": 2e5}}
+    rig = {
+        "format": "pneumatic-measurement",
+        "version": 1,
+        "cylinder": "Numatics",
+        "tube_length_m": 1,
+        "piston": {
+            "mode": "spring",
+            "stiffness_n_per_m": 2000,
+            "rest_position_m": -0.01,
+            "load_mass_kg": 0.2,
+        },
+        "initial": {"p1": 2e5},
+    }
     assert rig_to_parameter_overrides(rig) == {
         "cylinder": "numatics-0750D02-03A",
         "tube_length_m": 1.0,
@@ -656,6 +748,7 @@ def test_rig_to_parameter_overrides_spring():
 
 def test_rig_to_parameter_overrides_rejects_invalid_rig():
     with pytest.raises(RecordingError) as info:
-        rig_to_parameter_overrides(dict(RIG, format="pneumatic-measurement", version=1,
-                                        cylinder="festo"))
+        rig_to_parameter_overrides(
+            dict(RIG, format="pneumatic-measurement", version=1, cylinder="festo")
+        )
     assert_error_names(info, ("rig", "'cylinder'"), "festo", '"numatics-0750D02-03A"')

@@ -26,20 +26,44 @@ SOUND_SPEED = math.sqrt(1.4 * 287.0 * 293.15)  # 343.2 m/s
 
 def numatics(**overrides) -> dict:
     p = dict(
-        gas_constant_j_per_kg_k=287.0, heat_capacity_ratio=1.4, temperature_k=293.15,
-        ambient_pressure_pa=101325.0, supply_pressure_pa=6.5e5, air_viscosity_pa_s=1.81e-5,
-        alpha_in=1.4, alpha_out=1.0, alpha_motion=1.2,
-        spool_mass_kg=0.010, spool_damping_n_s_per_m=7.5, spool_spring_n_per_m=1000.0,
-        coil_force_n_per_a=2.78, coil_current_max_a=2.0, discharge_coefficient=0.25,
-        hole_radius_m=0.8e-3, spool_half_width_m=0.9e-3, holes_per_path=14.0,
-        tube_length_m=0.5, tube_inner_diameter_m=3.2e-3, reynolds_turbulent=2300.0,
+        gas_constant_j_per_kg_k=287.0,
+        heat_capacity_ratio=1.4,
+        temperature_k=293.15,
+        ambient_pressure_pa=101325.0,
+        supply_pressure_pa=6.5e5,
+        air_viscosity_pa_s=1.81e-5,
+        alpha_in=1.4,
+        alpha_out=1.0,
+        alpha_motion=1.2,
+        spool_mass_kg=0.010,
+        spool_damping_n_s_per_m=7.5,
+        spool_spring_n_per_m=1000.0,
+        coil_force_n_per_a=2.78,
+        coil_current_max_a=2.0,
+        discharge_coefficient=0.25,
+        hole_radius_m=0.8e-3,
+        spool_half_width_m=0.9e-3,
+        holes_per_path=14.0,
+        tube_length_m=0.5,
+        tube_inner_diameter_m=3.2e-3,
+        reynolds_turbulent=2300.0,
         tube_coupling=0.0,
-        bore_diameter_m=19.05e-3, rod_diameter_m=6.35e-3, stroke_m=76.2e-3,
-        dead_volume_cap_m3=1.0e-6, dead_volume_rod_m3=1.0e-6, piston_mass_kg=0.05,
-        static_friction_n=3.8, dynamic_friction_n=0.486, viscous_friction_n_s_per_m=4.47,
+        bore_diameter_m=19.05e-3,
+        rod_diameter_m=6.35e-3,
+        stroke_m=76.2e-3,
+        dead_volume_cap_m3=1.0e-6,
+        dead_volume_rod_m3=1.0e-6,
+        piston_mass_kg=0.05,
+        static_friction_n=3.8,
+        dynamic_friction_n=0.486,
+        viscous_friction_n_s_per_m=4.47,
         leakage_area_m2=0.0,
-        piston_mode=0.0, fixed_position_m=0.0, load_mass_kg=0.0, load_force_n=0.0,
-        spring_stiffness_n_per_m=0.0, spring_rest_position_m=0.0,
+        piston_mode=0.0,
+        fixed_position_m=0.0,
+        load_mass_kg=0.0,
+        load_force_n=0.0,
+        spring_stiffness_n_per_m=0.0,
+        spring_rest_position_m=0.0,
         flow_linear_ratio=0.995,
     )
     p.update(overrides)
@@ -99,14 +123,13 @@ def test_closed_chambers_follow_polytropic_law():
     """Valve closed (i_c = 0, inside the dead band): no flow, so each chamber keeps
     P V^alpha constant (alpha = alpha_motion) while a spring pushes the piston, which
     slides, oscillates and finally sticks."""
-    p = numatics(piston_mode=2.0, spring_stiffness_n_per_m=500.0,
-                 spring_rest_position_m=-0.02)
+    p = numatics(piston_mode=2.0, spring_stiffness_n_per_m=500.0, spring_rest_position_m=-0.02)
     r = simulate_reference(p, np.zeros(80), 1e-3)
     m = ModelConstants.from_params(p)
     assert r["x"].min() < -5e-3  # the piston really moved
     v1, v2 = chamber_volumes(m, r["x"])
     for pres, vol in ((r["p1"], v1), (r["p2"], v2)):
-        inv = pres * vol ** 1.2
+        inv = pres * vol**1.2
         assert np.ptp(inv) / inv[0] < 1e-8
     np.testing.assert_array_equal(r["x_s"], 0.0)
     # stuck at the end: static friction holds the residual force, and f is the spring force
@@ -180,8 +203,7 @@ def test_long_tube_adds_acoustic_delay():
 
 def test_initial_state_and_validation():
     p = numatics(piston_mode=1.0, load_force_n=5.0)
-    r = simulate_reference(p, np.zeros(5), 1e-3,
-                           initial={"p1": 3e5, "p2": 2e5, "x": 0.01})
+    r = simulate_reference(p, np.zeros(5), 1e-3, initial={"p1": 3e5, "p2": 2e5, "x": 0.01})
     assert r["p1"][0] == 3e5 and r["x"][0] == 0.01 and r["v"][0] == 0.0
     assert r["t"].shape == (6,)
     with pytest.raises(KeyError):

@@ -58,8 +58,7 @@ def test_sine_closed_form():
     ref = spec.generate(1000, DT, _rng())
     for k in (0, 1, 17, 50, 333, 999):
         t = k * DT
-        assert ref[k] == pytest.approx(3.0 + 20.0 * np.sin(2 * np.pi * 5.0 * t + 0.4),
-                                       abs=1e-12)
+        assert ref[k] == pytest.approx(3.0 + 20.0 * np.sin(2 * np.pi * 5.0 * t + 0.4), abs=1e-12)
     # quarter period (50 ms at 5 Hz) without phase: peak
     ref2 = SineReference(amplitude=20.0, frequency_hz=5.0).generate(100, DT)
     assert ref2[0] == 0.0
@@ -92,15 +91,14 @@ def test_chirp_continues_at_f1_after_duration():
     # phase-continuous across the end of the sweep: no jump bigger than a normal step
     k = int(round(T / dt))
     max_step = 2.0 * 2 * np.pi * 40.0 * dt
-    assert np.all(np.abs(np.diff(y[k - 5:k + 5])) <= max_step * 1.01)
+    assert np.all(np.abs(np.diff(y[k - 5 : k + 5])) <= max_step * 1.01)
 
 
 @pytest.mark.parametrize("phases", ["random", "schroeder"])
 def test_multisine_peak_and_spectrum(phases):
     n, dt = 1000, DT  # FFT grid: 1 Hz
     freqs = (3.0, 7.0, 20.0, 51.0)
-    spec = MultisineReference(amplitude=15.0, frequencies_hz=freqs, offset=4.0,
-                              phases=phases)
+    spec = MultisineReference(amplitude=15.0, frequencies_hz=freqs, offset=4.0, phases=phases)
     y = spec.generate(n, dt, _rng(3))
     assert np.max(np.abs(y - 4.0)) == pytest.approx(15.0, rel=1e-12)
     power = np.abs(np.fft.rfft(y - 4.0)) ** 2
@@ -116,8 +114,7 @@ def test_multisine_is_the_sum_of_sines_with_the_drawn_phases():
     """The generated signal is offset + amplitude / peak * sum_k sin(2 pi f_k t + phi_k),
     phi_k the uniform draws of the rng (written out here term by term)."""
     freqs, n = (0.5, 2.0, 5.0), 2011
-    y = MultisineReference(amplitude=0.5, frequencies_hz=freqs, offset=0.1).generate(
-        n, DT, _rng(4))
+    y = MultisineReference(amplitude=0.5, frequencies_hz=freqs, offset=0.1).generate(n, DT, _rng(4))
     phases = _rng(4).uniform(0.0, 2.0 * np.pi, size=len(freqs))
     t = np.arange(n) * DT
     x = sum(np.sin(2.0 * np.pi * f * t + phi) for f, phi in zip(freqs, phases))
@@ -131,10 +128,12 @@ def test_multisine_phases_random_vs_schroeder():
     c = spec.generate(500, DT, _rng(2))
     np.testing.assert_array_equal(a, b)
     assert not np.allclose(a, c)
-    schroeder = MultisineReference(amplitude=1.0, frequencies_hz=(1.0, 2.0, 3.0),
-                                   phases="schroeder")
-    np.testing.assert_array_equal(schroeder.generate(500, DT, _rng(1)),
-                                  schroeder.generate(500, DT, _rng(2)))
+    schroeder = MultisineReference(
+        amplitude=1.0, frequencies_hz=(1.0, 2.0, 3.0), phases="schroeder"
+    )
+    np.testing.assert_array_equal(
+        schroeder.generate(500, DT, _rng(1)), schroeder.generate(500, DT, _rng(2))
+    )
     with pytest.raises(TypeError) as exc:
         spec.generate(10, DT, None)
     assert_error_names(exc, ("MultisineReference.generate", "rng"), rule="numpy.random.Generator")
@@ -197,9 +196,12 @@ def test_mixture_picks_one_per_episode():
     assert frac_b == pytest.approx(0.75, abs=0.03)
     only_a = MixtureReference(choices=(a, b), weights=(1.0, 0.0))
     assert all(only_a.generate(3, DT, rng)[0] == 1.0 for _ in range(200))
-    r1 = MixtureReference(choices=({"kind": "random_step", "amplitude": 1.0,
-                                    "hold_min_s": 0.01, "hold_max_s": 0.02},
-                                   {"kind": "sine", "amplitude": 1.0, "frequency_hz": 2.0}))
+    r1 = MixtureReference(
+        choices=(
+            {"kind": "random_step", "amplitude": 1.0, "hold_min_s": 0.01, "hold_max_s": 0.02},
+            {"kind": "sine", "amplitude": 1.0, "frequency_hz": 2.0},
+        )
+    )
     np.testing.assert_array_equal(r1.generate(300, DT, _rng(5)), r1.generate(300, DT, _rng(5)))
 
 
@@ -255,38 +257,93 @@ POSITIVE = "finite number > 0"
 NON_NEGATIVE = "finite number >= 0"
 
 
-@pytest.mark.parametrize("make,field,value,rule", [
-    (lambda: SineReference(amplitude=1.0, frequency_hz=-1.0), "SineReference.frequency_hz",
-     -1.0, POSITIVE),
-    (lambda: SineReference(amplitude=-2.0, frequency_hz=1.0), "SineReference.amplitude", -2.0,
-     NON_NEGATIVE),
-    (lambda: SineReference(amplitude=float("nan"), frequency_hz=1.0), "SineReference.amplitude",
-     float("nan"), NON_NEGATIVE),
-    (lambda: StepReference(amplitude=1.0, step_time_s=-0.5), "StepReference.step_time_s", -0.5,
-     NON_NEGATIVE),
-    (lambda: ChirpReference(1.0, 1.0, 10.0, 0.0), "ChirpReference.duration_s", 0.0, POSITIVE),
-    (lambda: ChirpReference(1.0, 0.0, 10.0, 1.0), "ChirpReference.f0_hz", 0.0, POSITIVE),
-    (lambda: ChirpReference(1.0, 1.0, 10.0, 1.0, method="cubic"), "ChirpReference.method",
-     "cubic", ("'logarithmic'", "'linear'")),
-    (lambda: MultisineReference(1.0, ()), "MultisineReference.frequencies_hz", (),
-     ("non-empty", "distinct", "finite numbers > 0")),
-    (lambda: MultisineReference(1.0, (1.0, -3.0)), "MultisineReference.frequencies_hz[1]",
-     -3.0, POSITIVE),
-    (lambda: MultisineReference(1.0, (1.0,), phases="zero"), "MultisineReference.phases",
-     "zero", ("'random'", "'schroeder'")),
-    (lambda: RandomStepReference(1.0, 0.2, 0.1), "RandomStepReference.hold_max_s", 0.1,
-     "hold_min_s = 0.2"),
-    (lambda: RandomStepReference(1.0, 0.0, 0.1), "RandomStepReference.hold_min_s", 0.0,
-     POSITIVE),
-    (lambda: ArrayReference(np.array([]), 0.01), "ArrayReference.values", np.array([]),
-     ("non-empty", "1-D", "finite")),
-    (lambda: ArrayReference(np.ones(3), -1.0), "ArrayReference.dt_s", -1.0, POSITIVE),
-    (lambda: MixtureReference(()), "MixtureReference.choices", (), "non-empty"),
-    (lambda: MixtureReference((StepReference(1.0),), weights=(1.0, 2.0)),
-     "MixtureReference.weights", (1.0, 2.0), ("1 finite numbers >= 0", "one per choice")),
-    (lambda: MixtureReference((StepReference(1.0),), weights=(0.0,)),
-     "MixtureReference.weights", (0.0,), "positive sum"),
-])
+@pytest.mark.parametrize(
+    "make,field,value,rule",
+    [
+        (
+            lambda: SineReference(amplitude=1.0, frequency_hz=-1.0),
+            "SineReference.frequency_hz",
+            -1.0,
+            POSITIVE,
+        ),
+        (
+            lambda: SineReference(amplitude=-2.0, frequency_hz=1.0),
+            "SineReference.amplitude",
+            -2.0,
+            NON_NEGATIVE,
+        ),
+        (
+            lambda: SineReference(amplitude=float("nan"), frequency_hz=1.0),
+            "SineReference.amplitude",
+            float("nan"),
+            NON_NEGATIVE,
+        ),
+        (
+            lambda: StepReference(amplitude=1.0, step_time_s=-0.5),
+            "StepReference.step_time_s",
+            -0.5,
+            NON_NEGATIVE,
+        ),
+        (lambda: ChirpReference(1.0, 1.0, 10.0, 0.0), "ChirpReference.duration_s", 0.0, POSITIVE),
+        (lambda: ChirpReference(1.0, 0.0, 10.0, 1.0), "ChirpReference.f0_hz", 0.0, POSITIVE),
+        (
+            lambda: ChirpReference(1.0, 1.0, 10.0, 1.0, method="cubic"),
+            "ChirpReference.method",
+            "cubic",
+            ("'logarithmic'", "'linear'"),
+        ),
+        (
+            lambda: MultisineReference(1.0, ()),
+            "MultisineReference.frequencies_hz",
+            (),
+            ("non-empty", "distinct", "finite numbers > 0"),
+        ),
+        (
+            lambda: MultisineReference(1.0, (1.0, -3.0)),
+            "MultisineReference.frequencies_hz[1]",
+            -3.0,
+            POSITIVE,
+        ),
+        (
+            lambda: MultisineReference(1.0, (1.0,), phases="zero"),
+            "MultisineReference.phases",
+            "zero",
+            ("'random'", "'schroeder'"),
+        ),
+        (
+            lambda: RandomStepReference(1.0, 0.2, 0.1),
+            "RandomStepReference.hold_max_s",
+            0.1,
+            "hold_min_s = 0.2",
+        ),
+        (
+            lambda: RandomStepReference(1.0, 0.0, 0.1),
+            "RandomStepReference.hold_min_s",
+            0.0,
+            POSITIVE,
+        ),
+        (
+            lambda: ArrayReference(np.array([]), 0.01),
+            "ArrayReference.values",
+            np.array([]),
+            ("non-empty", "1-D", "finite"),
+        ),
+        (lambda: ArrayReference(np.ones(3), -1.0), "ArrayReference.dt_s", -1.0, POSITIVE),
+        (lambda: MixtureReference(()), "MixtureReference.choices", (), "non-empty"),
+        (
+            lambda: MixtureReference((StepReference(1.0),), weights=(1.0, 2.0)),
+            "MixtureReference.weights",
+            (1.0, 2.0),
+            ("1 finite numbers >= 0", "one per choice"),
+        ),
+        (
+            lambda: MixtureReference((StepReference(1.0),), weights=(0.0,)),
+            "MixtureReference.weights",
+            (0.0,),
+            "positive sum",
+        ),
+    ],
+)
 def test_bad_fields(make, field, value, rule):
     with pytest.raises(ValueError) as exc:
         make()
@@ -297,8 +354,9 @@ def test_error_message_format():
     """A guard of the wording: the whole sentence, shared by every reference spec."""
     with pytest.raises(ValueError) as exc:
         SineReference(amplitude=1.0, frequency_hz=-1.0)
-    assert str(exc.value) == ("SineReference.frequency_hz = -1.0 is not allowed: "
-                              "must be a finite number > 0")
+    assert str(exc.value) == (
+        "SineReference.frequency_hz = -1.0 is not allowed: must be a finite number > 0"
+    )
 
 
 def test_bad_generate_args():
@@ -317,16 +375,23 @@ def test_make_reference_errors():
     assert_error_names(exc, "kind", "square", [repr(kind) for kind in REFERENCE_KINDS])
     with pytest.raises(ValueError) as exc:
         make_reference({"amplitude": 1.0})
-    assert_error_names(exc, "'kind'", {"amplitude": 1.0},
-                       [repr(kind) for kind in REFERENCE_KINDS])
+    assert_error_names(exc, "'kind'", {"amplitude": 1.0}, [repr(kind) for kind in REFERENCE_KINDS])
     with pytest.raises(ValueError) as exc:
         make_reference({"kind": "sine", "amplitude": 1.0, "freq": 5.0})
-    assert_error_names(exc, ("unknown key", "'sine'"), ["freq"],
-                       "['amplitude', 'frequency_hz', 'offset', 'phase_rad']")
+    assert_error_names(
+        exc,
+        ("unknown key", "'sine'"),
+        ["freq"],
+        "['amplitude', 'frequency_hz', 'offset', 'phase_rad']",
+    )
     with pytest.raises(ValueError) as exc:
         make_reference({"kind": "sine", "amplitude": 1.0})
-    assert_error_names(exc, ("missing key", "'sine'"), ["frequency_hz"],
-                       "['amplitude', 'frequency_hz', 'offset', 'phase_rad']")
+    assert_error_names(
+        exc,
+        ("missing key", "'sine'"),
+        ["frequency_hz"],
+        "['amplitude', 'frequency_hz', 'offset', 'phase_rad']",
+    )
     with pytest.raises(ValueError) as exc:
         make_reference({"kind": "sine", "amplitude": 1.0, "frequency_hz": -1})
     assert_error_names(exc, "SineReference.frequency_hz", -1, POSITIVE)
@@ -339,17 +404,36 @@ def test_make_reference_errors():
 _EXAMPLES = {
     "step": {"kind": "step", "amplitude": 50, "step_time_s": 0.1, "offset": 5},
     "sine": {"kind": "sine", "amplitude": 20, "frequency_hz": 5},
-    "chirp": {"kind": "chirp", "amplitude": 10, "f0_hz": 1, "f1_hz": 30, "duration_s": 2,
-              "method": "linear"},
-    "multisine": {"kind": "multisine", "amplitude": 10, "frequencies_hz": [1, 2.5, 7],
-                  "phases": "schroeder"},
-    "random_step": {"kind": "random_step", "amplitude": 40, "hold_min_s": 0.1,
-                    "hold_max_s": 0.5, "offset": 60},
+    "chirp": {
+        "kind": "chirp",
+        "amplitude": 10,
+        "f0_hz": 1,
+        "f1_hz": 30,
+        "duration_s": 2,
+        "method": "linear",
+    },
+    "multisine": {
+        "kind": "multisine",
+        "amplitude": 10,
+        "frequencies_hz": [1, 2.5, 7],
+        "phases": "schroeder",
+    },
+    "random_step": {
+        "kind": "random_step",
+        "amplitude": 40,
+        "hold_min_s": 0.1,
+        "hold_max_s": 0.5,
+        "offset": 60,
+    },
     "array": {"kind": "array", "values": [0.0, 1.0, 0.5], "dt_s": 0.1},
-    "mixture": {"kind": "mixture", "weights": [2, 1], "choices": [
-        {"kind": "sine", "amplitude": 20, "frequency_hz": 5},
-        {"kind": "array", "values": [1.0, 2.0], "dt_s": 0.01},
-    ]},
+    "mixture": {
+        "kind": "mixture",
+        "weights": [2, 1],
+        "choices": [
+            {"kind": "sine", "amplitude": 20, "frequency_hz": 5},
+            {"kind": "array", "values": [1.0, 2.0], "dt_s": 0.01},
+        ],
+    },
 }
 
 
@@ -368,10 +452,10 @@ def test_make_reference_round_trip(kind):
     assert again == spec
     assert hash(again) == hash(spec)
     assert make_reference(spec) is spec
-    np.testing.assert_array_equal(spec.generate(700, DT, _rng(4)),
-                                  again.generate(700, DT, _rng(4)))
+    np.testing.assert_array_equal(spec.generate(700, DT, _rng(4)), again.generate(700, DT, _rng(4)))
     # the dict holds plain Python values (YAML / JSON friendly)
     import json
+
     assert json.loads(json.dumps(d)) == d
 
 
@@ -379,15 +463,23 @@ def test_make_reference_sine_values():
     spec = make_reference({"kind": "sine", "amplitude": 20, "frequency_hz": 5})
     assert spec == SineReference(amplitude=20.0, frequency_hz=5.0)
     assert isinstance(spec.amplitude, float)
-    assert make_reference({"kind": "Random-Step", "amplitude": 1, "hold_min_s": 0.1,
-                           "hold_max_s": 0.2}).kind == "random_step"
+    assert (
+        make_reference(
+            {"kind": "Random-Step", "amplitude": 1, "hold_min_s": 0.1, "hold_max_s": 0.2}
+        ).kind
+        == "random_step"
+    )
 
 
-_RANDOM_MIXTURE = {"kind": "mixture", "weights": [2, 1, 1], "choices": [
-    {"kind": "multisine", "amplitude": 3, "frequencies_hz": [1, 4, 9]},
-    {"kind": "random_step", "amplitude": 2, "hold_min_s": 0.05, "hold_max_s": 0.2},
-    {"kind": "multisine", "amplitude": 1, "frequencies_hz": [2, 5], "phases": "schroeder"},
-]}
+_RANDOM_MIXTURE = {
+    "kind": "mixture",
+    "weights": [2, 1, 1],
+    "choices": [
+        {"kind": "multisine", "amplitude": 3, "frequencies_hz": [1, 4, 9]},
+        {"kind": "random_step", "amplitude": 2, "hold_min_s": 0.05, "hold_max_s": 0.2},
+        {"kind": "multisine", "amplitude": 1, "frequencies_hz": [2, 5], "phases": "schroeder"},
+    ],
+}
 
 
 @pytest.mark.parametrize("kind", sorted(_EXAMPLES) + ["random mixture"])

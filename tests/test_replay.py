@@ -1,4 +1,5 @@
 """Replay of recordings (pneumatic_env.replay, ``pneumatic-env simulate``)."""
+
 import json
 import math
 
@@ -17,20 +18,45 @@ pytestmark = pytest.mark.filterwarnings("ignore::pneumatic_env.recording.Recordi
 CHANNELS = ("p1", "p2", "x", "f", "v", "x_s")
 
 RIGS = {
-    "fixed": ({"cylinder": "numatics", "tube_length_m": 2.0,
-               "piston": {"mode": "fixed", "position_m": 0.01}},
-              dict(piston_mode=0, fixed_position_m=0.01), None),
-    "free": ({"cylinder": "airpel-E16D3.0N", "tube_length_m": 0.5,
-              "supply_pressure_pa": 6.0e5,
-              "piston": {"mode": "free", "load_mass_kg": 0.2, "load_force_n": 1.5},
-              "initial": {"p1": 2.0e5, "p2": 1.5e5, "x": -0.01}},
-             dict(piston_mode=1, load_mass_kg=0.2, load_force_n=1.5, supply_pressure_pa=6.0e5),
-             {"p1": 2.0e5, "p2": 1.5e5, "x": -0.01}),
-    "spring": ({"cylinder": "numatics-0750D02-03A", "tube_length_m": 1.0,
-                "piston": {"mode": "spring", "stiffness_n_per_m": 2000.0,
-                           "rest_position_m": -0.005, "load_mass_kg": 0.1}},
-               dict(piston_mode=2, spring_stiffness_n_per_m=2000.0,
-                    spring_rest_position_m=-0.005, load_mass_kg=0.1), None),
+    "fixed": (
+        {
+            "cylinder": "numatics",
+            "tube_length_m": 2.0,
+            "piston": {"mode": "fixed", "position_m": 0.01},
+        },
+        dict(piston_mode=0, fixed_position_m=0.01),
+        None,
+    ),
+    "free": (
+        {
+            "cylinder": "airpel-E16D3.0N",
+            "tube_length_m": 0.5,
+            "supply_pressure_pa": 6.0e5,
+            "piston": {"mode": "free", "load_mass_kg": 0.2, "load_force_n": 1.5},
+            "initial": {"p1": 2.0e5, "p2": 1.5e5, "x": -0.01},
+        },
+        dict(piston_mode=1, load_mass_kg=0.2, load_force_n=1.5, supply_pressure_pa=6.0e5),
+        {"p1": 2.0e5, "p2": 1.5e5, "x": -0.01},
+    ),
+    "spring": (
+        {
+            "cylinder": "numatics-0750D02-03A",
+            "tube_length_m": 1.0,
+            "piston": {
+                "mode": "spring",
+                "stiffness_n_per_m": 2000.0,
+                "rest_position_m": -0.005,
+                "load_mass_kg": 0.1,
+            },
+        },
+        dict(
+            piston_mode=2,
+            spring_stiffness_n_per_m=2000.0,
+            spring_rest_position_m=-0.005,
+            load_mass_kg=0.1,
+        ),
+        None,
+    ),
 }
 
 
@@ -60,15 +86,17 @@ def test_replay_reproduces_a_known_simulation(tmp_path, mode):
     rig, overrides, initial = RIGS[mode]
     cylinder = rig["cylinder"]
     dt, n, substeps = 1e-3, 300, 20
-    t, channels = _known_simulation(cylinder, dict(overrides, tube_length_m=rig["tube_length_m"]),
-                                    initial, n, dt, substeps)
+    t, channels = _known_simulation(
+        cylinder, dict(overrides, tube_length_m=rig["tube_length_m"]), initial, n, dt, substeps
+    )
     write_recording(tmp_path / "known", t, channels, rig)
     predicted = simulate_recording(tmp_path / "known.csv", substeps=substeps)
     np.testing.assert_array_equal(predicted["t"], t)
     for name in CHANNELS:
         scale = max(np.abs(channels[name]).max(), 1e-12)
-        np.testing.assert_allclose(predicted[name], channels[name], rtol=0, atol=1e-9 * scale,
-                                   err_msg=name)
+        np.testing.assert_allclose(
+            predicted[name], channels[name], rtol=0, atol=1e-9 * scale, err_msg=name
+        )
     # The run is not trivial: the command moved the spool and changed the pressures.
     assert np.ptp(channels["p1"]) > 1e4 and np.ptp(channels["x_s"]) > 1e-4
     if mode != "fixed":
@@ -91,8 +119,9 @@ def test_default_substeps_keep_the_default_substep():
 def test_replay_uses_default_substeps_for_the_sample_step(tmp_path):
     rig, overrides, initial = RIGS["fixed"]
     dt = 5e-4
-    t, channels = _known_simulation("numatics", dict(overrides, tube_length_m=2.0), None, 200, dt,
-                                    substeps_for(dt))
+    t, channels = _known_simulation(
+        "numatics", dict(overrides, tube_length_m=2.0), None, 200, dt, substeps_for(dt)
+    )
     write_recording(tmp_path / "half", t, channels, rig)
     predicted = simulate_recording(tmp_path / "half")
     np.testing.assert_allclose(predicted["p1"], channels["p1"], rtol=1e-12)
@@ -109,8 +138,9 @@ def test_missing_coil_current_is_the_readers_error(tmp_path):
 
 def _write_fixed(tmp_path, name="rec", n=120):
     rig, overrides, _ = RIGS["fixed"]
-    t, channels = _known_simulation("numatics", dict(overrides, tube_length_m=2.0), None, n,
-                                    1e-3, substeps_for(1e-3))
+    t, channels = _known_simulation(
+        "numatics", dict(overrides, tube_length_m=2.0), None, n, 1e-3, substeps_for(1e-3)
+    )
     write_recording(tmp_path / name, t, channels, rig)
     return tmp_path / f"{name}.csv", channels
 
@@ -129,8 +159,12 @@ def test_cli_writes_a_readable_predicted_recording(tmp_path, capsys):
     assert pred.rig["tube_length_m"] == 2.0 and pred.rig["piston"]["mode"] == "fixed"
     np.testing.assert_array_equal(pred.i_c, channels["i_c"])
     for name in CHANNELS:
-        np.testing.assert_allclose(pred.channels[name], channels[name], rtol=0,
-                                   atol=1e-9 * max(np.abs(channels[name]).max(), 1e-12))
+        np.testing.assert_allclose(
+            pred.channels[name],
+            channels[name],
+            rtol=0,
+            atol=1e-9 * max(np.abs(channels[name]).max(), 1e-12),
+        )
 
 
 @pytest.mark.parametrize("target", ["rec.csv", "rec.json", "rec"])
@@ -163,9 +197,14 @@ def test_params_file_is_applied_but_the_rig_wins(tmp_path):
     # A fitted file made on another rig (0.5 m tube): its tube length must not apply here.
     save_parameters(fitted, {"discharge_coefficient": 0.3, "tube_length_m": 0.5}, notes="test")
     predicted = simulate_recording(rec, params=fitted)
-    _, expected = _known_simulation("numatics", dict(RIGS["fixed"][1], tube_length_m=2.0,
-                                                     discharge_coefficient=0.3), None, 120,
-                                    1e-3, substeps_for(1e-3))
+    _, expected = _known_simulation(
+        "numatics",
+        dict(RIGS["fixed"][1], tube_length_m=2.0, discharge_coefficient=0.3),
+        None,
+        120,
+        1e-3,
+        substeps_for(1e-3),
+    )
     np.testing.assert_allclose(predicted["p1"], expected["p1"], rtol=1e-12)
     assert np.abs(predicted["p1"] - channels["p1"]).max() > 1e3
     assert math.isclose(predicted["x"][0], 0.01)

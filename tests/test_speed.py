@@ -1,4 +1,5 @@
 """`pneumatic-env speed --quick` runs end to end (no timing assertions)."""
+
 from __future__ import annotations
 
 import platform
@@ -13,15 +14,20 @@ def test_quick_speed_run_prints_every_table(tmp_path, capsys):
     out = tmp_path / "speed.md"
     assert cli.main(["speed", "--quick", "--max-n", "2", "--out", str(out)]) == 0
     printed = capsys.readouterr().out
-    for header in ("| ratio | value | target | met |",
-                   "| env | steps/s (median) |",
-                   "| N | threads | what | env-steps/s | between autoresets | autoreset (ms) | "
-                   "env-substeps/s | wall ns per RHS |",
-                   "| N | Sync env-steps/s |",
-                   "| operation | ns each | per substep and env | ns per substep |"):
+    for header in (
+        "| ratio | value | target | met |",
+        "| env | steps/s (median) |",
+        "| N | threads | what | env-steps/s | between autoresets | autoreset (ms) | "
+        "env-substeps/s | wall ns per RHS |",
+        "| N | Sync env-steps/s |",
+        "| operation | ns each | per substep and env | ns per substep |",
+    ):
         assert header in printed, header
-    for row in ("| single env / Pendulum |", "| vector env / SyncVectorEnv, N=2, 1 thread |",
-                "| kernel measured / ceiling, N=2, 1 thread |"):
+    for row in (
+        "| single env / Pendulum |",
+        "| vector env / SyncVectorEnv, N=2, 1 thread |",
+        "| kernel measured / ceiling, N=2, 1 thread |",
+    ):
         assert row in printed, row
     assert "pneumatic-env speed --quick --max-n 2" in printed
     # the env's jitted task kernel runs the same physics as BatchSimulator, bit for bit
@@ -29,17 +35,20 @@ def test_quick_speed_run_prints_every_table(tmp_path, capsys):
     assert out.read_text(encoding="utf-8") == printed.rstrip("\n") + "\n"
 
 
-@pytest.mark.parametrize("flag, value", [("--max-n", "0"), ("--repeats", "-1"),
-                                          ("--max-n", "many")])
+@pytest.mark.parametrize(
+    "flag, value", [("--max-n", "0"), ("--repeats", "-1"), ("--max-n", "many")]
+)
 def test_bad_counts_are_rejected_with_the_option_name(flag, value, capsys):
     with pytest.raises(SystemExit):
         cli.main(["speed", flag, value])
     assert_error_names(capsys.readouterr().err, flag, value, "integer >= 1")
 
 
-@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"),
-                    reason="reads x86-64 assembly (SIMD registers %xmm/%ymm/%zmm, AT&T syntax); "
-                           f"this machine is {platform.machine()}")
+@pytest.mark.skipif(
+    platform.machine().lower() not in ("x86_64", "amd64"),
+    reason="reads x86-64 assembly (SIMD registers %xmm/%ymm/%zmm, AT&T syntax); "
+    f"this machine is {platform.machine()}",
+)
 def test_batch_loop_compiles_to_simd_code():
     """The ceiling counts the instructions of the compiled vectorised loops: every one must
     be vectorised, the RK4 loop with the divisions and square roots of the flow, tube and

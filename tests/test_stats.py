@@ -1,4 +1,5 @@
 """Seed statistics for learned-control claims (pneumatic_env.agents.stats)."""
+
 import numpy as np
 import pytest
 
@@ -21,8 +22,9 @@ def test_iqm_interval_covers_the_true_iqm(seed):
     true_iqm = stats.iqm(rng.lognormal(0.0, 0.3, size=(200_000, 1)))
     hits = 0
     for _ in range(200):
-        est = stats.iqm_estimate(rng.lognormal(0.0, 0.3, size=(10, 9)), reps=300,
-                                 seed=int(rng.integers(1 << 30)))
+        est = stats.iqm_estimate(
+            rng.lognormal(0.0, 0.3, size=(10, 9)), reps=300, seed=int(rng.integers(1 << 30))
+        )
         assert est.low <= est.value <= est.high
         hits += est.low <= true_iqm <= est.high
     assert 0.85 <= hits / 200 <= 1.0
@@ -36,7 +38,8 @@ def test_probability_of_improvement_counts_lower_errors():
     rng = np.random.default_rng(0)
     x, y = rng.normal(size=(6, 4)), rng.normal(size=(7, 4))
     assert stats.probability_of_improvement(x, y) == pytest.approx(
-        1 - stats.probability_of_improvement(y, x))
+        1 - stats.probability_of_improvement(y, x)
+    )
 
 
 def test_paired_ratio_and_beats():

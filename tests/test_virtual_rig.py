@@ -1,4 +1,5 @@
 """The virtual rig (pneumatic_env.studies.virtual_rig): synthetic recordings."""
+
 from __future__ import annotations
 
 import json
@@ -8,9 +9,9 @@ import numpy as np
 import pytest
 
 from pneumatic_env.identification.config import load_config
-from pneumatic_env.studies.virtual_rig import _two_lags, excitation, run_rig
 from pneumatic_env.params import load_parameters
 from pneumatic_env.recording import read_recording
+from pneumatic_env.studies.virtual_rig import _two_lags, excitation, run_rig
 
 DURATION_S = 1.0
 
@@ -18,8 +19,21 @@ DURATION_S = 1.0
 def test_rig_cli_writes_a_readable_synthetic_recording(tmp_path, capsys):
     from pneumatic_env.cli import main
 
-    args = ["rig", "--effect", "leakage", "--strength", "1", "--out", str(tmp_path),
-            "--seed", "3", "--duration", str(DURATION_S), "--name", "r"]
+    args = [
+        "rig",
+        "--effect",
+        "leakage",
+        "--strength",
+        "1",
+        "--out",
+        str(tmp_path),
+        "--seed",
+        "3",
+        "--duration",
+        str(DURATION_S),
+        "--name",
+        "r",
+    ]
     assert main(args) == 0
     rec = read_recording(tmp_path / "r.csv")
     assert rec.warnings == []  # clean SI data: no unit or clipping warnings
@@ -47,13 +61,21 @@ def test_identification_excitation_has_every_segment_in_both_blocks():
         assert rest.size > 0.2 * block.size  # rest periods
         assert np.unique(np.round(block, 6)).size > 50  # multisine/chirp/triangle levels
     # the two blocks differ in their random parts (PRBS levels, multisine phases)
-    assert not np.allclose(i_c[:n - split], i_c[split:])
+    assert not np.allclose(i_c[: n - split], i_c[split:])
 
 
 def test_strength_zero_is_the_plant_without_the_effect():
     base = run_rig("none", seed=7, duration_s=0.3)
-    for effect in ("leakage", "valve_null_leak", "pressure_sensor_lag", "coil_lag",
-                   "load_cell_compliance", "stribeck", "heat_transfer", "supply_droop"):
+    for effect in (
+        "leakage",
+        "valve_null_leak",
+        "pressure_sensor_lag",
+        "coil_lag",
+        "load_cell_compliance",
+        "stribeck",
+        "heat_transfer",
+        "supply_droop",
+    ):
         zero = run_rig(effect, strength=0.0, seed=7, duration_s=0.3)
         for ch in base.channels:
             assert np.array_equal(zero.channels[ch], base.channels[ch]), (effect, ch)
@@ -62,16 +84,20 @@ def test_strength_zero_is_the_plant_without_the_effect():
 def test_rig_coil_without_its_hold_is_the_candidates_two_lags():
     """The rig's coil (``_coil_plant``) is the kernel's cascade of a current lag and a force
     lag when the amplifier's hold is one plant step; the hold delays it."""
-    from pneumatic_env.studies.virtual_rig import _coil_plant
     from pneumatic_env.params import load_parameters, parameter_array
     from pneumatic_env.physics import layout as L
     from pneumatic_env.simulator import BatchSimulator
+    from pneumatic_env.studies.virtual_rig import _coil_plant
+
     dt, total, share = 1e-4, 3e-3, 0.35
     command = np.repeat([0.0, 0.8, -0.5, 0.3], 41)  # changes between amplifier updates
     shape = share * (1.0 - share)
-    sim = BatchSimulator(parameter_array([load_parameters(coil_time_constant_s=total,
-                                                          coil_lag_shape=shape)]), dt, 2,
-                         parallel=False)
+    sim = BatchSimulator(
+        parameter_array([load_parameters(coil_time_constant_s=total, coil_lag_shape=shape)]),
+        dt,
+        2,
+        parallel=False,
+    )
     force = []
     for u in command:
         sim.step(np.array([u]))
@@ -85,8 +111,9 @@ def test_rig_coil_without_its_hold_is_the_candidates_two_lags():
 def test_rig_spool_friction_is_a_stick_slip_play():
     """Without a breakaway excess the rig's spool friction is the candidate's play; with it
     the spool sticks longer, then jumps to the Coulomb band and slides."""
-    from pneumatic_env.studies.virtual_rig import _stick_slip_play
     from pneumatic_env.physics.effects import spool_play_current
+    from pneumatic_env.studies.virtual_rig import _stick_slip_play
+
     rng = np.random.default_rng(3)
     current = np.cumsum(rng.normal(0.0, 0.01, 2000))
     band = 0.03
@@ -126,6 +153,7 @@ def test_rig_lugre_damping_falls_with_speed():
     """The rig's bristle damping (``_lugre_damping``): sigma1 at rest, e^-1 of it at v_d,
     even in v; the candidate's (the kernel's) is constant."""
     from pneumatic_env.studies.virtual_rig import _lugre_damping
+
     assert _lugre_damping(316.0, 0.0, 0.05) == 316.0
     assert _lugre_damping(316.0, -0.05, 0.05) == pytest.approx(316.0 / math.e, rel=1e-12)
     assert _lugre_damping(316.0, 0.02, 0.05) == _lugre_damping(316.0, -0.02, 0.05)
@@ -135,12 +163,14 @@ def test_rig_wall_heat_exchange_conserves_the_gas_and_relaxes_to_the_wall():
     """``_wall_heat_exchange``: at constant volume the gas's mass (p / T) stays, and T
     relaxes to the wall's with the time constant m c_v / hA, hA scaled by the density."""
     from pneumatic_env.studies.virtual_rig import _wall_heat_exchange
+
     r, kappa, wall, volume, h = 287.0, 1.4, 293.15, 5e-5, 1e-4
     for p, t in ((6e5, 380.0), (2e5, 250.0)):
         density = p / (r * t)
         for density_ref, exponent in ((density, 0.6667), (0.5 * density, 0.6667), (1.0, 0.0)):
-            p1, t1 = _wall_heat_exchange(p, t, volume, h, 0.05, density_ref, exponent, wall,
-                                         r, kappa)
+            p1, t1 = _wall_heat_exchange(
+                p, t, volume, h, 0.05, density_ref, exponent, wall, r, kappa
+            )
             assert p1 / t1 == pytest.approx(p / t, rel=1e-12)
             conductance = 0.05 * (density / density_ref) ** exponent
             tau = density * volume * r / (kappa - 1.0) / conductance
@@ -159,8 +189,11 @@ def test_rig_lugre_plant_states_its_truth_and_differs_from_the_kernels_friction(
         assert truth[name] == karnopp.truth["parameters"][name]
     noise = cfg.number("virtual_rig", "noise", "x")
     assert np.abs(lugre.channels["x"] - karnopp.channels["x"]).max() > 5 * noise
-    with pytest.raises(ValueError, match=r"effect 'lugre' needs a moving piston \('spring' or "
-                                         r"'free'\); got piston = 'fixed'"):
+    with pytest.raises(
+        ValueError,
+        match=r"effect 'lugre' needs a moving piston \('spring' or "
+        r"'free'\); got piston = 'fixed'",
+    ):
         run_rig("lugre", piston="fixed", duration_s=0.1)
 
 
@@ -169,6 +202,7 @@ def test_rig_supply_line_droops_like_the_resistance_after_its_lag():
     droop p_set - R draw (``supply_resistance_pa_s_per_kg``), but only after the line's
     time constant, where the candidate droops at once."""
     from pneumatic_env.studies.virtual_rig import _supply_line_step
+
     p_set, resistance, tau, draw = 6.5e5, 1e7, 0.02, 5e-3
     steady = p_set - resistance * draw
     p = _supply_line_step(p_set, p_set, resistance, tau, draw, tau)
@@ -186,6 +220,7 @@ def test_rig_muffler_fills_with_the_exhaust_and_vents_to_the_atmosphere():
     chamber vented by a step stays above the plain rig's, and the truth names the
     candidate's vent area and the muffler's volume."""
     from pneumatic_env.studies.virtual_rig import _muffler_step
+
     rt, volume, h = 287.0 * 293.15, 1e-5, 1e-5
     p = _muffler_step(1.2e5, 2e-3, 5e-4, volume, rt, h)
     assert p == pytest.approx(1.2e5 + rt / volume * 1.5e-3 * h, rel=1e-12)
@@ -195,9 +230,9 @@ def test_rig_muffler_fills_with_the_exhaust_and_vents_to_the_atmosphere():
     config = load_config()
     truth = muffler.truth["parameters"]
     assert truth["exhaust_vent_area_m2"] == config.number(
-        "virtual_rig", "effects", "exhaust_muffler")
-    assert truth["exhaust_volume_m3"] == config.number(
-        "virtual_rig", "exhaust_muffler_volume_m3")
+        "virtual_rig", "effects", "exhaust_muffler"
+    )
+    assert truth["exhaust_volume_m3"] == config.number("virtual_rig", "exhaust_muffler_volume_m3")
     assert plain.truth["parameters"]["exhaust_vent_area_m2"] == 0.0  # the paper's exhaust
     # the first negative step exhausts the charged chamber 1: choked at first (the
     # muffler's pressure does not matter), then held up by the back-pressure
@@ -215,16 +250,20 @@ def test_rig_segmented_line_follows_the_scipy_segmented_line():
     changing every plant step) against the independent SciPy solution of the same line
     (``reference_solution.simulate_segmented_line``) after a 1.5 A step through a 0.5 m
     tube: the stiffest case (the valve's small first volume, a wide-open orifice)."""
-    from pneumatic_env.studies.segmented_line import (line_constants,
-                                                             segmented_line_rollout)
     from pneumatic_env.studies.reference_solution import simulate_segmented_line
+    from pneumatic_env.studies.segmented_line import line_constants, segmented_line_rollout
 
     cfg = load_config()
     plant_dt = cfg.number("virtual_rig", "plant_dt_s")
     p = load_parameters(tube_length_m=0.5)
     n = round(0.5 / cfg.number("virtual_rig", "line_segment_length_m"))
-    line = segmented_line_rollout(line_constants(p, n), n, np.full(300, 1.5), plant_dt,
-                                  int(cfg.number("virtual_rig", "line_substeps")))
+    line = segmented_line_rollout(
+        line_constants(p, n),
+        n,
+        np.full(300, 1.5),
+        plant_dt,
+        int(cfg.number("virtual_rig", "line_substeps")),
+    )
     ref = simulate_segmented_line(p, 1.5, 0.03, n_segments=n, sample_dt_s=plant_dt)
     span = p["supply_pressure_pa"] - p["ambient_pressure_pa"]
     assert np.abs(line[:, 0] - ref["p1"]).max() < 1e-4 * span
@@ -232,8 +271,11 @@ def test_rig_segmented_line_follows_the_scipy_segmented_line():
     assert ref["p1"].max() - p["ambient_pressure_pa"] > 0.5 * span  # the chamber did fill
     area_cap = 0.25 * math.pi * p["bore_diameter_m"] ** 2
     area_rod_side = area_cap - 0.25 * math.pi * p["rod_diameter_m"] ** 2
-    expected_force = (line[:, 0] * area_cap - line[:, 1] * area_rod_side
-                      - p["ambient_pressure_pa"] * (area_cap - area_rod_side))  # Eq. 1
+    expected_force = (
+        line[:, 0] * area_cap
+        - line[:, 1] * area_rod_side
+        - p["ambient_pressure_pa"] * (area_cap - area_rod_side)
+    )  # Eq. 1
     assert np.allclose(line[:, 2], expected_force, rtol=0, atol=1e-9 * span * area_cap)
 
 
@@ -292,8 +334,9 @@ def test_load_cell_compliance_holds_the_rod_by_a_spring_at_the_clamp():
     soft = run_rig("load_cell_compliance", seed=4, duration_s=0.5)
     true = soft.truth["parameters"]
     assert true["piston_mode"] == 2 and true["spring_rest_position_m"] == 0.0
-    assert true["spring_stiffness_n_per_m"] == cfg.number("virtual_rig", "effects",
-                                                          "load_cell_compliance")
+    assert true["spring_stiffness_n_per_m"] == cfg.number(
+        "virtual_rig", "effects", "load_cell_compliance"
+    )
     # the sidecar still says "clamped": the diagnosis must find the compliance itself
     assert soft.rig["piston"] == rigid.rig["piston"] == {"mode": "fixed", "position_m": 0.0}
     assert set(soft.channels) == {"i_c", "p1", "p2", "f"}
@@ -305,7 +348,9 @@ def test_load_cell_compliance_holds_the_rod_by_a_spring_at_the_clamp():
 
 
 def test_unknown_effect_is_a_clear_error():
-    with pytest.raises(ValueError, match="effect 'leak' is not known to the virtual rig; allowed: none, leakage"):
+    with pytest.raises(
+        ValueError, match="effect 'leak' is not known to the virtual rig; allowed: none, leakage"
+    ):
         run_rig("leak")
     with pytest.raises(ValueError, match="strength = -1.0 is not allowed"):
         run_rig("leakage", strength=-1.0)

@@ -3,6 +3,7 @@
 Both are thin shells over ``TaskCore``; their docstrings state the spaces, the reward, the
 options and the episode end.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
@@ -17,17 +18,25 @@ from numpy.typing import NDArray
 
 from .. import ids
 from ..references import ReferenceSpec
+from .features import observation_columns
 from .observation import ObservationScales
 from .tasks import TASKS, EnvOptions, TaskCore, TaskSpec
 
 if TYPE_CHECKING:
     from .render import Trace
 
-__all__ = ["PneumaticTrackingEnv", "PneumaticTrackingVectorEnv", "RESET_OPTIONS"]
+__all__ = [
+    "PneumaticTrackingEnv",
+    "PneumaticTrackingVectorEnv",
+    "RESET_OPTIONS",
+    "VECTOR_RESET_OPTIONS",
+]
 
 _OPTION_NAMES = set(EnvOptions.__dataclass_fields__)
 #: Keys ``reset(options=...)`` accepts.
 RESET_OPTIONS = ("reference",)
+#: Keys the vector env's ``reset(options=...)`` accepts.
+VECTOR_RESET_OPTIONS = ("reference", "start_step")
 
 
 def _split_kwargs(kwargs: dict) -> tuple[EnvOptions, dict]:
@@ -46,21 +55,45 @@ def _task(name: str) -> TaskSpec:
     return TASKS[name]
 
 
-def _reset_references(core: TaskCore, options, n_envs: int | None
-                      ) -> list[ReferenceSpec | None] | None:
+def _start_steps(options, n_envs: int, limit: int) -> np.ndarray | None:
+    """``options["start_step"]``: one int for every env or ``n_envs`` ints in [0, limit)."""
+    value = None if options is None else options.get("start_step")
+    if value is None:
+        return None
+    steps = (
+        np.broadcast_to(np.asarray(value), (n_envs,)) if np.ndim(value) == 0 else np.asarray(value)
+    )
+    ok = (
+        steps.shape == (n_envs,)
+        and steps.dtype.kind in "iu"
+        and bool(np.all((steps >= 0) & (steps < limit)))
+    )
+    if not ok:
+        raise ValueError(
+            f"options['start_step'] = {value!r} is not allowed: must be an integer "
+            f"or a list of num_envs = {n_envs} integers in [0, "
+            f"max_episode_steps = {limit})"
+        )
+    return steps.astype(np.int64)
+
+
+def _reset_references(
+    core: TaskCore, options, n_envs: int | None
+) -> list[ReferenceSpec | None] | None:
     """The per-env references of ``reset(options=...)`` (None: every env's own spec).
 
     ``n_envs`` None: the single env (one reference); else the vector env's rules.
     """
     if options is None:
         return None
+    allowed = list(RESET_OPTIONS if n_envs is None else VECTOR_RESET_OPTIONS)
     if not isinstance(options, Mapping):
-        raise ValueError(f"options = {options!r} is not allowed: must be None or a dict with "
-                         f"keys from {list(RESET_OPTIONS)}")
+        raise ValueError(
+            f"options = {options!r} is not allowed: must be None or a dict with keys from {allowed}"
+        )
     for key in options:
-        if key not in RESET_OPTIONS:
-            raise ValueError(f"options key = {key!r} is not allowed: must be one of "
-                             f"{list(RESET_OPTIONS)}")
+        if key not in allowed:
+            raise ValueError(f"options key = {key!r} is not allowed: must be one of {allowed}")
     value = options.get("reference")
     if value is None:
         return None
@@ -74,14 +107,23 @@ def _reset_references(core: TaskCore, options, n_envs: int | None
     elif isinstance(value, Sequence) and not isinstance(value, str):
         rows = value
     if rows is None or len(rows) != n_envs:
-        given = (f"shape {value.shape}" if isinstance(value, np.ndarray)
-                 else f"{len(rows)} entries" if rows is not None else type(value).__name__)
-        raise ValueError(f"{field} ({given}) is not allowed: must be one reference spec "
-                         f"for all envs, a list of num_envs = {n_envs} entries (a spec, a 1-D "
-                         f"sample array or None for the env's own) or a 2-D array "
-                         f"({n_envs}, n_samples)")
-    return [None if row is None else core.episode_reference(row, f"{field}[{i}]")
-            for i, row in enumerate(rows)]
+        given = (
+            f"shape {value.shape}"
+            if isinstance(value, np.ndarray)
+            else f"{len(rows)} entries"
+            if rows is not None
+            else type(value).__name__
+        )
+        raise ValueError(
+            f"{field} ({given}) is not allowed: must be one reference spec "
+            f"for all envs, a list of num_envs = {n_envs} entries (a spec, a 1-D "
+            f"sample array or None for the env's own) or a 2-D array "
+            f"({n_envs}, n_samples)"
+        )
+    return [
+        None if row is None else core.episode_reference(row, f"{field}[{i}]")
+        for i, row in enumerate(rows)
+    ]
 
 
 class _TaskProperties:
@@ -129,6 +171,15 @@ class _TaskProperties:
     @property
     def normalize_observation(self) -> bool:
         return bool(self.core.options.normalize_observation)
+
+    @property
+    def observation_columns(self) -> list[str]:
+        """The name of each observation entry: the base layout, then the features
+        (``envs.features.observation_columns``)."""
+        core = self.core
+        return observation_columns(
+            core.options.preview_steps, core.feature_config if core.features else None
+        )
 
     @property
     def observation_scales(self) -> ObservationScales:
@@ -188,6 +239,16 @@ class PneumaticTrackingEnv(_TaskProperties, gym.Env[NDArray[np.float32], NDArray
     is the force the cylinder holds both ways (about 139 N for the Numatics);
     ``reference_scale`` is that force (ForceTrack) or the half stroke L/2 (PositionTrack).
 
+    Features for a delayed plant (all off by default; module ``pneumatic_env.envs.features``,
+    which names every column) follow the table, in this order, always dimensionless:
+    ``action_history = K``: the last K applied currents (A); ``measurement_history = M``:
+    ``10 (c_n(k) - c_n(k-j))``, j = 1..M, for p1, p2, x, f normalised as in the table;
+    ``tracking_error``: ``e_n = y_n - r_n(k)`` (``y`` the tracked channel, ``_n``: divided
+    by ``reference_scale``) and 10 x its integral ``I += dt/tau (e_n - I)`` (leaky, tau =
+    ``error_integral_tau_s``, 0.2 s) or ``I += dt/tau e_n`` (``error_integral_leaky=False``);
+    ``relative_preview``: ``r_n(k+j) - y_n(k)``, j = 0..H. The shape grows by
+    ``K + 4 M + 2 + H + 1`` for all of them.
+
     ## Rewards
 
     ``r = -min(|e| / reference_scale, 1) - effort_weight (i / i_max)^2
@@ -227,6 +288,9 @@ class PneumaticTrackingEnv(_TaskProperties, gym.Env[NDArray[np.float32], NDArray
       (``{"kind": "sine", "amplitude": 40, "frequency_hz": 10}``; kinds step, sine, chirp,
       multisine, random_step, array, mixture: ``pneumatic_env.references``).
     * ``normalize_observation`` (False); ``effort_weight`` and ``chatter_weight`` (0).
+    * ``action_history`` (0), ``measurement_history`` (0), ``tracking_error`` (False),
+      ``error_integral_tau_s`` (0.2), ``error_integral_leaky`` (True),
+      ``relative_preview`` (False): the observation features above.
     * ``domain_randomization``: ``{name: (low, high)}`` or ``{name: relative_half_width}``,
       uniform per episode.
     * ``sensor_noise``: ``{channel: std}`` for p1, p2, x, f (SI); ``sensor_lag_s`` (0): a
@@ -248,9 +312,15 @@ class PneumaticTrackingEnv(_TaskProperties, gym.Env[NDArray[np.float32], NDArray
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
 
-    def __init__(self, task: str = ids.FORCE_TRACK, cylinder: str = ids.DEFAULT_CYLINDER,
-                 tube_length_m: float | None = None, params=None, render_mode: str | None = None,
-                 **kwargs):
+    def __init__(
+        self,
+        task: str = ids.FORCE_TRACK,
+        cylinder: str = ids.DEFAULT_CYLINDER,
+        tube_length_m: float | None = None,
+        params=None,
+        render_mode: str | None = None,
+        **kwargs,
+    ):
         options, overrides = _split_kwargs(kwargs)
         _check_render_mode(render_mode)
         self.core = TaskCore(_task(task), 1, cylinder, tube_length_m, params, options, **overrides)
@@ -268,20 +338,23 @@ class PneumaticTrackingEnv(_TaskProperties, gym.Env[NDArray[np.float32], NDArray
         preview_steps + 1``); ``info["reference"]`` of step k is sample k."""
         return _read_only(self.core.references[0])
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
-              ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         references = _reset_references(self.core, options, None)
         super().reset(seed=seed)
         self._rngs = [self.np_random]
         self.core.reset_envs(np.array([0]), self._rngs, references)
         if self.render_mode is not None:
             from .render import Trace
+
             self._trace = Trace()
             self._trace.record(self.core, 0)
         return self.core.observation()[0], {}
 
-    def step(self, action: NDArray[np.float32]
-             ) -> tuple[NDArray[np.float32], SupportsFloat, bool, bool, dict[str, Any]]:
+    def step(
+        self, action: NDArray[np.float32]
+    ) -> tuple[NDArray[np.float32], SupportsFloat, bool, bool, dict[str, Any]]:
         current = self.core.check_action(action)
         obs, reward = self.core.step(current, self._rngs)
         if self._trace is not None:
@@ -293,12 +366,13 @@ class PneumaticTrackingEnv(_TaskProperties, gym.Env[NDArray[np.float32], NDArray
             gym.logger.warn("render() called without render_mode='rgb_array'")
             return None
         from .render import render_rgb
+
         return render_rgb(self.core, 0, self._trace)
 
 
-class PneumaticTrackingVectorEnv(_TaskProperties,
-                                 VectorEnv[NDArray[np.float32], NDArray[np.float32],
-                                           NDArray[Any]]):
+class PneumaticTrackingVectorEnv(
+    _TaskProperties, VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray[Any]]
+):
     """``num_envs`` :class:`PneumaticTrackingEnv` advanced in one jitted call per step
     (``gym.make_vec(id, num_envs=n)``).
 
@@ -316,7 +390,7 @@ class PneumaticTrackingVectorEnv(_TaskProperties,
     ## Observation Space
 
     ``Box(-inf, inf, (num_envs, 5 + preview_steps), float32)``: one row per env, laid out
-    and normalised as the single env's (its table; ``single_observation_space``).
+    and normalised as the single env's (its table and features; ``single_observation_space``).
 
     ## Rewards
 
@@ -345,7 +419,10 @@ class PneumaticTrackingVectorEnv(_TaskProperties,
     spec (``ReferenceSpec`` or dict, SI) for every env, a list of ``num_envs`` entries (a
     spec, a 1-D sample array or None for the env's own), or a 2-D array ``(num_envs,
     n_samples)``; each as in the single env. It applies to that episode only: autoresets
-    use the env's own reference.
+    use the env's own reference. ``options={"start_step": s}`` (an int, or ``num_envs``
+    ints in ``[0, max_episode_steps)``) starts env i's episode at step ``s[i]``: its
+    reference is read from sample ``s[i]`` on and it is truncated ``s[i]`` steps early;
+    it desynchronises a batch's episodes for training. Later autoresets start at 0.
 
     ## Version History
 
@@ -354,22 +431,31 @@ class PneumaticTrackingVectorEnv(_TaskProperties,
 
     metadata = {"render_modes": ["rgb_array"], "autoreset_mode": AutoresetMode.SAME_STEP}
 
-    def __init__(self, num_envs: int = 1, task: str = ids.FORCE_TRACK,
-                 cylinder: str = ids.DEFAULT_CYLINDER, tube_length_m: float | None = None,
-                 params=None, max_episode_steps: int | None = None,
-                 render_mode: str | None = None, **kwargs):
+    def __init__(
+        self,
+        num_envs: int = 1,
+        task: str = ids.FORCE_TRACK,
+        cylinder: str = ids.DEFAULT_CYLINDER,
+        tube_length_m: float | None = None,
+        params=None,
+        max_episode_steps: int | None = None,
+        render_mode: str | None = None,
+        **kwargs,
+    ):
         if int(num_envs) != num_envs or num_envs < 1:
             raise ValueError(f"num_envs = {num_envs!r} is not allowed: must be an integer >= 1")
         options, overrides = _split_kwargs(kwargs)
         _check_render_mode(render_mode)
         self.num_envs = int(num_envs)
-        self.core = TaskCore(_task(task), self.num_envs, cylinder, tube_length_m, params, options,
-                             **overrides)
+        self.core = TaskCore(
+            _task(task), self.num_envs, cylinder, tube_length_m, params, options, **overrides
+        )
         if max_episode_steps is None:
             max_episode_steps = ids.EPISODE_STEPS
         if int(max_episode_steps) != max_episode_steps or max_episode_steps < 1:
-            raise ValueError(f"max_episode_steps = {max_episode_steps!r} is not allowed: must be "
-                             "an integer >= 1")
+            raise ValueError(
+                f"max_episode_steps = {max_episode_steps!r} is not allowed: must be an integer >= 1"
+            )
         self.max_episode_steps = int(max_episode_steps)
         self.render_mode = render_mode
         i_max = np.float32(self.core.i_max)
@@ -386,23 +472,31 @@ class PneumaticTrackingVectorEnv(_TaskProperties,
         read-only view; ``info["reference"][i]`` of step k is ``references[i, k]``."""
         return _read_only(self.core.references)
 
-    def reset(self, *, seed: int | Sequence[int] | None = None,
-              options: dict[str, Any] | None = None
-              ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+    def reset(
+        self, *, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         if seed is not None:
-            seeds = ([seed + i for i in range(self.num_envs)] if isinstance(seed, int)
-                     else list(seed))
+            seeds = (
+                [seed + i for i in range(self.num_envs)] if isinstance(seed, int) else list(seed)
+            )
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed has {len(seeds)} entries, expected {self.num_envs}")
         references = _reset_references(self.core, options, self.num_envs)
+        start_steps = _start_steps(options, self.num_envs, self.max_episode_steps)
         if seed is not None:
             self._rngs = [gym.utils.seeding.np_random(s)[0] for s in seeds]
-        self.core.reset_envs(np.arange(self.num_envs), self._rngs, references)
+        self.core.reset_envs(np.arange(self.num_envs), self._rngs, references, start_steps)
         return self.core.observation(), {}
 
-    def step(self, actions: NDArray[np.float32]) -> tuple[
-            NDArray[np.float32], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_],
-            dict[str, Any]]:
+    def step(
+        self, actions: NDArray[np.float32]
+    ) -> tuple[
+        NDArray[np.float32],
+        NDArray[np.float64],
+        NDArray[np.bool_],
+        NDArray[np.bool_],
+        dict[str, Any],
+    ]:
         current = self.core.check_action(actions)
         obs, reward = self.core.step(current, self._rngs)
         reward = reward.copy()
@@ -424,4 +518,5 @@ class PneumaticTrackingVectorEnv(_TaskProperties,
         if self.render_mode != "rgb_array":
             return None
         from .render import render_rgb
+
         return render_rgb(self.core, 0, None)

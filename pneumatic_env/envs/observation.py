@@ -8,6 +8,7 @@ env: ``(p - P_a) / (P_s - P_a)``, ``x / (L/2)``, ``f / force_scale``,
 ``ref / reference_scale``. The env applies the map in the jitted
 :func:`fill_observation_row`; :func:`observation_to_si` undoes it for controllers.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -16,9 +17,19 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-__all__ = ["OBSERVED_CHANNELS", "OBS_P1", "OBS_P2", "OBS_X", "OBS_F", "OBS_REF",
-           "ObservationScales", "observation_scales", "observation_dim", "fill_observation",
-           "observation_to_si"]
+__all__ = [
+    "OBSERVED_CHANNELS",
+    "OBS_P1",
+    "OBS_P2",
+    "OBS_X",
+    "OBS_F",
+    "OBS_REF",
+    "ObservationScales",
+    "observation_scales",
+    "observation_dim",
+    "fill_observation",
+    "observation_to_si",
+]
 
 OBSERVED_CHANNELS = ("p1", "p2", "x", "f")  # measured channels, in observation order
 OBS_P1 = OBSERVED_CHANNELS.index("p1")
@@ -39,13 +50,18 @@ class ObservationScales(NamedTuple):
     reference_scale: float  # the tracked channel's unit (tasks.scale_of): N or m
 
 
-def observation_scales(params: Mapping[str, float], force_scale_n: float,
-                       reference_scale: float, normalize: bool) -> ObservationScales:
+def observation_scales(
+    params: Mapping[str, float], force_scale_n: float, reference_scale: float, normalize: bool
+) -> ObservationScales:
     """The scales of an env with parameters ``params`` (a ``load_parameters`` mapping)."""
-    return ObservationScales(bool(normalize), float(params["ambient_pressure_pa"]),
-                             float(params["supply_pressure_pa"]),
-                             float(0.5 * params["stroke_m"]), float(force_scale_n),
-                             float(reference_scale))
+    return ObservationScales(
+        bool(normalize),
+        float(params["ambient_pressure_pa"]),
+        float(params["supply_pressure_pa"]),
+        float(0.5 * params["stroke_m"]),
+        float(force_scale_n),
+        float(reference_scale),
+    )
 
 
 def observation_dim(preview_steps: int) -> int:

@@ -1,4 +1,5 @@
 """``render_mode="rgb_array"``: the cylinder's state and recent traces, drawn with Matplotlib."""
+
 from __future__ import annotations
 
 from collections import deque
@@ -23,9 +24,10 @@ class Trace:
 def render_rgb(core, env: int, trace: Trace | None) -> np.ndarray:
     """An RGB image (H, W, 3) uint8: the cylinder (piston position, pressures) and traces."""
     import matplotlib
+
     matplotlib.use("Agg", force=False)
-    from matplotlib.figure import Figure
     from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6.4, 4.8), dpi=80)
     canvas = FigureCanvasAgg(fig)
@@ -41,8 +43,9 @@ def render_rgb(core, env: int, trace: Trace | None) -> np.ndarray:
     ax_cyl.set_xlim(-half * 1.1, half * 1.7)
     ax_cyl.set_ylim(-0.1, 1.1)
     ax_cyl.set_yticks([])
-    ax_cyl.set_title(f"p1 {p1 / 1e3:.0f} kPa  p2 {p2 / 1e3:.0f} kPa  x {x * 1e3:.1f} mm  "
-                     f"f {f:.1f} N", fontsize=9)
+    ax_cyl.set_title(
+        f"p1 {p1 / 1e3:.0f} kPa  p2 {p2 / 1e3:.0f} kPa  x {x * 1e3:.1f} mm  f {f:.1f} N", fontsize=9
+    )
     if trace is not None and trace.rows:
         t, fs, ref, p1s, p2s, _ = np.array(trace.rows).T
         tracked = fs if core.task.tracked == "f" else np.array(trace.rows)[:, 5]

@@ -13,6 +13,7 @@ tuple nested in a tuple. The entry points take them as plain tuples (``tuple(nam
 and name them again inside (free): Numba's dispatcher types a plain tuple of arrays in C
 but a named tuple in Python, which would add some 7 us to each single-env step.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -23,8 +24,15 @@ from numba import njit, prange
 from ..physics.kernel import CHUNK_ENVS, advance_chunk
 from .observation import ObservationScales, fill_observation_row
 
-__all__ = ["SimArrays", "TaskParams", "TaskState", "StepOutputs", "sim_arrays",
-           "task_step_serial", "task_step_parallel"]
+__all__ = [
+    "SimArrays",
+    "TaskParams",
+    "TaskState",
+    "StepOutputs",
+    "sim_arrays",
+    "task_step_serial",
+    "task_step_parallel",
+]
 
 
 class SimArrays(NamedTuple):
@@ -43,8 +51,17 @@ class SimArrays(NamedTuple):
 
 def sim_arrays(sim) -> SimArrays:
     """The :class:`SimArrays` of ``sim`` (a ``BatchSimulator``) now (``head`` moves each step)."""
-    return SimArrays(sim.params, sim.state, sim.history, sim.head, sim.outputs,
-                     sim.constants_key, sim.constants, sim.control_dt_s, sim.n_substeps)
+    return SimArrays(
+        sim.params,
+        sim.state,
+        sim.history,
+        sim.head,
+        sim.outputs,
+        sim.constants_key,
+        sim.constants,
+        sim.control_dt_s,
+        sim.n_substeps,
+    )
 
 
 class TaskParams(NamedTuple):
@@ -86,8 +103,20 @@ def _chunk_step(first, stop, sim, task, scales, state, action, noise, out):
     for env in range(first, stop):
         applied[env] = min(max(action[env], -i_max), i_max)
     outputs = sim.outputs
-    advance_chunk(sim.params, sim.state, sim.history, first, stop, sim.head, applied,
-                  sim.control_dt_s, sim.n_substeps, outputs, sim.constants_key, sim.constants)
+    advance_chunk(
+        sim.params,
+        sim.state,
+        sim.history,
+        first,
+        stop,
+        sim.head,
+        applied,
+        sim.control_dt_s,
+        sim.n_substeps,
+        outputs,
+        sim.constants_key,
+        sim.constants,
+    )
     out_rows, lag, scale = task.out_rows, task.lag, scales.reference_scale
     references, step_count, measured = state.references, state.step_count, state.measured
     prev_action = state.prev_action
@@ -122,8 +151,9 @@ def task_step_serial(sim, task, scales, state, action, noise, out):
     state, out = TaskState(*state), StepOutputs(*out)  # named again (see the module doc)
     n_envs = sim.state.shape[1]
     for first in range(0, n_envs, CHUNK_ENVS):
-        _chunk_step(first, min(first + CHUNK_ENVS, n_envs), sim, task, scales, state, action,
-                    noise, out)
+        _chunk_step(
+            first, min(first + CHUNK_ENVS, n_envs), sim, task, scales, state, action, noise, out
+        )
 
 
 @njit(cache=True, parallel=True)
@@ -135,5 +165,6 @@ def task_step_parallel(sim, task, scales, state, action, noise, out):
     n_envs = sim.state.shape[1]
     for chunk in prange((n_envs + CHUNK_ENVS - 1) // CHUNK_ENVS):
         first = chunk * CHUNK_ENVS
-        _chunk_step(first, min(first + CHUNK_ENVS, n_envs), sim, task, scales, state, action,
-                    noise, out)
+        _chunk_step(
+            first, min(first + CHUNK_ENVS, n_envs), sim, task, scales, state, action, noise, out
+        )

@@ -6,6 +6,7 @@ rod free), the default reference and how the reward scales the error. ``TaskCore
 randomisation, sensor model, observations and rewards, all as arrays. The single env is a
 ``TaskCore`` of one environment, so single and vector envs share every line of task code.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -23,8 +24,7 @@ from ..references import ArrayReference, ReferenceSpec, make_reference
 from ..simulator import BatchSimulator
 from . import task_kernel
 from .features import FeatureConfig, FeatureState
-from .observation import (OBSERVED_CHANNELS, fill_observation, observation_dim,
-                          observation_scales)
+from .observation import OBSERVED_CHANNELS, fill_observation, observation_dim, observation_scales
 
 REFERENCE_BLOCK_ENVS = 256  # episodes whose references an autoreset generates together
 _CHANNEL_OUTPUT = {"p1": L.O_P1, "p2": L.O_P2, "x": L.O_X, "f": L.O_F}
@@ -45,26 +45,45 @@ class TaskSpec:
 
 
 FORCE_TRACK = TaskSpec(
-    name=ids.FORCE_TRACK, piston_mode="fixed", tracked="f",
+    name=ids.FORCE_TRACK,
+    piston_mode="fixed",
+    tracked="f",
     # a fitted compliant load cell (identification's load_cell_compliance) is the spring mode
     rod_modes=("fixed", "spring"),
-    reference={"kind": "mixture", "choices": [
-        {"kind": "random_step", "amplitude": 0.6, "hold_min_s": 0.1, "hold_max_s": 0.5},
-        {"kind": "multisine", "amplitude": 0.5, "frequencies_hz": [0.5, 2.0, 5.0],
-         "offset": 0.1},
-        {"kind": "multisine", "amplitude": 0.5, "frequencies_hz": [1.0, 3.0, 7.0, 12.0],
-         "offset": 0.1},
-    ]},
+    reference={
+        "kind": "mixture",
+        "choices": [
+            {"kind": "random_step", "amplitude": 0.6, "hold_min_s": 0.1, "hold_max_s": 0.5},
+            {
+                "kind": "multisine",
+                "amplitude": 0.5,
+                "frequencies_hz": [0.5, 2.0, 5.0],
+                "offset": 0.1,
+            },
+            {
+                "kind": "multisine",
+                "amplitude": 0.5,
+                "frequencies_hz": [1.0, 3.0, 7.0, 12.0],
+                "offset": 0.1,
+            },
+        ],
+    },
     description="rod clamped to a load cell at mid-stroke; track a force reference (N)",
     extra_defaults={"fixed_position_m": 0.0},
 )
 POSITION_TRACK = TaskSpec(
-    name=ids.POSITION_TRACK, piston_mode="free", tracked="x", rod_modes=("free",),
-    reference={"kind": "mixture", "choices": [
-        {"kind": "random_step", "amplitude": 0.6, "hold_min_s": 0.2, "hold_max_s": 0.6},
-        {"kind": "multisine", "amplitude": 0.6, "frequencies_hz": [0.5, 1.0, 2.0]},
-        {"kind": "multisine", "amplitude": 0.4, "frequencies_hz": [1.0, 3.0, 5.0]},
-    ]},
+    name=ids.POSITION_TRACK,
+    piston_mode="free",
+    tracked="x",
+    rod_modes=("free",),
+    reference={
+        "kind": "mixture",
+        "choices": [
+            {"kind": "random_step", "amplitude": 0.6, "hold_min_s": 0.2, "hold_max_s": 0.6},
+            {"kind": "multisine", "amplitude": 0.6, "frequencies_hz": [0.5, 1.0, 2.0]},
+            {"kind": "multisine", "amplitude": 0.4, "frequencies_hz": [1.0, 3.0, 5.0]},
+        ],
+    },
     description="rod free, no load; track a piston position reference (m)",
 )
 TASKS = {t.name: t for t in (FORCE_TRACK, POSITION_TRACK)}
@@ -84,8 +103,14 @@ def scale_of(task: TaskSpec, param: dict) -> float:
 
 def force_scale(param: dict) -> float:
     """The force the cylinder can hold in both directions, (P_s - P_a) min(A1, A2) (N)."""
-    return float(force_scale_n(param["supply_pressure_pa"], param["ambient_pressure_pa"],
-                               param["bore_diameter_m"], param["rod_diameter_m"]))
+    return float(
+        force_scale_n(
+            param["supply_pressure_pa"],
+            param["ambient_pressure_pa"],
+            param["bore_diameter_m"],
+            param["rod_diameter_m"],
+        )
+    )
 
 
 def scale_spec(spec: dict, scale: float) -> dict:
@@ -127,6 +152,7 @@ class EnvOptions:
     def validate(self) -> None:
         def bad(name, value, allowed):
             raise ValueError(f"{name} = {value!r} is not allowed: {allowed}")
+
         if int(self.reference_steps) != self.reference_steps or self.reference_steps < 1:
             bad("reference_steps", self.reference_steps, "must be an integer >= 1")
         if int(self.preview_steps) != self.preview_steps or self.preview_steps < 0:
@@ -156,8 +182,10 @@ def _rod_mode(task: TaskSpec, cylinder: str, params, overrides: dict) -> str:
         value = overrides["piston_mode"]
         mode = names.get(value, value) if not isinstance(value, str) else value
         if mode not in task.rod_modes:
-            raise ValueError(f"piston_mode = {value!r} is not allowed for {task.name}: "
-                             f"allowed {list(task.rod_modes)}")
+            raise ValueError(
+                f"piston_mode = {value!r} is not allowed for {task.name}: "
+                f"allowed {list(task.rod_modes)}"
+            )
         return mode
     if params is None:
         return task.piston_mode
@@ -167,16 +195,26 @@ def _rod_mode(task: TaskSpec, cylinder: str, params, overrides: dict) -> str:
     mode = names[int(P.load_parameters(cylinder, params=params)["piston_mode"])]
     if mode in task.rod_modes:
         return mode
-    gym.logger.warn(f"the parameter file's piston_mode '{mode}' does not fit {task.name} "
-                    f"(allowed {list(task.rod_modes)}); using '{task.piston_mode}'")
+    gym.logger.warn(
+        f"the parameter file's piston_mode '{mode}' does not fit {task.name} "
+        f"(allowed {list(task.rod_modes)}); using '{task.piston_mode}'"
+    )
     return task.piston_mode
 
 
 class TaskCore:
     """``n_envs`` episodes of one tracking task, advanced together."""
 
-    def __init__(self, task: TaskSpec, n_envs: int, cylinder: str, tube_length_m: float | None,
-                 params=None, options: EnvOptions | None = None, **overrides):
+    def __init__(
+        self,
+        task: TaskSpec,
+        n_envs: int,
+        cylinder: str,
+        tube_length_m: float | None,
+        params=None,
+        options: EnvOptions | None = None,
+        **overrides,
+    ):
         self.task = task
         self.options = options or EnvOptions()
         self.options.validate()
@@ -184,9 +222,13 @@ class TaskCore:
         control_dt = self.options.control_dt_s or numerics["control_dt_s"]
         substeps = self.options.substeps or numerics["substeps"]
         overrides = {**task.extra_defaults, **overrides}
-        base = P.load_parameters(cylinder, tube_length_m=tube_length_m, params=params,
-                                 piston_mode=_rod_mode(task, cylinder, params, overrides),
-                                 **{k: v for k, v in overrides.items() if k != "piston_mode"})
+        base = P.load_parameters(
+            cylinder,
+            tube_length_m=tube_length_m,
+            params=params,
+            piston_mode=_rod_mode(task, cylinder, params, overrides),
+            **{k: v for k, v in overrides.items() if k != "piston_mode"},
+        )
         self.base_params = base
         self.cylinder = cylinder
         self._randomization = self._check_randomization(self.options.domain_randomization, base)
@@ -196,50 +238,78 @@ class TaskCore:
         self.scale = scale_of(task, base)
         self.force_scale = force_scale(base)
         self.reference_spec = make_reference(
-            self.options.reference if self.options.reference is not None
-            else scale_spec(task.reference, self.scale))
+            self.options.reference
+            if self.options.reference is not None
+            else scale_spec(task.reference, self.scale)
+        )
         self.i_max = base["coil_current_max_a"]
         self.pa, self.ps = base["ambient_pressure_pa"], base["supply_pressure_pa"]
         self.half_stroke = 0.5 * base["stroke_m"]
         # Generated per episode for `reference_steps` (not the episode length, which a single
         # env under gym.make cannot see), so single and vector envs draw alike.
-        self.references = np.zeros((n_envs, self.options.reference_steps
-                                    + self.options.preview_steps + 1))
+        self.references = np.zeros(
+            (n_envs, self.options.reference_steps + self.options.preview_steps + 1)
+        )
         self.step_count = np.zeros(n_envs, dtype=np.int64)
         self.prev_action = np.zeros(n_envs)
         self.measured = np.zeros((n_envs, len(OBSERVED_CHANNELS)))
-        self._noise_std = np.array([(self.options.sensor_noise or {}).get(c, 0.0)
-                                    for c in OBSERVED_CHANNELS])
+        self._noise_std = np.array(
+            [(self.options.sensor_noise or {}).get(c, 0.0) for c in OBSERVED_CHANNELS]
+        )
         self._noise_on = bool(np.any(self._noise_std > 0))
         self._noise = np.zeros((n_envs, len(OBSERVED_CHANNELS)))
         self.last_reward, self.last_error = np.zeros(n_envs), np.zeros(n_envs)
         self.last_reference, self.last_applied = np.zeros(n_envs), np.zeros(n_envs)
         self._last_action = np.zeros(n_envs)
-        self._lag = (np.exp(-control_dt / self.options.sensor_lag_s)
-                     if self.options.sensor_lag_s > 0 else 0.0)
+        self._lag = (
+            np.exp(-control_dt / self.options.sensor_lag_s)
+            if self.options.sensor_lag_s > 0
+            else 0.0
+        )
         self._out_rows = np.array([_CHANNEL_OUTPUT[c] for c in OBSERVED_CHANNELS])
         self._tracked_row = _CHANNEL_OUTPUT[task.tracked]
         self.base_obs_dim = observation_dim(self.options.preview_steps)
         self.observation_scales = observation_scales(
-            base, self.force_scale, self.scale, self.options.normalize_observation)
+            base, self.force_scale, self.scale, self.options.normalize_observation
+        )
         self.feature_config = FeatureConfig.from_options(self.options)
-        self.features = (FeatureState(self.feature_config, n_envs, self.options.preview_steps,
-                                      self.observation_scales, control_dt, task.tracked)
-                         if self.feature_config.enabled else None)
+        self.features = (
+            FeatureState(
+                self.feature_config,
+                n_envs,
+                self.options.preview_steps,
+                self.observation_scales,
+                control_dt,
+                task.tracked,
+            )
+            if self.feature_config.enabled
+            else None
+        )
         self.obs_dim = self.base_obs_dim + (self.features.dim if self.features else 0)
         self._si_scales = self.observation_scales._replace(normalize=False)
         self._task_params = task_kernel.TaskParams(
-            float(self.i_max), float(self.options.effort_weight),
-            float(self.options.chatter_weight), float(self._lag), self._out_rows,
-            int(self._tracked_row))
+            float(self.i_max),
+            float(self.options.effort_weight),
+            float(self.options.chatter_weight),
+            float(self._lag),
+            self._out_rows,
+            int(self._tracked_row),
+        )
         # the arrays above, updated in place by the task step
-        self._task_state = task_kernel.TaskState(self.references, self.step_count,
-                                                 self.prev_action, self.measured)
+        self._task_state = task_kernel.TaskState(
+            self.references, self.step_count, self.prev_action, self.measured
+        )
         # the fixed arguments of the task step, as the plain tuples it takes
-        self._step_fixed = (tuple(self._task_params), tuple(self.observation_scales),
-                            tuple(self._task_state))
-        self._step_outputs = tuple(task_kernel.StepOutputs(
-            self.last_reward, self.last_error, self.last_reference, self.last_applied, None))
+        self._step_fixed = (
+            tuple(self._task_params),
+            tuple(self.observation_scales),
+            tuple(self._task_state),
+        )
+        self._step_outputs = tuple(
+            task_kernel.StepOutputs(
+                self.last_reward, self.last_error, self.last_reference, self.last_applied, None
+            )
+        )
 
     # -- parameters ----------------------------------------------------------------------
     @staticmethod
@@ -253,14 +323,18 @@ class TaskCore:
                 P.load_parameters(**{name: 0.0})  # raises the loader's "unknown field" error
             if np.isscalar(rng):
                 if not (np.isfinite(rng) and 0 <= rng < 1):
-                    raise ValueError(f"domain_randomization['{name}'] = {rng!r} is not allowed: "
-                                     "a relative half-width must be in [0, 1)")
+                    raise ValueError(
+                        f"domain_randomization['{name}'] = {rng!r} is not allowed: "
+                        "a relative half-width must be in [0, 1)"
+                    )
                 low, high = base[name] * (1 - rng), base[name] * (1 + rng)
             else:
                 low, high = (float(v) for v in rng)
             if not (np.isfinite(low) and np.isfinite(high) and low <= high):
-                raise ValueError(f"domain_randomization['{name}'] = {rng!r} is not allowed: "
-                                 "must be (low, high) with low <= high, finite")
+                raise ValueError(
+                    f"domain_randomization['{name}'] = {rng!r} is not allowed: "
+                    "must be (low, high) with low <= high, finite"
+                )
             for value in (low, high):  # both ends must be valid parameter values
                 P.load_parameters(params=base, **{name: value})
             checked[name] = (min(low, high), max(low, high))
@@ -280,16 +354,26 @@ class TaskCore:
             values = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError):
             values = None
-        if values is None or values.ndim != 1 or values.size == 0 \
-                or not np.all(np.isfinite(values)):
-            raise ValueError(f"{field} = {value!r} is not allowed: must be a reference spec "
-                             "(a ReferenceSpec or a dict with a 'kind') or a non-empty 1-D "
-                             "array of finite samples, one per control period")
+        if (
+            values is None
+            or values.ndim != 1
+            or values.size == 0
+            or not np.all(np.isfinite(values))
+        ):
+            raise ValueError(
+                f"{field} = {value!r} is not allowed: must be a reference spec "
+                "(a ReferenceSpec or a dict with a 'kind') or a non-empty 1-D "
+                "array of finite samples, one per control period"
+            )
         return ArrayReference(values, self.dt)
 
-    def reset_envs(self, envs: np.ndarray, rngs: list,
-                   references: list[ReferenceSpec | None] | None = None,
-                   start_steps: np.ndarray | None = None) -> None:
+    def reset_envs(
+        self,
+        envs: np.ndarray,
+        rngs: list,
+        references: list[ReferenceSpec | None] | None = None,
+        start_steps: np.ndarray | None = None,
+    ) -> None:
         """Start new episodes in ``envs``; ``rngs[i]`` is env i's own generator.
 
         ``references[j]`` (if given and not None) is the reference of env ``envs[j]``'s new
@@ -302,8 +386,9 @@ class TaskCore:
         if self._randomization:
             columns = []
             for env in envs:
-                drawn = {n: rngs[env].uniform(lo, hi)
-                         for n, (lo, hi) in self._randomization.items()}
+                drawn = {
+                    n: rngs[env].uniform(lo, hi) for n, (lo, hi) in self._randomization.items()
+                }
                 columns.append(P.load_parameters(self.cylinder, params=self.base_params, **drawn))
             self.sim.set_params(envs, P.parameter_array(columns))
         self.sim.reset(envs)
@@ -314,9 +399,10 @@ class TaskCore:
                 self.references[env] = spec.generate(n_ref, self.dt, rngs[env])
             own = envs[~given]
         for first in range(0, len(own), REFERENCE_BLOCK_ENVS):  # temporaries stay in cache
-            block = own[first:first + REFERENCE_BLOCK_ENVS]
+            block = own[first : first + REFERENCE_BLOCK_ENVS]
             self.references[block] = self.reference_spec.generate_rows(
-                n_ref, self.dt, [rngs[env] for env in block])
+                n_ref, self.dt, [rngs[env] for env in block]
+            )
         self.step_count[envs] = 0 if start_steps is None else start_steps
         self.prev_action[envs] = 0.0
         self.measured[envs] = self.sim.outputs[self._out_rows][:, envs].T
@@ -330,7 +416,8 @@ class TaskCore:
         if self._noise_on:
             for env in envs:
                 self._noise[env] = self._noise_std * rngs[env].standard_normal(
-                    len(OBSERVED_CHANNELS))
+                    len(OBSERVED_CHANNELS)
+                )
         return self._noise
 
     def _add_noise(self, envs, rngs):
@@ -341,12 +428,16 @@ class TaskCore:
         """Coil currents as float64 (n_envs,); clear errors for NaN, inf and wrong shapes."""
         a = np.asarray(action, dtype=np.float64)
         if a.size != self.n_envs or a.ndim > 2:
-            raise ValueError(f"action has shape {a.shape}, expected ({self.n_envs}, 1) or "
-                             f"({self.n_envs},): one coil current (A) per environment")
+            raise ValueError(
+                f"action has shape {a.shape}, expected ({self.n_envs}, 1) or "
+                f"({self.n_envs},): one coil current (A) per environment"
+            )
         a = a.reshape(self.n_envs)
         if not np.isfinite(a).all():
-            raise ValueError(f"action contains {a[~np.isfinite(a)][0]}: the coil current must be "
-                             f"finite, in [-{self.i_max}, {self.i_max}] A")
+            raise ValueError(
+                f"action contains {a[~np.isfinite(a)][0]}: the coil current must be "
+                f"finite, in [-{self.i_max}, {self.i_max}] A"
+            )
         return a
 
     def step(self, coil_current_a: np.ndarray, rngs: list) -> tuple[np.ndarray, np.ndarray]:
@@ -361,13 +452,18 @@ class TaskCore:
         noise = self._draw_noise(range(self.n_envs), rngs) if self._noise_on else self._noise
         obs = np.empty((self.n_envs, self.base_obs_dim), dtype=np.float32)
         out = self._step_outputs[:-1] + (obs,)  # StepOutputs with this step's obs
-        sim.call_step_kernel(task_kernel.task_step_serial, task_kernel.task_step_parallel,
-                             (tuple(task_kernel.sim_arrays(sim)), *self._step_fixed,
-                              coil_current_a, noise, out))
+        sim.call_step_kernel(
+            task_kernel.task_step_serial,
+            task_kernel.task_step_parallel,
+            (tuple(task_kernel.sim_arrays(sim)), *self._step_fixed, coil_current_a, noise, out),
+        )
         sim.advance_clock()
         if self.features is not None:
-            si = (self._base_observation(self._si_scales)
-                  if self.options.normalize_observation else obs)
+            si = (
+                self._base_observation(self._si_scales)
+                if self.options.normalize_observation
+                else obs
+            )
             self.features.update(si, self.last_applied)
             obs = np.concatenate([obs, self.features.values], axis=1)
         return obs, self.last_reward
@@ -376,16 +472,20 @@ class TaskCore:
         """The step's info: arrays over envs, or floats for one ``env``."""
         o = self.sim.outputs
         if env is None:
-            return {"tracking_error": self.last_error.copy(),
-                    "reference": self.last_reference.copy(),
-                    "coil_current_a": self.last_applied.copy(),
-                    "action_clipped": self.last_applied != self._last_action,
-                    "exhaust_mass_kg": o[L.O_EXHAUST].copy()}
-        return {"tracking_error": float(self.last_error[env]),
-                "reference": float(self.last_reference[env]),
-                "coil_current_a": float(self.last_applied[env]),
-                "action_clipped": bool(self.last_applied[env] != self._last_action[env]),
-                "exhaust_mass_kg": float(o[L.O_EXHAUST, env])}
+            return {
+                "tracking_error": self.last_error.copy(),
+                "reference": self.last_reference.copy(),
+                "coil_current_a": self.last_applied.copy(),
+                "action_clipped": self.last_applied != self._last_action,
+                "exhaust_mass_kg": o[L.O_EXHAUST].copy(),
+            }
+        return {
+            "tracking_error": float(self.last_error[env]),
+            "reference": float(self.last_reference[env]),
+            "coil_current_a": float(self.last_applied[env]),
+            "action_clipped": bool(self.last_applied[env] != self._last_action[env]),
+            "exhaust_mass_kg": float(o[L.O_EXHAUST, env]),
+        }
 
     def observation(self) -> np.ndarray:
         """[p1, p2, x, f, ref(k), ref(k+1..k+H)] per env, float32 (SI or normalised), then
@@ -402,5 +502,7 @@ class TaskCore:
 
     def observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         # Unbounded: sensor noise can put a measured channel anywhere.
-        return (np.full(self.obs_dim, -np.inf, np.float32),
-                np.full(self.obs_dim, np.inf, np.float32))
+        return (
+            np.full(self.obs_dim, -np.inf, np.float32),
+            np.full(self.obs_dim, np.inf, np.float32),
+        )

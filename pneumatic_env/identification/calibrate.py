@@ -25,14 +25,15 @@ A parameter is *not identified* when its Jacobian column is zero, when it lies i
 near-singular direction of the column-normalised Jacobian, or when its confidence
 interval is wider than its plausible range.
 """
+
 from __future__ import annotations
 
 import logging
 import math
 import os
 from collections import OrderedDict
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -67,22 +68,23 @@ _ROW = {name: i for i, name in enumerate(PARAMETER_NAMES)}
 
 # --------------------------------------------------------------------------- datasets
 
+
 @dataclass
 class Dataset:
     """One recording prepared for fitting."""
 
     name: str
     recording: Recording
-    values: dict[str, float]          # the parameter set before fitting (configs + params + rig)
-    channels: tuple[str, ...]         # channels that enter the residual
-    scales: dict[str, float]          # residual scale of each channel
-    usable: dict[str, np.ndarray]     # per channel: samples not clipped
+    values: dict[str, float]  # the parameter set before fitting (configs + params + rig)
+    channels: tuple[str, ...]  # channels that enter the residual
+    scales: dict[str, float]  # residual scale of each channel
+    usable: dict[str, np.ndarray]  # per channel: samples not clipped
     dt_s: float
-    substeps: int                     # RK4 substeps per sample for the recording's rod mode
+    substeps: int  # RK4 substeps per sample for the recording's rod mode
     initial: dict | None
     moving: bool
-    rod_mode: str = "fixed"           # the sidecar's piston.mode
-    substeps_moving: int = 0          # substeps when the simulated rod moves (0: = substeps)
+    rod_mode: str = "fixed"  # the sidecar's piston.mode
+    substeps_moving: int = 0  # substeps when the simulated rod moves (0: = substeps)
 
     @property
     def n_samples(self) -> int:
@@ -108,9 +110,12 @@ def channel_scale(channel: str, values: Mapping[str, float], config: Identificat
     raise ConfigError(f"channel {channel!r} has no residual scale; allowed: p1, p2, f, x, v, x_s")
 
 
-def prepare_datasets(recordings: Sequence[Recording], params=None,
-                     config: IdentificationConfig | None = None,
-                     check: bool = True) -> tuple[list[Dataset], list]:
+def prepare_datasets(
+    recordings: Sequence[Recording],
+    params=None,
+    config: IdentificationConfig | None = None,
+    check: bool = True,
+) -> tuple[list[Dataset], list]:
     """Datasets for ``recordings`` and the data issues found (errors raise ``BadDataError``).
 
     ``params`` is a parameter file or mapping layered under each recording's sidecar (see
@@ -122,29 +127,51 @@ def prepare_datasets(recordings: Sequence[Recording], params=None,
     datasets = []
     for k, (rec, vals) in enumerate(zip(recordings, values)):
         name = rec.path.stem if rec.path is not None else f"recording{k}"
-        dropped = {i.channel for i in issues if i.code == "constant" and i.recording in
-                   (rec.path.name if rec.path else "recording")}
+        dropped = {
+            i.channel
+            for i in issues
+            if i.code == "constant" and i.recording in (rec.path.name if rec.path else "recording")
+        }
         mode = rec.rig["piston"]["mode"]
-        max_substep = config.number("fit", "max_substep_s" if mode == "fixed"
-                                    else "max_substep_moving_s", positive=True)
+        max_substep = config.number(
+            "fit", "max_substep_s" if mode == "fixed" else "max_substep_moving_s", positive=True
+        )
         moving_substep = config.number("fit", "max_substep_moving_s", positive=True)
         initial = rec.rig.get("initial")
         if mode == "fixed":  # the rod starts at the clamp, also when a candidate frees it
             initial = {"x": vals["fixed_position_m"], **(initial or {})}
-        channels = tuple(c for c in FITTED_CHANNELS if c in rec.channels and c not in dropped
-                         and c in PREDICTED_CHANNELS and not (c == "x" and mode == "fixed"))
-        datasets.append(Dataset(
-            name=name, recording=rec, values=vals, channels=channels,
-            scales={c: channel_scale(c, vals, config) for c in channels},
-            usable=usable_masks(rec, channels), dt_s=rec.dt,
-            substeps=substeps_for(rec.dt, max_substep), initial=initial,
-            moving=mode in ("free", "spring") and "x" in channels, rod_mode=mode,
-            substeps_moving=substeps_for(rec.dt, moving_substep)))
+        channels = tuple(
+            c
+            for c in FITTED_CHANNELS
+            if c in rec.channels
+            and c not in dropped
+            and c in PREDICTED_CHANNELS
+            and not (c == "x" and mode == "fixed")
+        )
+        datasets.append(
+            Dataset(
+                name=name,
+                recording=rec,
+                values=vals,
+                channels=channels,
+                scales={c: channel_scale(c, vals, config) for c in channels},
+                usable=usable_masks(rec, channels),
+                dt_s=rec.dt,
+                substeps=substeps_for(rec.dt, max_substep),
+                initial=initial,
+                moving=mode in ("free", "spring") and "x" in channels,
+                rod_mode=mode,
+                substeps_moving=substeps_for(rec.dt, moving_substep),
+            )
+        )
     return datasets, issues
 
 
-def base_fit_parameters(datasets: Sequence[Dataset], names: Sequence[str] | None = None,
-                        config: IdentificationConfig | None = None) -> list[FitParameter]:
+def base_fit_parameters(
+    datasets: Sequence[Dataset],
+    names: Sequence[str] | None = None,
+    config: IdentificationConfig | None = None,
+) -> list[FitParameter]:
     """The base parameters to fit: ``names``, else the config's default set for the data."""
     config = config or load_config()
     if names is None:
@@ -154,16 +181,22 @@ def base_fit_parameters(datasets: Sequence[Dataset], names: Sequence[str] | None
     out = []
     for name in names:
         if name not in config.base_parameters:
-            raise ConfigError(f"cannot fit {name!r}: no entry under base_parameters in "
-                              f"{config.path}; fittable: {', '.join(config.base_parameters)}")
+            raise ConfigError(
+                f"cannot fit {name!r}: no entry under base_parameters in "
+                f"{config.path}; fittable: {', '.join(config.base_parameters)}"
+            )
         out.append(config.base_parameters[name])
     return out
 
 
 # --------------------------------------------------------------------------- the problem
 
-def dataset_overrides(ds: Dataset, overrides: Mapping[str, float | str],
-                      scopes: Mapping[str, Sequence[str]] | None = None) -> dict[str, float]:
+
+def dataset_overrides(
+    ds: Dataset,
+    overrides: Mapping[str, float | str],
+    scopes: Mapping[str, Sequence[str]] | None = None,
+) -> dict[str, float]:
     """The kernel-parameter ``overrides`` that apply to ``ds``, as numbers.
 
     A name whose ``scopes`` entry (rod modes) does not include the recording's rod mode is
@@ -180,8 +213,12 @@ def dataset_overrides(ds: Dataset, overrides: Mapping[str, float | str],
     return out
 
 
-def _simulate(ds: Dataset, columns: Sequence[Mapping[str, float]], n_samples: int,
-              scopes: Mapping[str, Sequence[str]] | None = None) -> dict[str, np.ndarray]:
+def _simulate(
+    ds: Dataset,
+    columns: Sequence[Mapping[str, float]],
+    n_samples: int,
+    scopes: Mapping[str, Sequence[str]] | None = None,
+) -> dict[str, np.ndarray]:
     """True (plant) channels of ``ds`` for each column of overrides: ``(n_samples, m)``."""
     m = len(columns)
     base = parameter_array([ds.values])
@@ -195,7 +232,7 @@ def _simulate(ds: Dataset, columns: Sequence[Mapping[str, float]], n_samples: in
     if ds.initial:
         sim.reset(initial=ds.initial)
     first = sim.outputs.copy()
-    currents = np.repeat(ds.recording.i_c[:n_samples - 1, None], m, axis=1)
+    currents = np.repeat(ds.recording.i_c[: n_samples - 1, None], m, axis=1)
     rows = np.concatenate([first[None], sim.rollout(currents)], axis=0)
     return {ch: rows[:, PREDICTED_CHANNELS[ch], :] for ch in ds.channels}
 
@@ -209,12 +246,17 @@ class FitProblem:
     of dataset k is simulated and ``masks[k][ch]`` which samples count.
     """
 
-    def __init__(self, datasets: Sequence[Dataset], free: Sequence[FitParameter],
-                 fixed: Mapping[str, float | str] | None = None,
-                 n_samples: Sequence[int] | None = None,
-                 masks: Sequence[Mapping[str, np.ndarray]] | None = None,
-                 config: IdentificationConfig | None = None, label: str = "fit",
-                 scopes: Mapping[str, Sequence[str]] | None = None):
+    def __init__(
+        self,
+        datasets: Sequence[Dataset],
+        free: Sequence[FitParameter],
+        fixed: Mapping[str, float | str] | None = None,
+        n_samples: Sequence[int] | None = None,
+        masks: Sequence[Mapping[str, np.ndarray]] | None = None,
+        config: IdentificationConfig | None = None,
+        label: str = "fit",
+        scopes: Mapping[str, Sequence[str]] | None = None,
+    ):
         self.config = config or load_config()
         self.datasets = list(datasets)
         self.free = list(free)
@@ -227,15 +269,21 @@ class FitProblem:
         self.fixed = dict(fixed or {})
         for name, v in self.fixed.items():
             if name not in _ROW and name not in SENSOR_NEUTRAL:
-                raise ConfigError(f"fixed value {name!r} is neither a kernel nor a sensor parameter")
+                raise ConfigError(
+                    f"fixed value {name!r} is neither a kernel nor a sensor parameter"
+                )
             if isinstance(v, str) and (name not in _ROW or v not in _ROW):
-                raise ConfigError(f"fixed value {name!r} = {v!r} is not allowed: a text value "
-                                  "must name a kernel parameter, for a kernel parameter")
+                raise ConfigError(
+                    f"fixed value {name!r} = {v!r} is not allowed: a text value "
+                    "must name a kernel parameter, for a kernel parameter"
+                )
         self.scopes = {k: tuple(v) for k, v in (scopes or {}).items()}
         for name in self.scopes:
             if name not in _ROW:
                 raise ConfigError(f"scoped value {name!r} is not a kernel parameter")
-        self.n_samples = list(n_samples) if n_samples is not None else [ds.n_samples for ds in self.datasets]
+        self.n_samples = (
+            list(n_samples) if n_samples is not None else [ds.n_samples for ds in self.datasets]
+        )
         if masks is None:
             masks = [{c: np.ones(ds.n_samples, bool) for c in ds.channels} for ds in self.datasets]
         self.masks = []
@@ -289,15 +337,17 @@ class FitProblem:
         if key in self._cache:
             return self._cache[key]
         plant, _ = self._split(self.values(u))
-        out = [_simulate(ds, [plant], n, self.scopes)
-               for ds, n in zip(self.datasets, self.n_samples)]
+        out = [
+            _simulate(ds, [plant], n, self.scopes) for ds, n in zip(self.datasets, self.n_samples)
+        ]
         self._cache[key] = out
         while len(self._cache) > 4:
             self._cache.popitem(last=False)
         return out
 
-    def predict(self, u: np.ndarray, n_samples: Sequence[int] | None = None
-                ) -> list[dict[str, np.ndarray]]:
+    def predict(
+        self, u: np.ndarray, n_samples: Sequence[int] | None = None
+    ) -> list[dict[str, np.ndarray]]:
         """Recorded-channel predictions ``(n,)`` per dataset (plant then sensor model).
 
         ``n_samples`` other than the problem's simulates that many samples (e.g. a whole
@@ -307,10 +357,13 @@ class FitProblem:
         if n_samples is None:
             sims = self._plant(u)
         else:
-            sims = [_simulate(ds, [plant], n, self.scopes)
-                    for ds, n in zip(self.datasets, n_samples)]
-        return [{c: y[:, 0] for c, y in apply_sensor_model(sim, [sensor], ds.dt_s).items()}
-                for ds, sim in zip(self.datasets, sims)]
+            sims = [
+                _simulate(ds, [plant], n, self.scopes) for ds, n in zip(self.datasets, n_samples)
+            ]
+        return [
+            {c: y[:, 0] for c, y in apply_sensor_model(sim, [sensor], ds.dt_s).items()}
+            for ds, sim in zip(self.datasets, sims)
+        ]
 
     def _blocks(self) -> list[tuple[int, str, int, int]]:
         blocks, start = [], 0
@@ -387,9 +440,13 @@ class FitProblem:
         R = self._residual_of(col_preds)
         J[:] = (R - base_res[:, None]) / np.array(steps)[None, :]
         self.n_jacobians += 1
-        log.info("%s: Jacobian %d, cost %.6g, %s", self.label, self.n_jacobians,
-                 0.5 * float(base_res @ base_res),
-                 ", ".join(f"{p.name}={values[p.name]:.4g}" for p in self.free))
+        log.info(
+            "%s: Jacobian %d, cost %.6g, %s",
+            self.label,
+            self.n_jacobians,
+            0.5 * float(base_res @ base_res),
+            ", ".join(f"{p.name}={values[p.name]:.4g}" for p in self.free),
+        )
         self._jac_cache[key] = J
         while len(self._jac_cache) > 2:
             self._jac_cache.popitem(last=False)
@@ -397,6 +454,7 @@ class FitProblem:
 
 
 # --------------------------------------------------------------------------- results
+
 
 @dataclass
 class FitResult:
@@ -453,19 +511,29 @@ class FitResult:
         """JSON-ready summary."""
         return {
             "parameters": {
-                p.name: {"value": self.values[p.name], "unit": p.unit, "kind": p.kind,
-                         "std": _finite(self.std[p.name]),
-                         "ci": [_finite(self.ci[p.name][0]), _finite(self.ci[p.name][1])],
-                         "identified": self.identified[p.name],
-                         "plausible": self.plausible[p.name], "flags": self.flags[p.name]}
-                for p in self.parameters},
+                p.name: {
+                    "value": self.values[p.name],
+                    "unit": p.unit,
+                    "kind": p.kind,
+                    "std": _finite(self.std[p.name]),
+                    "ci": [_finite(self.ci[p.name][0]), _finite(self.ci[p.name][1])],
+                    "identified": self.identified[p.name],
+                    "plausible": self.plausible[p.name],
+                    "flags": self.flags[p.name],
+                }
+                for p in self.parameters
+            },
             "fixed": dict(self.fixed),
             "scopes": {k: list(v) for k, v in self.scopes.items()},
             "correlations": [[a, b, r] for a, b, r in self.correlations],
             "condition_number": _finite(self.condition_number),
-            "cost": self.cost, "rss": self.rss, "n_residuals": self.n_residuals,
-            "lag1_autocorrelation": self.rho1, "effective_samples": self.n_eff,
-            "nfev": self.nfev, "message": self.message,
+            "cost": self.cost,
+            "rss": self.rss,
+            "n_residuals": self.n_residuals,
+            "lag1_autocorrelation": self.rho1,
+            "effective_samples": self.n_eff,
+            "nfev": self.nfev,
+            "message": self.message,
         }
 
 
@@ -484,8 +552,7 @@ def pooled_lag1(r: np.ndarray, blocks) -> float:
     return num / den if den > 0 else 0.0
 
 
-def _statistics(problem: FitProblem, u: np.ndarray, r: np.ndarray, J: np.ndarray
-                ) -> dict:
+def _statistics(problem: FitProblem, u: np.ndarray, r: np.ndarray, J: np.ndarray) -> dict:
     cfg = problem.config
     n, p = J.shape
     s2 = float(r @ r) / max(n - p, 1)
@@ -541,8 +608,9 @@ def _statistics(problem: FitProblem, u: np.ndarray, r: np.ndarray, J: np.ndarray
             flags.append("at a bound of the fit")
         out["std"][par.name] = float(std)
         out["ci"][par.name] = (float(lo), float(hi))
-        out["identified"][par.name] = not (tiny[j] or collinear[j] or (hi - lo) >
-                                           (par.plausible_max - par.plausible_min))
+        out["identified"][par.name] = not (
+            tiny[j] or collinear[j] or (hi - lo) > (par.plausible_max - par.plausible_min)
+        )
         out["plausible"][par.name] = par.plausible_min <= value <= par.plausible_max
         out["flags"][par.name] = flags
     corr_limit = cfg.number("fit", "correlation_warning", positive=True)
@@ -565,11 +633,18 @@ def _least_squares(problem: FitProblem, u0: np.ndarray, max_nfev: int):
     """SciPy's robust least squares on ``problem`` from ``u0`` (settings under ``fit``)."""
     cfg = problem.config
     lo, hi = problem.bounds()
-    return least_squares(problem.residual, u0, jac=problem.jacobian, bounds=(lo, hi),
-                         method="trf", tr_solver=str(cfg.fit("tr_solver")),
-                         loss=str(cfg.fit("loss")),
-                         f_scale=cfg.number("fit", "f_scale", positive=True),
-                         max_nfev=max_nfev, x_scale=1.0)
+    return least_squares(
+        problem.residual,
+        u0,
+        jac=problem.jacobian,
+        bounds=(lo, hi),
+        method="trf",
+        tr_solver=str(cfg.fit("tr_solver")),
+        loss=str(cfg.fit("loss")),
+        f_scale=cfg.number("fit", "f_scale", positive=True),
+        max_nfev=max_nfev,
+        x_scale=1.0,
+    )
 
 
 def _friction_restarts(problem: FitProblem, u0: np.ndarray) -> list[np.ndarray]:
@@ -592,8 +667,12 @@ def _friction_restarts(problem: FitProblem, u0: np.ndarray) -> list[np.ndarray]:
     return starts
 
 
-def run_fit(problem: FitProblem, start: Mapping[str, float] | None = None,
-            max_nfev: int | None = None, friction_restarts: bool = True) -> FitResult:
+def run_fit(
+    problem: FitProblem,
+    start: Mapping[str, float] | None = None,
+    max_nfev: int | None = None,
+    friction_restarts: bool = True,
+) -> FitResult:
     """Least-squares fit of ``problem`` from the warm start; statistics at the optimum.
 
     With ``friction_restarts`` a fit that frees the static friction also runs from the
@@ -621,25 +700,55 @@ def run_fit(problem: FitProblem, start: Mapping[str, float] | None = None,
     if problem.free:
         stats = _statistics(problem, u, r, problem.jacobian(u))
     else:
-        rho = min(max(pooled_lag1(r, problem.blocks), 0.0),
-                  cfg.number("fit", "max_autocorrelation"))
-        stats = {"std": {}, "ci": {}, "identified": {}, "plausible": {}, "flags": {},
-                 "correlations": [], "condition_number": 1.0, "rho1": rho,
-                 "n_eff": r.size * (1 - rho) / (1 + rho)}
-    log.info("%s: done after %d evaluations (%s), cost %.6g", problem.label, nfev, message,
-             0.5 * float(r @ r))
-    return FitResult(parameters=list(problem.free), values=problem.values(u),
-                     fixed=dict(problem.fixed), std=stats["std"], ci=stats["ci"],
-                     identified=stats["identified"], plausible=stats["plausible"],
-                     flags=stats["flags"], correlations=stats["correlations"],
-                     condition_number=stats["condition_number"], cost=0.5 * float(r @ r),
-                     rss=float(r @ r), n_residuals=int(r.size), rho1=float(stats["rho1"]),
-                     n_eff=float(stats["n_eff"]), nfev=nfev, message=message, u=u,
-                     scopes=dict(problem.scopes))
+        rho = min(
+            max(pooled_lag1(r, problem.blocks), 0.0), cfg.number("fit", "max_autocorrelation")
+        )
+        stats = {
+            "std": {},
+            "ci": {},
+            "identified": {},
+            "plausible": {},
+            "flags": {},
+            "correlations": [],
+            "condition_number": 1.0,
+            "rho1": rho,
+            "n_eff": r.size * (1 - rho) / (1 + rho),
+        }
+    log.info(
+        "%s: done after %d evaluations (%s), cost %.6g",
+        problem.label,
+        nfev,
+        message,
+        0.5 * float(r @ r),
+    )
+    return FitResult(
+        parameters=list(problem.free),
+        values=problem.values(u),
+        fixed=dict(problem.fixed),
+        std=stats["std"],
+        ci=stats["ci"],
+        identified=stats["identified"],
+        plausible=stats["plausible"],
+        flags=stats["flags"],
+        correlations=stats["correlations"],
+        condition_number=stats["condition_number"],
+        cost=0.5 * float(r @ r),
+        rss=float(r @ r),
+        n_residuals=int(r.size),
+        rho1=float(stats["rho1"]),
+        n_eff=float(stats["n_eff"]),
+        nfev=nfev,
+        message=message,
+        u=u,
+        scopes=dict(problem.scopes),
+    )
 
 
-def channel_nrmse(datasets: Sequence[Dataset], preds: Sequence[Mapping[str, np.ndarray]],
-                  masks: Sequence[Mapping[str, np.ndarray]]) -> dict[str, float]:
+def channel_nrmse(
+    datasets: Sequence[Dataset],
+    preds: Sequence[Mapping[str, np.ndarray]],
+    masks: Sequence[Mapping[str, np.ndarray]],
+) -> dict[str, float]:
     """Per channel, ``sqrt(mean(((pred - measured) / scale)^2))`` pooled over datasets."""
     sums: dict[str, float] = {}
     counts: dict[str, int] = {}
@@ -653,6 +762,7 @@ def channel_nrmse(datasets: Sequence[Dataset], preds: Sequence[Mapping[str, np.n
 
 
 # --------------------------------------------------------------------------- calibrate
+
 
 @dataclass
 class Calibration:
@@ -679,14 +789,21 @@ class Calibration:
         values = self.result.file_values(self.datasets)
         std = {k: v for k, v in self.result.std.items() if k in values and math.isfinite(v)}
         names = ", ".join(ds.name for ds in self.datasets)
-        save_parameters(path, values, notes=notes or f"pneumatic_env identify on {names}",
-                        uncertainties=std)
+        save_parameters(
+            path, values, notes=notes or f"pneumatic_env identify on {names}", uncertainties=std
+        )
 
 
-def calibrate(recordings: Sequence[Recording], params=None, fit: Sequence[str] | None = None,
-              fixed: Mapping[str, float] | None = None, train_fraction: float | None = None,
-              config: IdentificationConfig | None = None, max_nfev: int | None = None,
-              datasets: Sequence[Dataset] | None = None) -> Calibration:
+def calibrate(
+    recordings: Sequence[Recording],
+    params=None,
+    fit: Sequence[str] | None = None,
+    fixed: Mapping[str, float] | None = None,
+    train_fraction: float | None = None,
+    config: IdentificationConfig | None = None,
+    max_nfev: int | None = None,
+    datasets: Sequence[Dataset] | None = None,
+) -> Calibration:
     """Fit the base parameters (``fit`` names, default from the config) to ``recordings``.
 
     ``train_fraction`` < 1 fits on the start of each recording only. ``fixed`` holds
@@ -700,9 +817,12 @@ def calibrate(recordings: Sequence[Recording], params=None, fit: Sequence[str] |
     n_samples = None
     if train_fraction is not None:
         if not 0.0 < train_fraction <= 1.0:
-            raise ValueError(f"train_fraction = {train_fraction!r} is not allowed: must be in (0, 1]")
+            raise ValueError(
+                f"train_fraction = {train_fraction!r} is not allowed: must be in (0, 1]"
+            )
         n_samples = [max(2, int(round(train_fraction * ds.n_samples))) for ds in datasets]
-    problem = FitProblem(datasets, free, fixed=fixed, n_samples=n_samples, config=config,
-                         label="calibration")
+    problem = FitProblem(
+        datasets, free, fixed=fixed, n_samples=n_samples, config=config, label="calibration"
+    )
     result = run_fit(problem, max_nfev=max_nfev)
     return Calibration(datasets=list(datasets), problem=problem, result=result, issues=issues)

@@ -24,11 +24,12 @@ its extra parameters.
 Adding an effect = adding an entry to the YAML (and, for a plant effect, its row to the
 kernel); nothing here changes.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 from scipy.signal import lfilter
@@ -59,8 +60,16 @@ SENSOR_NEUTRAL = {
 }
 SENSOR_PARAMETERS = tuple(SENSOR_NEUTRAL)
 _KINDS = ("plant", "sensor")
-_CANDIDATE_KEYS = {"kind", "description", "parameters", "set", "requires_motion",
-                   "requires_any_channel", "rod_modes", "refit_base"}
+_CANDIDATE_KEYS = {
+    "kind",
+    "description",
+    "parameters",
+    "set",
+    "requires_motion",
+    "requires_any_channel",
+    "rod_modes",
+    "refit_base",
+}
 
 
 @dataclass(frozen=True)
@@ -84,8 +93,11 @@ class Candidate:
     @property
     def available(self) -> bool:
         """Whether the kernel (plant) or the sensor model knows every parameter."""
-        names = (list(self.parameter_names) + list(self.set)
-                 + [v for v in self.set.values() if isinstance(v, str)])
+        names = (
+            list(self.parameter_names)
+            + list(self.set)
+            + [v for v in self.set.values() if isinstance(v, str)]
+        )
         if self.kind == "sensor":
             return all(n in SENSOR_NEUTRAL for n in self.parameter_names)
         return all(n in PARAMETER_NAMES for n in names)
@@ -94,7 +106,7 @@ class Candidate:
         """Kernel parameter -> the rod modes of the recordings it applies to (empty: all)."""
         if not self.rod_modes:
             return {}
-        return {n: self.rod_modes for n in (*self.parameter_names, *self.set)}
+        return dict.fromkeys((*self.parameter_names, *self.set), self.rod_modes)
 
     def neutral(self) -> dict[str, float]:
         """Parameter values that switch the effect off."""
@@ -111,44 +123,59 @@ def candidate_table(config: IdentificationConfig | None = None) -> dict[str, Can
             raise ConfigError(f"{where}.{name} must be a mapping")
         extra = sorted(set(entry) - _CANDIDATE_KEYS)
         if extra:
-            raise ConfigError(f"{where}.{name} has unknown key {extra[0]!r}; allowed keys: "
-                              f"{', '.join(sorted(_CANDIDATE_KEYS))}")
+            raise ConfigError(
+                f"{where}.{name} has unknown key {extra[0]!r}; allowed keys: "
+                f"{', '.join(sorted(_CANDIDATE_KEYS))}"
+            )
         kind = entry.get("kind")
         if kind not in _KINDS:
-            raise ConfigError(f"{where}.{name}.kind = {kind!r} is not allowed: must be one of "
-                              f"{list(_KINDS)}")
+            raise ConfigError(
+                f"{where}.{name}.kind = {kind!r} is not allowed: must be one of {list(_KINDS)}"
+            )
         params = entry.get("parameters")
         if not isinstance(params, Mapping) or not params:
             raise ConfigError(f"{where}.{name}.parameters must be a non-empty mapping")
-        fitted = tuple(_parse_parameter(f"{where}.{name}.parameters", p, e, kind, True)
-                       for p, e in params.items())
+        fitted = tuple(
+            _parse_parameter(f"{where}.{name}.parameters", p, e, kind, True)
+            for p, e in params.items()
+        )
         if kind == "sensor":
             for p in fitted:
                 if p.name not in SENSOR_NEUTRAL:
-                    raise ConfigError(f"{where}.{name}: sensor parameter {p.name!r} is not "
-                                      f"known; known: {', '.join(SENSOR_PARAMETERS)}")
+                    raise ConfigError(
+                        f"{where}.{name}: sensor parameter {p.name!r} is not "
+                        f"known; known: {', '.join(SENSOR_PARAMETERS)}"
+                    )
         fixed = entry.get("set") or {}
         if not isinstance(fixed, Mapping):
-            raise ConfigError(f"{where}.{name}.set must be a mapping of kernel parameter -> "
-                              "number or kernel parameter name")
+            raise ConfigError(
+                f"{where}.{name}.set must be a mapping of kernel parameter -> "
+                "number or kernel parameter name"
+            )
         set_values: dict[str, float | str] = {}
         for key, v in fixed.items():
             if isinstance(v, str):
                 if v not in PARAMETER_NAMES:
-                    raise ConfigError(f"{where}.{name}.set.{key} = {v!r} is not allowed: a "
-                                      "text value must name a kernel parameter (its value in "
-                                      "each recording's set is used)")
+                    raise ConfigError(
+                        f"{where}.{name}.set.{key} = {v!r} is not allowed: a "
+                        "text value must name a kernel parameter (its value in "
+                        "each recording's set is used)"
+                    )
                 set_values[key] = v
             elif isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
                 set_values[key] = float(v)
             else:
-                raise ConfigError(f"{where}.{name}.set.{key} = {v!r} is not allowed: must be a "
-                                  "finite number or the name of a kernel parameter")
+                raise ConfigError(
+                    f"{where}.{name}.set.{key} = {v!r} is not allowed: must be a "
+                    "finite number or the name of a kernel parameter"
+                )
         channels = tuple(entry.get("requires_any_channel") or ())
         rod_modes = entry.get("rod_modes") or []
         if not isinstance(rod_modes, list) or any(m not in PISTON_MODES for m in rod_modes):
-            raise ConfigError(f"{where}.{name}.rod_modes = {rod_modes!r} is not allowed: must "
-                              f"be a list of {list(PISTON_MODES)}")
+            raise ConfigError(
+                f"{where}.{name}.rod_modes = {rod_modes!r} is not allowed: must "
+                f"be a list of {list(PISTON_MODES)}"
+            )
         if rod_modes and kind != "plant":
             raise ConfigError(f"{where}.{name}.rod_modes is only allowed for kind 'plant'")
         refit_base = entry.get("refit_base") or []
@@ -156,19 +183,28 @@ def candidate_table(config: IdentificationConfig | None = None) -> dict[str, Can
             raise ConfigError(f"{where}.{name}.refit_base must be a list of base parameter names")
         for b in refit_base:
             if b not in config.base_parameters:
-                raise ConfigError(f"{where}.{name}.refit_base names {b!r}, which has no entry "
-                                  f"under base_parameters; allowed: "
-                                  f"{', '.join(config.base_parameters)}")
-        out[name] = Candidate(name=name, kind=kind, description=str(entry.get("description", "")),
-                              parameters=fitted, set=set_values,
-                              requires_motion=bool(entry.get("requires_motion", False)),
-                              requires_any_channel=channels, rod_modes=tuple(rod_modes),
-                              refit_base=tuple(config.base_parameters[b] for b in refit_base))
+                raise ConfigError(
+                    f"{where}.{name}.refit_base names {b!r}, which has no entry "
+                    f"under base_parameters; allowed: "
+                    f"{', '.join(config.base_parameters)}"
+                )
+        out[name] = Candidate(
+            name=name,
+            kind=kind,
+            description=str(entry.get("description", "")),
+            parameters=fitted,
+            set=set_values,
+            requires_motion=bool(entry.get("requires_motion", False)),
+            requires_any_channel=channels,
+            rod_modes=tuple(rod_modes),
+            refit_base=tuple(config.base_parameters[b] for b in refit_base),
+        )
     return out
 
 
-def available_candidates(names: Iterable[str] | None = None,
-                         config: IdentificationConfig | None = None) -> list[Candidate]:
+def available_candidates(
+    names: Iterable[str] | None = None, config: IdentificationConfig | None = None
+) -> list[Candidate]:
     """The candidates the kernel and sensor model support, optionally only ``names``.
 
     Raises :class:`ConfigError` for a name that is not declared, or declared but not
@@ -180,18 +216,23 @@ def available_candidates(names: Iterable[str] | None = None,
     out = []
     for name in names:
         if name not in table:
-            raise ConfigError(f"candidate {name!r} is not declared in configs/identification.yaml;"
-                              f" declared: {', '.join(table)}")
+            raise ConfigError(
+                f"candidate {name!r} is not declared in configs/identification.yaml;"
+                f" declared: {', '.join(table)}"
+            )
         if not table[name].available:
-            raise ConfigError(f"candidate {name!r} needs kernel parameter(s) "
-                              f"{[n for n in table[name].parameter_names if n not in PARAMETER_NAMES]}"
-                              " that this version of the kernel does not have")
+            raise ConfigError(
+                f"candidate {name!r} needs kernel parameter(s) "
+                f"{[n for n in table[name].parameter_names if n not in PARAMETER_NAMES]}"
+                " that this version of the kernel does not have"
+            )
         out.append(table[name])
     return out
 
 
-def applicable(candidate: Candidate, channels: Iterable[str], moving: bool,
-               rod_modes: Iterable[str] = ()) -> str | None:
+def applicable(
+    candidate: Candidate, channels: Iterable[str], moving: bool, rod_modes: Iterable[str] = ()
+) -> str | None:
     """None if the data can show ``candidate``; else the reason it is skipped.
 
     ``rod_modes``: the rod modes of the recordings (``fixed``, ``free``, ``spring``).
@@ -218,6 +259,7 @@ def separating_experiment(a: str, b: str, config: IdentificationConfig | None = 
 
 # --------------------------------------------------------------------------- sensor model
 
+
 def _shift(y: np.ndarray, delay_samples: float) -> np.ndarray:
     """``y`` delayed by a (fractional) number of samples; before the start it holds y[0]."""
     if delay_samples == 0.0:
@@ -241,8 +283,9 @@ def _lag(y: np.ndarray, time_constant_s: float, dt_s: float) -> np.ndarray:
     return out
 
 
-def apply_sensor_model(channels: Mapping[str, np.ndarray], values: Sequence[Mapping[str, float]],
-                       dt_s: float) -> dict[str, np.ndarray]:
+def apply_sensor_model(
+    channels: Mapping[str, np.ndarray], values: Sequence[Mapping[str, float]], dt_s: float
+) -> dict[str, np.ndarray]:
     """Simulated (true) channels -> what the sensors would record.
 
     ``channels[name]`` is ``(n_samples, n_columns)``; ``values[j]`` holds the sensor

@@ -19,26 +19,45 @@ code               severity  what
 ``format``         warning   anything else the reader warned about (unknown column, ...)
 =================  ========  =============================================================
 """
+
 from __future__ import annotations
 
 import warnings
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Iterable, Sequence
 
 import numpy as np
 
-from pneumatic_env.recording import (CLIP_MIN_RUN, OUTPUT_COLUMNS, Recording, RecordingWarning,
-                                     read_recording)
+from pneumatic_env.recording import (
+    CLIP_MIN_RUN,
+    OUTPUT_COLUMNS,
+    Recording,
+    RecordingWarning,
+    read_recording,
+)
 
 from .config import IdentificationConfig, load_config
 
-__all__ = ["BadDataError", "DataIssue", "check_recording", "check_recordings", "read_checked",
-           "usable_masks", "FITTED_CHANNELS"]
+__all__ = [
+    "BadDataError",
+    "DataIssue",
+    "check_recording",
+    "check_recordings",
+    "read_checked",
+    "usable_masks",
+    "FITTED_CHANNELS",
+]
 
 #: Measured channels a fit can use (outputs plus the optional v and x_s).
 FITTED_CHANNELS = (*OUTPUT_COLUMNS, "v", "x_s")
-_UNIT_PHRASES = ("looks like bar", "looks like kpa", "looks like gauge", "looks like millimetres",
-                 "looks like degrees celsius", "is not above ambient")
+_UNIT_PHRASES = (
+    "looks like bar",
+    "looks like kpa",
+    "looks like gauge",
+    "looks like millimetres",
+    "looks like degrees celsius",
+    "is not above ambient",
+)
 
 
 @dataclass(frozen=True)
@@ -93,8 +112,9 @@ def _extreme_runs(y: np.ndarray, value: float, min_run: int) -> np.ndarray:
     return mask
 
 
-def usable_masks(rec: Recording, channels: Iterable[str], min_run: int = CLIP_MIN_RUN
-                 ) -> dict[str, np.ndarray]:
+def usable_masks(
+    rec: Recording, channels: Iterable[str], min_run: int = CLIP_MIN_RUN
+) -> dict[str, np.ndarray]:
     """Per channel, the samples a fit may use: all but the clipped runs at the extremes.
 
     A run is clipped with the reader's rule (``recording.CLIP_MIN_RUN`` equal samples at
@@ -103,13 +123,16 @@ def usable_masks(rec: Recording, channels: Iterable[str], min_run: int = CLIP_MI
     out = {}
     for ch in channels:
         y = rec.channels[ch]
-        clipped = _extreme_runs(y, float(y.min()), min_run) | _extreme_runs(y, float(y.max()), min_run)
+        clipped = _extreme_runs(y, float(y.min()), min_run) | _extreme_runs(
+            y, float(y.max()), min_run
+        )
         out[ch] = ~clipped
     return out
 
 
-def check_recording(rec: Recording, params: dict | None = None,
-                    config: IdentificationConfig | None = None) -> list[DataIssue]:
+def check_recording(
+    rec: Recording, params: dict | None = None, config: IdentificationConfig | None = None
+) -> list[DataIssue]:
     """Issues of one recording. ``params`` (its parameter set) enables the dead-band check."""
     config = config or load_config()
     min_samples = int(config.number("checks", "min_samples", minimum=2))
@@ -119,50 +142,104 @@ def check_recording(rec: Recording, params: dict | None = None,
         low = message.lower()
         channel = _channel_in(message, rec)
         if any(p in low for p in _UNIT_PHRASES):
-            issues.append(DataIssue("error", "units", name,
-                                    f"{message} (convert to SI/absolute before fitting)", channel))
+            issues.append(
+                DataIssue(
+                    "error",
+                    "units",
+                    name,
+                    f"{message} (convert to SI/absolute before fitting)",
+                    channel,
+                )
+            )
         elif "looks clipped" in low:
-            issues.append(DataIssue("warning", "clipped", name,
-                                    f"{message}; the clipped samples are left out of the fit",
-                                    channel))
+            issues.append(
+                DataIssue(
+                    "warning",
+                    "clipped",
+                    name,
+                    f"{message}; the clipped samples are left out of the fit",
+                    channel,
+                )
+            )
         elif "is constant" in low:
-            issues.append(DataIssue("warning", "constant", name,
-                                    f"{message}; the channel is left out of the fit", channel))
+            issues.append(
+                DataIssue(
+                    "warning",
+                    "constant",
+                    name,
+                    f"{message}; the channel is left out of the fit",
+                    channel,
+                )
+            )
         else:
             issues.append(DataIssue("warning", "format", name, message, channel))
     if rec.n_samples < min_samples:
-        issues.append(DataIssue("error", "too_short", name,
-                                f"{name}: {rec.n_samples} samples; a fit needs at least "
-                                f"{min_samples} (checks.min_samples)"))
+        issues.append(
+            DataIssue(
+                "error",
+                "too_short",
+                name,
+                f"{name}: {rec.n_samples} samples; a fit needs at least "
+                f"{min_samples} (checks.min_samples)",
+            )
+        )
     mode = rec.rig.get("piston", {}).get("mode")
     constant = {i.channel for i in issues if i.code == "constant"}
-    usable = [c for c in FITTED_CHANNELS if c in rec.channels and c not in constant
-              and not (c == "x" and mode == "fixed")]
+    usable = [
+        c
+        for c in FITTED_CHANNELS
+        if c in rec.channels and c not in constant and not (c == "x" and mode == "fixed")
+    ]
     if not usable:
-        issues.append(DataIssue("error", "no_output", name,
-                                f"{name}: no usable output channel (present: "
-                                f"{', '.join(rec.channels)}; rod mode {mode!r}); need p1, p2, f, "
-                                "or x with a moving piston"))
+        issues.append(
+            DataIssue(
+                "error",
+                "no_output",
+                name,
+                f"{name}: no usable output channel (present: "
+                f"{', '.join(rec.channels)}; rod mode {mode!r}); need p1, p2, f, "
+                "or x with a moving piston",
+            )
+        )
     if mode in ("free", "spring") and "x" not in rec.channels:
-        issues.append(DataIssue("warning", "no_position", name,
-                                f"{name}: the piston moves (mode {mode!r}) but x is not measured; "
-                                "the friction parameters are not fitted"))
+        issues.append(
+            DataIssue(
+                "warning",
+                "no_position",
+                name,
+                f"{name}: the piston moves (mode {mode!r}) but x is not measured; "
+                "the friction parameters are not fitted",
+            )
+        )
     if params is not None:
         overlap = params["spool_half_width_m"] - params["hole_radius_m"]
-        dead_band_a = max(overlap, 0.0) * 2.0 * params["spool_spring_n_per_m"] \
+        dead_band_a = (
+            max(overlap, 0.0)
+            * 2.0
+            * params["spool_spring_n_per_m"]
             / max(params["coil_force_n_per_a"], 1e-12)
+        )
         peak = float(np.max(np.abs(rec.i_c)))
         if peak <= dead_band_a:
-            issues.append(DataIssue("error", "no_excitation", name,
-                                    f"{name}: |i_c| never exceeds {peak:.4g} A, inside the valve's "
-                                    f"dead band (+-{dead_band_a:.4g} A by Eqs. 43, 46): the valve "
-                                    "never opens, nothing to fit"))
+            issues.append(
+                DataIssue(
+                    "error",
+                    "no_excitation",
+                    name,
+                    f"{name}: |i_c| never exceeds {peak:.4g} A, inside the valve's "
+                    f"dead band (+-{dead_band_a:.4g} A by Eqs. 43, 46): the valve "
+                    "never opens, nothing to fit",
+                )
+            )
     return issues
 
 
-def check_recordings(recs: Sequence[Recording], params: Sequence[dict] | None = None,
-                     raise_on_error: bool = True, config: IdentificationConfig | None = None
-                     ) -> list[DataIssue]:
+def check_recordings(
+    recs: Sequence[Recording],
+    params: Sequence[dict] | None = None,
+    raise_on_error: bool = True,
+    config: IdentificationConfig | None = None,
+) -> list[DataIssue]:
     """Issues of every recording; raises :class:`BadDataError` listing all errors."""
     issues: list[DataIssue] = []
     for k, rec in enumerate(recs):

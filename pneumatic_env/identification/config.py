@@ -6,22 +6,35 @@ scale`` and, for effects, ``initial`` and ``neutral``. :func:`load_config` reads
 checks the file once (cached until it changes) and :class:`IdentificationConfig` gives
 typed access. Errors name the file, the entry and what is allowed.
 """
+
 from __future__ import annotations
 
 import math
 import numbers
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
-from pneumatic_env.params import ConfigError, read_yaml, config_dir
+from pneumatic_env.params import ConfigError, config_dir, read_yaml
 
 __all__ = ["CONFIG_FILE", "FitParameter", "IdentificationConfig", "load_config"]
 
 CONFIG_FILE = "identification.yaml"
-_PARAM_KEYS = {"unit", "source", "initial", "lower", "upper", "plausible_min", "plausible_max",
-               "scale", "neutral", "log", "fd_step"}
+_PARAM_KEYS = {
+    "unit",
+    "source",
+    "initial",
+    "lower",
+    "upper",
+    "plausible_min",
+    "plausible_max",
+    "scale",
+    "neutral",
+    "log",
+    "fd_step",
+}
 _PARAM_REQUIRED = ("unit", "source", "lower", "upper", "plausible_min", "plausible_max", "scale")
 
 
@@ -74,15 +87,20 @@ def _is_infinity(x: Any) -> bool:
     return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isinf(float(x))
 
 
-def _parse_parameter(where: str, name: str, entry: Any, kind: str, need_initial: bool
-                     ) -> FitParameter:
+def _parse_parameter(
+    where: str, name: str, entry: Any, kind: str, need_initial: bool
+) -> FitParameter:
     if not isinstance(entry, Mapping):
-        raise ConfigError(f"{where}: entry {name!r} must be a mapping with keys "
-                          f"{', '.join(_PARAM_REQUIRED)}; got {entry!r}")
+        raise ConfigError(
+            f"{where}: entry {name!r} must be a mapping with keys "
+            f"{', '.join(_PARAM_REQUIRED)}; got {entry!r}"
+        )
     extra = sorted(set(entry) - _PARAM_KEYS)
     if extra:
-        raise ConfigError(f"{where}: entry {name!r} has unknown key {extra[0]!r}; allowed keys: "
-                          f"{', '.join(sorted(_PARAM_KEYS))}")
+        raise ConfigError(
+            f"{where}: entry {name!r} has unknown key {extra[0]!r}; allowed keys: "
+            f"{', '.join(sorted(_PARAM_KEYS))}"
+        )
     required = _PARAM_REQUIRED + (("initial", "neutral") if need_initial else ())
     for key in required:
         if key not in entry:
@@ -91,8 +109,16 @@ def _parse_parameter(where: str, name: str, entry: Any, kind: str, need_initial:
         if not isinstance(entry[key], str) or not entry[key].strip():
             raise ConfigError(f"{where}: entry {name!r}: {key!r} must be a non-empty string")
     nums = {}
-    for key in ("lower", "upper", "plausible_min", "plausible_max", "scale", "initial",
-                "neutral", "fd_step"):
+    for key in (
+        "lower",
+        "upper",
+        "plausible_min",
+        "plausible_max",
+        "scale",
+        "initial",
+        "neutral",
+        "fd_step",
+    ):
         if key in entry:
             if key == "neutral" and entry[key] is None:
                 # a switched effect (``set``) with no value of this parameter that is "off"
@@ -102,36 +128,58 @@ def _parse_parameter(where: str, name: str, entry: Any, kind: str, need_initial:
                 nums[key] = float(entry[key])
                 continue
             if not _is_number(entry[key]):
-                allowed = ("a finite number, .inf / -.inf for an effect that vanishes only "
-                           "in that limit, or null for none (an effect switched on by 'set')"
-                           ) if key == "neutral" else "a finite number"
-                raise ConfigError(f"{where}: entry {name!r}: {key!r} = {entry[key]!r} is not "
-                                  f"allowed: must be {allowed}")
+                allowed = (
+                    (
+                        "a finite number, .inf / -.inf for an effect that vanishes only "
+                        "in that limit, or null for none (an effect switched on by 'set')"
+                    )
+                    if key == "neutral"
+                    else "a finite number"
+                )
+                raise ConfigError(
+                    f"{where}: entry {name!r}: {key!r} = {entry[key]!r} is not "
+                    f"allowed: must be {allowed}"
+                )
             nums[key] = float(entry[key])
     log = entry.get("log", False)
     if not isinstance(log, bool):
         raise ConfigError(f"{where}: entry {name!r}: 'log' must be true or false")
     if not nums["lower"] < nums["upper"]:
-        raise ConfigError(f"{where}: entry {name!r}: 'lower' {nums['lower']!r} must be less than "
-                          f"'upper' {nums['upper']!r}")
+        raise ConfigError(
+            f"{where}: entry {name!r}: 'lower' {nums['lower']!r} must be less than "
+            f"'upper' {nums['upper']!r}"
+        )
     for key in ("scale", "fd_step"):
         if key in nums and not nums[key] > 0:
             raise ConfigError(f"{where}: entry {name!r}: {key!r} {nums[key]!r} must be > 0")
     if log and not nums["lower"] > 0:
-        raise ConfigError(f"{where}: entry {name!r}: 'lower' {nums['lower']!r} must be > 0 with "
-                          "log: true")
+        raise ConfigError(
+            f"{where}: entry {name!r}: 'lower' {nums['lower']!r} must be > 0 with log: true"
+        )
     if "initial" in nums and not nums["lower"] <= nums["initial"] <= nums["upper"]:
-        raise ConfigError(f"{where}: entry {name!r}: 'initial' {nums['initial']!r} must be in "
-                          f"[{nums['lower']!r}, {nums['upper']!r}]")
+        raise ConfigError(
+            f"{where}: entry {name!r}: 'initial' {nums['initial']!r} must be in "
+            f"[{nums['lower']!r}, {nums['upper']!r}]"
+        )
     if not nums["plausible_min"] <= nums["plausible_max"]:
-        raise ConfigError(f"{where}: entry {name!r}: 'plausible_min' must not exceed "
-                          "'plausible_max'")
-    return FitParameter(name=name, kind=kind, unit=entry["unit"].strip(),
-                        source=entry["source"], lower=nums["lower"], upper=nums["upper"],
-                        plausible_min=nums["plausible_min"],
-                        plausible_max=nums["plausible_max"], scale=nums["scale"],
-                        initial=nums.get("initial"), neutral=nums.get("neutral"), log=log,
-                        fd_step=nums.get("fd_step"))
+        raise ConfigError(
+            f"{where}: entry {name!r}: 'plausible_min' must not exceed 'plausible_max'"
+        )
+    return FitParameter(
+        name=name,
+        kind=kind,
+        unit=entry["unit"].strip(),
+        source=entry["source"],
+        lower=nums["lower"],
+        upper=nums["upper"],
+        plausible_min=nums["plausible_min"],
+        plausible_max=nums["plausible_max"],
+        scale=nums["scale"],
+        initial=nums.get("initial"),
+        neutral=nums.get("neutral"),
+        log=log,
+        fd_step=nums.get("fd_step"),
+    )
 
 
 class IdentificationConfig:
@@ -142,13 +190,21 @@ class IdentificationConfig:
         self.raw = data
         if not isinstance(data, Mapping):
             raise ConfigError(f"{path}: must be a mapping")
-        for section in ("fit", "channel_scales", "base_fit", "base_parameters", "candidates",
-                        "diagnosis", "virtual_rig"):
+        for section in (
+            "fit",
+            "channel_scales",
+            "base_fit",
+            "base_parameters",
+            "candidates",
+            "diagnosis",
+            "virtual_rig",
+        ):
             if section not in data or not isinstance(data[section], Mapping):
                 raise ConfigError(f"{path}: section {section!r} is missing or not a mapping")
         self.base_parameters = {
             name: _parse_parameter(f"{path}: base_parameters", name, entry, "plant", False)
-            for name, entry in data["base_parameters"].items()}
+            for name, entry in data["base_parameters"].items()
+        }
         for key in ("fit_always", "fit_when_moving", "optional", "refit_in_diagnosis"):
             names = data["base_fit"].get(key)
             if key == "refit_in_diagnosis" and names == "all":
@@ -157,8 +213,10 @@ class IdentificationConfig:
                 raise ConfigError(f"{path}: base_fit.{key} must be a list of parameter names")
             for name in names:
                 if name not in self.base_parameters:
-                    raise ConfigError(f"{path}: base_fit.{key} names {name!r}, which has no "
-                                      "entry under base_parameters")
+                    raise ConfigError(
+                        f"{path}: base_fit.{key} names {name!r}, which has no "
+                        "entry under base_parameters"
+                    )
 
     # -- scalar settings ------------------------------------------------------------------
     def value(self, section: str, name: str, sub: str | None = None) -> Any:
@@ -175,28 +233,39 @@ class IdentificationConfig:
                 raise ConfigError(f"{self.path}: entry {where} is missing key {key!r}")
         return entry["value"]
 
-    def number(self, section: str, name: str, sub: str | None = None, *, positive=False,
-               minimum: float | None = None) -> float:
+    def number(
+        self,
+        section: str,
+        name: str,
+        sub: str | None = None,
+        *,
+        positive=False,
+        minimum: float | None = None,
+    ) -> float:
         """A finite numeric setting, checked."""
         v = self.value(section, name, sub)
         where = f"{section}.{name}" + (f".{sub}" if sub else "")
         if not _is_number(v):
-            raise ConfigError(f"{self.path}: {where} = {v!r} is not allowed: must be a finite "
-                              "number")
+            raise ConfigError(
+                f"{self.path}: {where} = {v!r} is not allowed: must be a finite number"
+            )
         v = float(v)
         if positive and not v > 0:
             raise ConfigError(f"{self.path}: {where} = {v!r} is not allowed: must be > 0")
         if minimum is not None and v < minimum:
-            raise ConfigError(f"{self.path}: {where} = {v!r} is not allowed: must be >= "
-                              f"{minimum!r}")
+            raise ConfigError(
+                f"{self.path}: {where} = {v!r} is not allowed: must be >= {minimum!r}"
+            )
         return v
 
     def positive_numbers(self, section: str, name: str) -> list[float]:
         """A list of finite numbers > 0 (possibly empty), checked."""
         v = self.value(section, name)
         if not isinstance(v, list) or not all(_is_number(x) and x > 0 for x in v):
-            raise ConfigError(f"{self.path}: {section}.{name} = {v!r} is not allowed: must be "
-                              "a list of finite numbers > 0")
+            raise ConfigError(
+                f"{self.path}: {section}.{name} = {v!r} is not allowed: must be "
+                "a list of finite numbers > 0"
+            )
         return [float(x) for x in v]
 
     def fit(self, name: str) -> Any:
@@ -216,8 +285,10 @@ class IdentificationConfig:
             pair = item.get("pair") if isinstance(item, Mapping) else None
             text = item.get("experiment") if isinstance(item, Mapping) else None
             if not (isinstance(pair, list) and len(pair) == 2 and isinstance(text, str)):
-                raise ConfigError(f"{self.path}: separating_experiments[{i}] must have 'pair' "
-                                  "(two effect names) and 'experiment' (text)")
+                raise ConfigError(
+                    f"{self.path}: separating_experiments[{i}] must have 'pair' "
+                    "(two effect names) and 'experiment' (text)"
+                )
             out.append((frozenset(pair), text))
         return out
 

@@ -20,22 +20,36 @@
 Nothing here reads how the data were made: only the recordings' samples and the rig
 facts of their sidecars (never the notes).
 """
+
 from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
 
 import numpy as np
 from scipy.stats import chi2, norm
 
+from pneumatic_env.physics.derived import valve_currents_a
 from pneumatic_env.recording import Recording
 
-from .calibrate import (Dataset, FitProblem, FitResult, base_fit_parameters, channel_nrmse,
-                        prepare_datasets, run_fit)
-from .candidates import (Candidate, applicable, available_candidates, candidate_table,
-                         separating_experiment)
+from .calibrate import (
+    Dataset,
+    FitProblem,
+    FitResult,
+    base_fit_parameters,
+    channel_nrmse,
+    prepare_datasets,
+    run_fit,
+)
+from .candidates import (
+    Candidate,
+    applicable,
+    available_candidates,
+    candidate_table,
+    separating_experiment,
+)
 from .config import FitParameter, IdentificationConfig, load_config
 
 __all__ = ["CandidateScore", "Diagnosis", "diagnose", "phase_masks", "residual_analysis"]
@@ -46,14 +60,21 @@ PHASES = ("flow", "after_flow", "rest", "reversal")
 
 # --------------------------------------------------------------------------- residual analysis
 
+
 def dead_band_current(values: Mapping[str, float]) -> float:
-    """Coil current at which the valve starts to open: ``(p_w - R_h) 2 k_s / K_fc`` (Eqs. 43, 46)."""
-    overlap = max(values["spool_half_width_m"] - values["hole_radius_m"], 0.0)
-    return overlap * 2.0 * values["spool_spring_n_per_m"] / max(values["coil_force_n_per_a"], 1e-12)
+    """Coil current at which the valve starts to open (Eqs. 43, 46; physics.derived)."""
+    dead_band_a, _ = valve_currents_a(
+        values["spool_half_width_m"],
+        values["hole_radius_m"],
+        values["spool_spring_n_per_m"],
+        max(values["coil_force_n_per_a"], 1e-12),
+    )
+    return float(dead_band_a)
 
 
-def phase_masks(i_c: np.ndarray, dt_s: float, values: Mapping[str, float],
-                config: IdentificationConfig) -> dict[str, np.ndarray]:
+def phase_masks(
+    i_c: np.ndarray, dt_s: float, values: Mapping[str, float], config: IdentificationConfig
+) -> dict[str, np.ndarray]:
     """Per phase, the samples in it (phases may overlap: a reversal is also flow).
 
     ``flow``: |i_c| beyond the dead band; ``after_flow``: valve closed, within
@@ -78,7 +99,7 @@ def phase_masks(i_c: np.ndarray, dt_s: float, values: Mapping[str, float],
         changes = nz[1:][sign[nz[1:]] != sign[nz[:-1]]]
         width = max(1, int(round(config.diagnosis("reversal_window_s") / dt_s)))
         for k in changes:
-            reversal[k:k + width] = True
+            reversal[k : k + width] = True
     return {"flow": flow, "after_flow": after, "rest": rest, "reversal": reversal}
 
 
@@ -90,10 +111,15 @@ def _whiteness(e: np.ndarray, max_lag: int, alpha: float) -> dict:
     if den == 0 or m < 1:
         return {"autocorrelation": [], "ljung_box_q": 0.0, "p_value": 1.0, "white": True}
     r = np.array([float(x[k:] @ x[:-k]) / den for k in range(1, m + 1)])
-    q = float(n * (n + 2) * np.sum(r ** 2 / (n - np.arange(1, m + 1))))
+    q = float(n * (n + 2) * np.sum(r**2 / (n - np.arange(1, m + 1))))
     p = float(chi2.sf(q, m))
-    return {"autocorrelation": r[:10].tolist(), "lags": m, "ljung_box_q": q, "p_value": p,
-            "white": p > alpha}
+    return {
+        "autocorrelation": r[:10].tolist(),
+        "lags": m,
+        "ljung_box_q": q,
+        "p_value": p,
+        "white": p > alpha,
+    }
 
 
 def _input_correlation(e: np.ndarray, u: np.ndarray, max_lag: int, alpha: float) -> dict:
@@ -106,14 +132,18 @@ def _input_correlation(e: np.ndarray, u: np.ndarray, max_lag: int, alpha: float)
     bound = float(norm.ppf(1.0 - alpha / (2.0 * (m + 1)))) / math.sqrt(max(n, 1))
     if den == 0:
         return {"max_abs": 0.0, "at_lag": 0, "bound": bound, "significant": False}
-    rho = [float(x[k:] @ v[:n - k]) / den for k in range(0, m + 1)]  # residual after input
+    rho = [float(x[k:] @ v[: n - k]) / den for k in range(m + 1)]  # residual after input
     k = int(np.argmax(np.abs(rho)))
     return {"max_abs": abs(rho[k]), "at_lag": k, "bound": bound, "significant": abs(rho[k]) > bound}
 
 
-def residual_analysis(datasets: Sequence[Dataset], preds: Sequence[Mapping[str, np.ndarray]],
-                      masks: Sequence[Mapping[str, np.ndarray]], values: Sequence[Mapping[str, float]],
-                      config: IdentificationConfig) -> dict:
+def residual_analysis(
+    datasets: Sequence[Dataset],
+    preds: Sequence[Mapping[str, np.ndarray]],
+    masks: Sequence[Mapping[str, np.ndarray]],
+    values: Sequence[Mapping[str, float]],
+    config: IdentificationConfig,
+) -> dict:
     """Per channel (pooled over datasets): NRMSE, bias, per-phase statistics, whiteness and
     the largest cross-correlation with the coil current. Residuals are normalised by the
     channel scale; ``masks`` select the analysed samples (e.g. the held-out part). The
@@ -139,17 +169,24 @@ def residual_analysis(datasets: Sequence[Dataset], preds: Sequence[Mapping[str, 
         phases = {}
         for ph in PHASES:
             x = np.concatenate(acc[ph])
-            phases[ph] = {"n": int(x.size),
-                          "nrmse": float(np.sqrt(np.mean(x ** 2))) if x.size else None,
-                          "bias": float(np.mean(x)) if x.size else None}
-        out[c] = {"nrmse": float(np.sqrt(np.mean(e ** 2))) if e.size else None,
-                  "bias": float(np.mean(e)) if e.size else None, "n": int(e.size),
-                  "phases": phases, "whiteness": _whiteness(e, max_lag, alpha),
-                  "input_correlation": _input_correlation(e, u, max_lag, alpha)}
+            phases[ph] = {
+                "n": int(x.size),
+                "nrmse": float(np.sqrt(np.mean(x**2))) if x.size else None,
+                "bias": float(np.mean(x)) if x.size else None,
+            }
+        out[c] = {
+            "nrmse": float(np.sqrt(np.mean(e**2))) if e.size else None,
+            "bias": float(np.mean(e)) if e.size else None,
+            "n": int(e.size),
+            "phases": phases,
+            "whiteness": _whiteness(e, max_lag, alpha),
+            "input_correlation": _input_correlation(e, u, max_lag, alpha),
+        }
     return out
 
 
 # --------------------------------------------------------------------------- scoring
+
 
 @dataclass
 class CandidateScore:
@@ -177,22 +214,40 @@ class CandidateScore:
             if self.fit is None:
                 continue
             lo, hi = self.fit.ci[p.name]
-            params[p.name] = {"value": self.fit.values[p.name], "unit": p.unit,
-                              "ci": [_num(lo), _num(hi)],
-                              "neutral": None if p.neutral is None else _num(p.neutral),
-                              "identified": self.fit.identified[p.name],
-                              "plausible": self.fit.plausible[p.name],
-                              "flags": self.fit.flags[p.name]}
-        return {"name": self.name, "kind": self.candidate.kind,
-                "description": self.candidate.description, "round": self.round,
-                "parameters": params,
-                "refitted_base": ({p.name: self.fit.values[p.name] for p in self.fit.parameters
-                                   if p.name not in params} if self.fit else {}),
-                "heldout_nrmse": self.heldout_nrmse, "heldout_nrmse_mean": self.heldout_mean,
-                "score": self.relative_improvement, "relative_improvement": self.relative_improvement,
-                "delta_ic": self.delta_ic, "plausible": self.plausible,
-                "identified": self.identified, "accepted": self.accepted,
-                "reasons": self.reasons}
+            params[p.name] = {
+                "value": self.fit.values[p.name],
+                "unit": p.unit,
+                "ci": [_num(lo), _num(hi)],
+                "neutral": None if p.neutral is None else _num(p.neutral),
+                "identified": self.fit.identified[p.name],
+                "plausible": self.fit.plausible[p.name],
+                "flags": self.fit.flags[p.name],
+            }
+        return {
+            "name": self.name,
+            "kind": self.candidate.kind,
+            "description": self.candidate.description,
+            "round": self.round,
+            "parameters": params,
+            "refitted_base": (
+                {
+                    p.name: self.fit.values[p.name]
+                    for p in self.fit.parameters
+                    if p.name not in params
+                }
+                if self.fit
+                else {}
+            ),
+            "heldout_nrmse": self.heldout_nrmse,
+            "heldout_nrmse_mean": self.heldout_mean,
+            "score": self.relative_improvement,
+            "relative_improvement": self.relative_improvement,
+            "delta_ic": self.delta_ic,
+            "plausible": self.plausible,
+            "identified": self.identified,
+            "accepted": self.accepted,
+            "reasons": self.reasons,
+        }
 
 
 def _num(x: float):
@@ -251,7 +306,7 @@ class Diagnosis:
             "after_residuals": self.after_residuals,
             "final_fit": self.final.to_dict(),
             "note": "NRMSE = RMSE / channel scale (supply - ambient for pressures, that times the "
-                    "cap area for the force, half the stroke for x), on held-out data",
+            "cap area for the force, half the stroke for x), on held-out data",
         }
 
 
@@ -261,6 +316,7 @@ def _mean(d: Mapping[str, float]) -> float:
 
 
 # --------------------------------------------------------------------------- diagnose
+
 
 class _Split:
     """Training and held-out parts of the datasets."""
@@ -282,7 +338,7 @@ class _Split:
             for ds, k in zip(self.datasets, self.train_n):
                 m = np.zeros(ds.n_samples, dtype=bool)
                 m[k:] = True
-                self.held_masks.append({c: m for c in ds.channels})
+                self.held_masks.append(dict.fromkeys(ds.channels, m))
             self.info = {"mode": "time", "train_fraction": frac}
         elif mode == "recordings":
             if n < 2:
@@ -290,19 +346,27 @@ class _Split:
             self.train = self.datasets[:-1]
             self.train_n = [ds.n_samples for ds in self.train]
             self.held = self.datasets[-1:]
-            self.held_masks = [{c: np.ones(ds.n_samples, bool) for c in ds.channels}
-                               for ds in self.held]
+            self.held_masks = [
+                {c: np.ones(ds.n_samples, bool) for c in ds.channels} for ds in self.held
+            ]
             self.info = {"mode": "recordings", "held_out": [ds.name for ds in self.held]}
         else:
-            raise ValueError(f"holdout = {mode!r} is not allowed: must be 'auto', 'time' or "
-                             "'recordings'")
+            raise ValueError(
+                f"holdout = {mode!r} is not allowed: must be 'auto', 'time' or 'recordings'"
+            )
         self.mode = mode
 
     def predict(self, fit: FitResult, datasets=None) -> list[dict[str, np.ndarray]]:
         """Whole-recording predictions of ``datasets`` (default: the held-out ones)."""
         datasets = self.held if datasets is None else datasets
-        problem = FitProblem(datasets, [], fixed=fit.all_values(), config=self.config,
-                             label="predict", scopes=fit.scopes)
+        problem = FitProblem(
+            datasets,
+            [],
+            fixed=fit.all_values(),
+            config=self.config,
+            label="predict",
+            scopes=fit.scopes,
+        )
         return problem.predict(np.zeros(0), [ds.n_samples for ds in datasets])
 
     def heldout_nrmse(self, fit: FitResult) -> tuple[dict, list]:
@@ -320,10 +384,15 @@ def _values_per_dataset(datasets: Sequence[Dataset], fit: FitResult) -> list[dic
     return [fit.dataset_values(ds) for ds in datasets]
 
 
-def diagnose(recordings: Sequence[Recording], params=None, candidates: Sequence[str] | None = None,
-             base_fit: Sequence[str] | None = None, holdout: str = "auto",
-             config: IdentificationConfig | None = None, max_effects: int | None = None
-             ) -> Diagnosis:
+def diagnose(
+    recordings: Sequence[Recording],
+    params=None,
+    candidates: Sequence[str] | None = None,
+    base_fit: Sequence[str] | None = None,
+    holdout: str = "auto",
+    config: IdentificationConfig | None = None,
+    max_effects: int | None = None,
+) -> Diagnosis:
     """Calibrate, diagnose the residual against the candidates, select effects.
 
     ``candidates``: names (default: every available candidate). ``base_fit``: base
@@ -337,22 +406,31 @@ def diagnose(recordings: Sequence[Recording], params=None, candidates: Sequence[
     split = _Split(datasets, holdout, cfg)
     base_params = base_fit_parameters(datasets, base_fit, cfg)
     refit_names = cfg.base_fit_names("refit_in_diagnosis")
-    refit = base_params if refit_names == ["all"] else [p for p in base_params if p.name in refit_names]
+    refit = (
+        base_params if refit_names == ["all"] else [p for p in base_params if p.name in refit_names]
+    )
     min_rel = cfg.diagnosis("min_relative_improvement")
     min_ic = cfg.diagnosis("min_ic_drop")
     max_effects = int(max_effects if max_effects is not None else cfg.diagnosis("max_effects"))
     nfev = int(cfg.number("fit", "diagnosis_max_nfev", positive=True))
-    thresholds = {"min_relative_improvement": min_rel, "min_ic_drop": min_ic,
-                  "max_effects": max_effects}
+    thresholds = {
+        "min_relative_improvement": min_rel,
+        "min_ic_drop": min_ic,
+        "max_effects": max_effects,
+    }
 
-    log.info("diagnosis: calibrating the base model (%s) on the training data",
-             ", ".join(p.name for p in base_params))
-    base_problem = FitProblem(split.train, base_params, n_samples=split.train_n, config=cfg,
-                              label="base")
+    log.info(
+        "diagnosis: calibrating the base model (%s) on the training data",
+        ", ".join(p.name for p in base_params),
+    )
+    base_problem = FitProblem(
+        split.train, base_params, n_samples=split.train_n, config=cfg, label="base"
+    )
     base = run_fit(base_problem)
     baseline_nrmse, base_preds = split.heldout_nrmse(base)
-    baseline_res = residual_analysis(split.held, base_preds, split.held_masks,
-                                     _values_per_dataset(split.held, base), cfg)
+    baseline_res = residual_analysis(
+        split.held, base_preds, split.held_masks, _values_per_dataset(split.held, base), cfg
+    )
     n_res, n_eff = base.n_residuals, base.n_eff
 
     channels = {c for ds in datasets for c in ds.channels}
@@ -379,11 +457,27 @@ def diagnose(recordings: Sequence[Recording], params=None, candidates: Sequence[
             if cand in selected or _conflicts(cand, selected):
                 continue
             log.info("diagnosis round %d: candidate %s", rnd, cand.name)
-            round_scores.append(_score(cand, rnd, current, current_mean, refit,
-                                       selected, split, n_res, n_eff, min_rel, min_ic, nfev, cfg))
+            round_scores.append(
+                _score(
+                    cand,
+                    rnd,
+                    current,
+                    current_mean,
+                    refit,
+                    selected,
+                    split,
+                    n_res,
+                    n_eff,
+                    min_rel,
+                    min_ic,
+                    nfev,
+                    cfg,
+                )
+            )
         scores.extend(round_scores)
-        accepted = sorted((s for s in round_scores if s.accepted),
-                          key=lambda s: -s.relative_improvement)
+        accepted = sorted(
+            (s for s in round_scores if s.accepted), key=lambda s: -s.relative_improvement
+        )
         if moving:  # stick-event basins: the effect itself must make the improvement
             for score in accepted:
                 if not _improvement_is_the_basin(score, current, min_rel, split, cfg):
@@ -395,18 +489,31 @@ def diagnose(recordings: Sequence[Recording], params=None, candidates: Sequence[
         selected.append(best.candidate)
         # Re-converge base + selected effects with the full budget, so the next round
         # compares against a converged model (not against a refit stopped by its budget).
-        free = _unique(list(base_params) + [p for c in selected
-                                            for p in (*c.refit_base, *c.parameters)])
-        fixed = {k: v for k, v in best.fit.all_values().items()
-                 if k not in {p.name for p in free}}
-        polish = FitProblem(split.train, free, fixed=fixed, n_samples=split.train_n, config=cfg,
-                            label=f"model with {', '.join(c.name for c in selected)}",
-                            scopes=best.fit.scopes)
-        current = run_fit(polish, start=best.fit.all_values(),
-                          friction_restarts=any(c.requires_motion for c in selected))
+        free = _unique(
+            list(base_params) + [p for c in selected for p in (*c.refit_base, *c.parameters)]
+        )
+        fixed = {k: v for k, v in best.fit.all_values().items() if k not in {p.name for p in free}}
+        polish = FitProblem(
+            split.train,
+            free,
+            fixed=fixed,
+            n_samples=split.train_n,
+            config=cfg,
+            label=f"model with {', '.join(c.name for c in selected)}",
+            scopes=best.fit.scopes,
+        )
+        current = run_fit(
+            polish,
+            start=best.fit.all_values(),
+            friction_restarts=any(c.requires_motion for c in selected),
+        )
         current_mean = _mean(split.heldout_nrmse(current)[0])
-        log.info("diagnosis: accepted %s (held-out NRMSE %.4g, %.1f %% better)", best.name,
-                 best.heldout_mean, 100 * best.relative_improvement)
+        log.info(
+            "diagnosis: accepted %s (held-out NRMSE %.4g, %.1f %% better)",
+            best.name,
+            best.heldout_mean,
+            100 * best.relative_improvement,
+        )
 
     first = sorted((s for s in scores if s.round == 1), key=lambda s: -s.relative_improvement)
     winner = selected[0].name if selected else None
@@ -418,45 +525,80 @@ def diagnose(recordings: Sequence[Recording], params=None, candidates: Sequence[
         if winner and others:
             w = next(s for s in first if s.name == winner)
             r = others[0]
-            if r.relative_improvement >= cfg.diagnosis("runner_up_close_ratio") * w.relative_improvement \
-                    and r.relative_improvement > 0:
+            if (
+                r.relative_improvement
+                >= cfg.diagnosis("runner_up_close_ratio") * w.relative_improvement
+                and r.relative_improvement > 0
+            ):
                 suggestion = separating_experiment(winner, r.name, cfg)
         elif not winner and first[0].relative_improvement >= min_rel:
-            suggestion = ("the best candidate (" + first[0].name + ") improves the held-out error but "
-                          "is not accepted (" + "; ".join(first[0].reasons) + "): "
-                          + cfg.default_experiment())
+            suggestion = (
+                "the best candidate (" + first[0].name + ") improves the held-out error but "
+                "is not accepted (" + "; ".join(first[0].reasons) + "): " + cfg.default_experiment()
+            )
     after_nrmse, after_preds = split.heldout_nrmse(current)
-    after_res = residual_analysis(split.held, after_preds, split.held_masks,
-                                  _values_per_dataset(split.held, current), cfg)
-    predictions = {"before": split.predict(base, datasets), "after": split.predict(current, datasets)}
-    return Diagnosis(datasets=datasets, holdout=split.info, issues=issues, base=base,
-                     baseline_nrmse=baseline_nrmse, baseline_residuals=baseline_res,
-                     scores=scores, skipped=skipped, selected=[c.name for c in selected],
-                     final=current, after_nrmse=after_nrmse, after_residuals=after_res,
-                     winner=winner, runner_up=runner_up, suggestion=suggestion,
-                     thresholds=thresholds, predictions=predictions)
+    after_res = residual_analysis(
+        split.held, after_preds, split.held_masks, _values_per_dataset(split.held, current), cfg
+    )
+    predictions = {
+        "before": split.predict(base, datasets),
+        "after": split.predict(current, datasets),
+    }
+    return Diagnosis(
+        datasets=datasets,
+        holdout=split.info,
+        issues=issues,
+        base=base,
+        baseline_nrmse=baseline_nrmse,
+        baseline_residuals=baseline_res,
+        scores=scores,
+        skipped=skipped,
+        selected=[c.name for c in selected],
+        final=current,
+        after_nrmse=after_nrmse,
+        after_residuals=after_res,
+        winner=winner,
+        runner_up=runner_up,
+        suggestion=suggestion,
+        thresholds=thresholds,
+        predictions=predictions,
+    )
 
 
 def _conflicts(cand: Candidate, selected: Sequence[Candidate]) -> bool:
     """Whether ``cand`` fixes a parameter a selected effect fits, or fits one it fixes (e.g.
     the transmission line holds the tube's air, so it excludes a tube storage volume), or
     both fit the same parameter (LuGre friction has the Stribeck curve already)."""
-    return any(set(cand.set) & set(other.parameter_names)
-               or set(other.set) & set(cand.parameter_names)
-               or set(cand.parameter_names) & set(other.parameter_names) for other in selected)
+    return any(
+        set(cand.set) & set(other.parameter_names)
+        or set(other.set) & set(cand.parameter_names)
+        or set(cand.parameter_names) & set(other.parameter_names)
+        for other in selected
+    )
 
 
-def _improvement_is_the_basin(score: CandidateScore, current: FitResult, min_rel: float,
-                              split: _Split, cfg: IdentificationConfig) -> bool:
+def _improvement_is_the_basin(
+    score: CandidateScore,
+    current: FitResult,
+    min_rel: float,
+    split: _Split,
+    cfg: IdentificationConfig,
+) -> bool:
     """True (and ``score`` refused) when the current model at the candidate's fitted values,
     the candidate's effect switched off, is within ``min_rel`` of the candidate's held-out
     error: then the improvement came from where the candidate's refit moved the base
     parameters (for a sliding piston, which stick events it makes), not from the effect."""
     values = score.fit.all_values()
     fixed = {**current.fixed, **{p.name: values[p.name] for p in current.parameters}}
-    problem = FitProblem(split.train, [], fixed=fixed, n_samples=split.train_n, config=cfg,
-                         label=f"the fit with {score.name}, the effect off",
-                         scopes=current.scopes)
+    problem = FitProblem(
+        split.train,
+        [],
+        fixed=fixed,
+        n_samples=split.train_n,
+        config=cfg,
+        label=f"the fit with {score.name}, the effect off",
+        scopes=current.scopes,
+    )
     try:
         off = run_fit(problem)
     except (ValueError, FloatingPointError):
@@ -470,22 +612,44 @@ def _improvement_is_the_basin(score: CandidateScore, current: FitResult, min_rel
         f"with {score.name} switched off at its fitted values the held-out NRMSE is "
         f"{off_mean:.4g} (with it {score.heldout_mean:.4g}, {100 * rel:.1f} % better < "
         f"{100 * min_rel:.0f} %): the improvement is where the refit moved the base "
-        "parameters, not the effect")
+        "parameters, not the effect"
+    )
     return True
 
 
-def _score(cand: Candidate, rnd: int, current: FitResult, current_mean: float,
-           refit: Sequence[FitParameter], selected: Sequence[Candidate], split: _Split,
-           n_res: int, n_eff: float, min_rel: float, min_ic: float, nfev: int,
-           cfg: IdentificationConfig) -> CandidateScore:
-    free = _unique(list(refit) + [p for c in selected for p in (*c.refit_base, *c.parameters)]
-                   + list(cand.refit_base) + list(cand.parameters))
+def _score(
+    cand: Candidate,
+    rnd: int,
+    current: FitResult,
+    current_mean: float,
+    refit: Sequence[FitParameter],
+    selected: Sequence[Candidate],
+    split: _Split,
+    n_res: int,
+    n_eff: float,
+    min_rel: float,
+    min_ic: float,
+    nfev: int,
+    cfg: IdentificationConfig,
+) -> CandidateScore:
+    free = _unique(
+        list(refit)
+        + [p for c in selected for p in (*c.refit_base, *c.parameters)]
+        + list(cand.refit_base)
+        + list(cand.parameters)
+    )
     fixed = {k: v for k, v in current.all_values().items() if k not in {p.name for p in free}}
     fixed.update(cand.set)
     start = {p.name: current.all_values()[p.name] for p in free if p.name in current.all_values()}
-    problem = FitProblem(split.train, free, fixed=fixed, n_samples=split.train_n, config=cfg,
-                         label=f"{cand.name} (round {rnd})",
-                         scopes={**current.scopes, **cand.scopes()})
+    problem = FitProblem(
+        split.train,
+        free,
+        fixed=fixed,
+        n_samples=split.train_n,
+        config=cfg,
+        label=f"{cand.name} (round {rnd})",
+        scopes={**current.scopes, **cand.scopes()},
+    )
     # parameters the candidate adds to the current model (its own and the base parameters
     # it makes observable that the current model did not fit)
     current_free = {p.name for p in current.parameters}
@@ -494,17 +658,26 @@ def _score(cand: Candidate, rnd: int, current: FitResult, current_mean: float,
         # a candidate that changes the piston's friction law moves the static friction's
         # stick-event basins: it gets the restarts the base calibration had; the others
         # start from the calibrated base's basin
-        fit = run_fit(problem, start=start, max_nfev=nfev,
-                      friction_restarts=cand.requires_motion)
+        fit = run_fit(problem, start=start, max_nfev=nfev, friction_restarts=cand.requires_motion)
     except (ValueError, FloatingPointError) as exc:  # e.g. a parameter set the kernel rejects
-        return CandidateScore(cand, rnd, None, {}, math.inf, -math.inf, math.inf, False, False,
-                              False, [f"fit failed: {exc}"])
+        return CandidateScore(
+            cand,
+            rnd,
+            None,
+            {},
+            math.inf,
+            -math.inf,
+            math.inf,
+            False,
+            False,
+            False,
+            [f"fit failed: {exc}"],
+        )
     nrmse, _ = split.heldout_nrmse(fit)
     mean = _mean(nrmse)
     rel = (current_mean - mean) / current_mean if current_mean > 0 else 0.0
     # BIC(candidate) - BIC(current): N_eff ln(RSS_c / RSS_m) + (extra parameters) ln(N_eff)
-    delta_ic = (_ic(fit.rss, n_res, n_eff, n_extra)
-                - _ic(current.rss, n_res, n_eff, 0))
+    delta_ic = _ic(fit.rss, n_res, n_eff, n_extra) - _ic(current.rss, n_res, n_eff, 0)
     plausible = all(fit.plausible[p.name] for p in cand.parameters)
     identified = True
     reasons = []
@@ -515,15 +688,20 @@ def _score(cand: Candidate, rnd: int, current: FitResult, current_mean: float,
             reasons.append(f"{p.name} not identified ({'; '.join(fit.flags[p.name])})")
         elif p.neutral is not None and lo <= p.neutral <= hi:
             identified = False
-            reasons.append(f"{p.name}: its confidence interval [{lo:.3g}, {hi:.3g}] contains the "
-                           f"neutral value {p.neutral:g} (effect off)")
+            reasons.append(
+                f"{p.name}: its confidence interval [{lo:.3g}, {hi:.3g}] contains the "
+                f"neutral value {p.neutral:g} (effect off)"
+            )
         if not fit.plausible[p.name]:
-            reasons.append(f"{p.name} = {fit.values[p.name]:.4g} {p.unit} is outside the plausible "
-                           f"range [{p.plausible_min:g}, {p.plausible_max:g}]")
+            reasons.append(
+                f"{p.name} = {fit.values[p.name]:.4g} {p.unit} is outside the plausible "
+                f"range [{p.plausible_min:g}, {p.plausible_max:g}]"
+            )
     if rel < min_rel:
         reasons.append(f"held-out improvement {100 * rel:.1f} % < {100 * min_rel:.0f} %")
     if delta_ic > -min_ic:
         reasons.append(f"BIC change {delta_ic:.1f} > -{min_ic:g}")
     accepted = rel >= min_rel and delta_ic <= -min_ic and plausible and identified
-    return CandidateScore(cand, rnd, fit, nrmse, mean, rel, delta_ic, plausible, identified,
-                          accepted, reasons)
+    return CandidateScore(
+        cand, rnd, fit, nrmse, mean, rel, delta_ic, plausible, identified, accepted, reasons
+    )

@@ -13,13 +13,14 @@ are only read):
 - ``fit_<recording>.png`` (measured vs model before/after) and ``residuals_<recording>.png``;
 - ``report.md``: the summary.
 """
+
 from __future__ import annotations
 
 import json
 import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -44,12 +45,15 @@ def _check_outputs(out_dir: Path, inputs: Sequence[Path], names: Sequence[str]) 
     for name in names:
         target = (out_dir / name).resolve()
         if target in inputs_resolved:
-            raise ValueError(f"report file {target} would overwrite an input recording; "
-                             "choose another report directory")
+            raise ValueError(
+                f"report file {target} would overwrite an input recording; "
+                "choose another report directory"
+            )
 
 
 def _plots(diag: Diagnosis, out_dir: Path) -> list[str]:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -67,8 +71,14 @@ def _plots(diag: Diagnosis, out_dir: Path) -> list[str]:
         for ax, c in zip(axes[1:], ds.channels):
             ax.plot(t, ds.measured(c), color="0.6", lw=0.8, label="recorded")
             ax.plot(t, before[c], color="C0", lw=0.9, label="model before (calibrated base)")
-            ax.plot(t, after[c], color="C3", lw=0.9, ls="--",
-                    label="model after (" + (", ".join(diag.selected) or "no effect") + ")")
+            ax.plot(
+                t,
+                after[c],
+                color="C3",
+                lw=0.9,
+                ls="--",
+                label="model after (" + (", ".join(diag.selected) or "no effect") + ")",
+            )
             ax.set_ylabel(f"{c} [{_UNITS.get(c, '')}]")
         for ax in axes:
             if split_t is not None:
@@ -84,10 +94,12 @@ def _plots(diag: Diagnosis, out_dir: Path) -> list[str]:
 
         fig, axes = plt.subplots(n, 1, figsize=(10, 2.0 * n), sharex=True, squeeze=False)
         for ax, c in zip(axes[:, 0], ds.channels):
-            ax.plot(t, (before[c] - ds.measured(c)) / ds.scales[c], color="C0", lw=0.7,
-                    label="before")
-            ax.plot(t, (after[c] - ds.measured(c)) / ds.scales[c], color="C3", lw=0.7,
-                    label="after")
+            ax.plot(
+                t, (before[c] - ds.measured(c)) / ds.scales[c], color="C0", lw=0.7, label="before"
+            )
+            ax.plot(
+                t, (after[c] - ds.measured(c)) / ds.scales[c], color="C3", lw=0.7, label="after"
+            )
             ax.set_ylabel(f"{c} residual / scale")
             if split_t is not None:
                 ax.axvline(split_t, color="k", ls=":", lw=0.8)
@@ -103,77 +115,134 @@ def _plots(diag: Diagnosis, out_dir: Path) -> list[str]:
 
 
 def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
-    lines = ["# Identification report", "",
-             "Recordings: " + ", ".join(f"`{n}`" for n in data["recordings"]) + ".",
-             f"Held-out data: {json.dumps(data['holdout'])}.", ""]
+    lines = [
+        "# Identification report",
+        "",
+        "Recordings: " + ", ".join(f"`{n}`" for n in data["recordings"]) + ".",
+        f"Held-out data: {json.dumps(data['holdout'])}.",
+        "",
+    ]
     if data["issues"]:
         lines += ["## Data issues", ""] + [f"- {i}" for i in data["issues"]] + [""]
     lines += ["## Result", ""]
     if data["selected"]:
-        lines.append("Selected effect(s): " + ", ".join(f"**{s}**" for s in data["selected"])
-                     + f". Runner-up in round 1: {data['runner_up'] or '-'}.")
+        lines.append(
+            "Selected effect(s): "
+            + ", ".join(f"**{s}**" for s in data["selected"])
+            + f". Runner-up in round 1: {data['runner_up'] or '-'}."
+        )
     else:
-        lines.append("Selected effects: **none** (no candidate passed the acceptance rules). "
-                     f"Best-scoring candidate: {data['runner_up'] or '-'}.")
+        lines.append(
+            "Selected effects: **none** (no candidate passed the acceptance rules). "
+            f"Best-scoring candidate: {data['runner_up'] or '-'}."
+        )
     if data["suggested_experiment"]:
         lines.append(f"Suggested experiment: {data['suggested_experiment']}")
     unexplained = [c for c, r in data["after_residuals"].items() if not r["whiteness"]["white"]]
     if unexplained:
-        lines.append("The residual after the selected model is not white on "
-                     + ", ".join(unexplained) + " (Ljung-Box): part of the error is systematic "
-                     "and no accepted candidate explains it.")
-    lines += ["", "Mean held-out NRMSE: before " + _fmt(data["baseline_nrmse_mean"]) + ", after "
-              + _fmt(data["after_nrmse_mean"]) + " (NRMSE = RMSE / channel scale: supply minus "
-              "ambient pressure for p1, p2; that times the cap area for f; half the stroke for x).",
-              "", "| channel | before | after |", "|---|---|---|"]
+        lines.append(
+            "The residual after the selected model is not white on "
+            + ", ".join(unexplained)
+            + " (Ljung-Box): part of the error is systematic "
+            "and no accepted candidate explains it."
+        )
+    lines += [
+        "",
+        "Mean held-out NRMSE: before "
+        + _fmt(data["baseline_nrmse_mean"])
+        + ", after "
+        + _fmt(data["after_nrmse_mean"])
+        + " (NRMSE = RMSE / channel scale: supply minus "
+        "ambient pressure for p1, p2; that times the cap area for f; half the stroke for x).",
+        "",
+        "| channel | before | after |",
+        "|---|---|---|",
+    ]
     for c in data["baseline_nrmse"]:
-        lines.append(f"| {c} | {_fmt(data['baseline_nrmse'][c])} | {_fmt(data['after_nrmse'].get(c))} |")
+        lines.append(
+            f"| {c} | {_fmt(data['baseline_nrmse'][c])} | {_fmt(data['after_nrmse'].get(c))} |"
+        )
     th = data["thresholds"]
-    lines += ["", "## Candidates", "",
-              f"Accepted when the held-out NRMSE falls by at least "
-              f"{100 * th['min_relative_improvement']:.0f} %, the autocorrelation-corrected BIC "
-              f"falls by at least {th['min_ic_drop']:g}, and the effect's parameters are plausible "
-              "and identified (confidence interval narrower than the plausible range, excluding "
-              "the neutral value).", "",
-              "| round | candidate | score (held-out improvement) | delta BIC | held-out NRMSE | "
-              "parameters (95 % CI) | accepted | why not |", "|---|---|---|---|---|---|---|---|"]
+    lines += [
+        "",
+        "## Candidates",
+        "",
+        f"Accepted when the held-out NRMSE falls by at least "
+        f"{100 * th['min_relative_improvement']:.0f} %, the autocorrelation-corrected BIC "
+        f"falls by at least {th['min_ic_drop']:g}, and the effect's parameters are plausible "
+        "and identified (confidence interval narrower than the plausible range, excluding "
+        "the neutral value).",
+        "",
+        "| round | candidate | score (held-out improvement) | delta BIC | held-out NRMSE | "
+        "parameters (95 % CI) | accepted | why not |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for c in data["candidates"]:
-        params = "; ".join(f"{n} = {_fmt(p['value'])} [{_fmt(p['ci'][0], 3)}, {_fmt(p['ci'][1], 3)}]"
-                           f" {p['unit']}" for n, p in c["parameters"].items())
+        params = "; ".join(
+            f"{n} = {_fmt(p['value'])} [{_fmt(p['ci'][0], 3)}, {_fmt(p['ci'][1], 3)}] {p['unit']}"
+            for n, p in c["parameters"].items()
+        )
         score = "-" if c["score"] is None else f"{100 * c['score']:.1f} %"
-        lines.append(f"| {c['round']} | {c['name']} | {score} | "
-                     f"{_fmt(c['delta_ic'], 3)} | {_fmt(c['heldout_nrmse_mean'])} | {params} | "
-                     f"{'yes' if c['accepted'] else 'no'} | {'; '.join(c['reasons'])} |")
+        lines.append(
+            f"| {c['round']} | {c['name']} | {score} | "
+            f"{_fmt(c['delta_ic'], 3)} | {_fmt(c['heldout_nrmse_mean'])} | {params} | "
+            f"{'yes' if c['accepted'] else 'no'} | {'; '.join(c['reasons'])} |"
+        )
     if data["skipped"]:
         lines += ["", "Not tried: " + "; ".join(f"{k} ({v})" for k, v in data["skipped"].items())]
     cal = data["calibration"]
-    lines += ["", "## Calibrated base parameters", "",
-              f"Fit on the training data: {cal['n_residuals']} residuals, lag-1 autocorrelation "
-              f"{cal['lag1_autocorrelation']:.3f} (effective samples {cal['effective_samples']:.0f}), "
-              f"Jacobian condition number {_fmt(cal['condition_number'])}.", "",
-              "| parameter | value | 95 % CI | unit | identified | notes |", "|---|---|---|---|---|---|"]
+    lines += [
+        "",
+        "## Calibrated base parameters",
+        "",
+        f"Fit on the training data: {cal['n_residuals']} residuals, lag-1 autocorrelation "
+        f"{cal['lag1_autocorrelation']:.3f} (effective samples {cal['effective_samples']:.0f}), "
+        f"Jacobian condition number {_fmt(cal['condition_number'])}.",
+        "",
+        "| parameter | value | 95 % CI | unit | identified | notes |",
+        "|---|---|---|---|---|---|",
+    ]
     for name, p in cal["parameters"].items():
-        lines.append(f"| {name} | {_fmt(p['value'], 6)} | [{_fmt(p['ci'][0], 5)}, "
-                     f"{_fmt(p['ci'][1], 5)}] | {p['unit']} | {'yes' if p['identified'] else 'no'} | "
-                     f"{'; '.join(p['flags'])} |")
+        lines.append(
+            f"| {name} | {_fmt(p['value'], 6)} | [{_fmt(p['ci'][0], 5)}, "
+            f"{_fmt(p['ci'][1], 5)}] | {p['unit']} | {'yes' if p['identified'] else 'no'} | "
+            f"{'; '.join(p['flags'])} |"
+        )
     if cal["correlations"]:
-        lines += ["", "Strongly correlated estimates: " + "; ".join(
-            f"{a} / {b} ({r:+.3f})" for a, b, r in cal["correlations"]) + "."]
-    lines += ["", "## Residual analysis (held-out data)", "",
-              "| channel | model | NRMSE | bias | flow | after flow | rest | reversal | "
-              "Ljung-Box p | white | max input xcorr (bound) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+        lines += [
+            "",
+            "Strongly correlated estimates: "
+            + "; ".join(f"{a} / {b} ({r:+.3f})" for a, b, r in cal["correlations"])
+            + ".",
+        ]
+    lines += [
+        "",
+        "## Residual analysis (held-out data)",
+        "",
+        "| channel | model | NRMSE | bias | flow | after flow | rest | reversal | "
+        "Ljung-Box p | white | max input xcorr (bound) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for label, res in (("before", data["baseline_residuals"]), ("after", data["after_residuals"])):
         for c, r in res.items():
             ph = r["phases"]
             xc = r["input_correlation"]
             lines.append(
                 f"| {c} | {label} | {_fmt(r['nrmse'])} | {_fmt(r['bias'], 3)} | "
-                + " | ".join(_fmt(ph[k]["nrmse"], 3) for k in ("flow", "after_flow", "rest", "reversal"))
-                + f" | {_fmt(r['whiteness'].get('p_value'), 3)} | {'yes' if r['whiteness']['white'] else 'no'}"
-                f" | {_fmt(xc['max_abs'], 3)} ({_fmt(xc['bound'], 2)}) |")
+                + " | ".join(
+                    _fmt(ph[k]["nrmse"], 3) for k in ("flow", "after_flow", "rest", "reversal")
+                )
+                + f" | {_fmt(r['whiteness'].get('p_value'), 3)}"
+                + f" | {'yes' if r['whiteness']['white'] else 'no'}"
+                f" | {_fmt(xc['max_abs'], 3)} ({_fmt(xc['bound'], 2)}) |"
+            )
     lines += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots]
-    lines += ["", "Fitted parameter sets: `fitted_base.yaml` (calibrated base), `fitted_final.yaml` "
-              "(with the selected plant effects; sensor-side values are in `diagnosis.json`).", ""]
+    lines += [
+        "",
+        "Fitted parameter sets: `fitted_base.yaml` (calibrated base), `fitted_final.yaml` "
+        "(with the selected plant effects; sensor-side values are in `diagnosis.json`).",
+        "",
+    ]
     return "\n".join(lines)
 
 
@@ -194,18 +263,28 @@ def write_report(diag: Diagnosis, out_dir: str | os.PathLike, plots: bool = True
         if ds.recording.path is not None:
             csv = Path(ds.recording.path)
             inputs += [csv, csv.with_suffix(".json")]
-    names = list(REPORT_FILES) + [f"{p}_{ds.name}.png" for ds in diag.datasets
-                                  for p in ("fit", "residuals")]
+    names = list(REPORT_FILES) + [
+        f"{p}_{ds.name}.png" for ds in diag.datasets for p in ("fit", "residuals")
+    ]
     _check_outputs(out_dir, inputs, names)
     data = _clean(diag.to_json())
-    (out_dir / "diagnosis.json").write_text(json.dumps(data, indent=2, allow_nan=False)
-                                            + "\n", encoding="utf-8")
+    (out_dir / "diagnosis.json").write_text(
+        json.dumps(data, indent=2, allow_nan=False) + "\n", encoding="utf-8"
+    )
     recs = ", ".join(data["recordings"])
-    _save_fit(diag, diag.base, out_dir / "fitted_base.yaml",
-              f"pneumatic_env identify: calibrated base model on {recs}")
-    _save_fit(diag, diag.final, out_dir / "fitted_final.yaml",
-              f"pneumatic_env identify on {recs}; selected effects: "
-              + (", ".join(diag.selected) or "none"))
+    _save_fit(
+        diag,
+        diag.base,
+        out_dir / "fitted_base.yaml",
+        f"pneumatic_env identify: calibrated base model on {recs}",
+    )
+    _save_fit(
+        diag,
+        diag.final,
+        out_dir / "fitted_final.yaml",
+        f"pneumatic_env identify on {recs}; selected effects: "
+        + (", ".join(diag.selected) or "none"),
+    )
     written = _plots(diag, out_dir) if plots else []
     (out_dir / "report.md").write_text(_markdown(diag, data, written), encoding="utf-8")
     return data

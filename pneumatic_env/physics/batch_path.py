@@ -5,6 +5,7 @@ is redone by the general path, and environments with other effects on take
 ``general_path.advance_env``. The step functions (``step_serial``, ``step_parallel``,
 ``rollout_serial``) run the chunks of a batch.
 """
+
 import math
 
 import numpy as np
@@ -65,8 +66,17 @@ def _work_rows(work, first_row, j):
     """The RK4 state tuple in rows ``first_row ..`` of lane ``j`` of the flat work array."""
     i = first_row * CHUNK_ENVS + j
     k = CHUNK_ENVS
-    return (work[i], work[i + k], work[i + 2 * k], work[i + 3 * k], work[i + 4 * k],
-            work[i + 5 * k], work[i + 6 * k], work[i + 7 * k], work[i + 8 * k])
+    return (
+        work[i],
+        work[i + k],
+        work[i + 2 * k],
+        work[i + 3 * k],
+        work[i + 4 * k],
+        work[i + 5 * k],
+        work[i + 6 * k],
+        work[i + 7 * k],
+        work[i + 8 * k],
+    )
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
@@ -90,8 +100,9 @@ def _begin_substeps(constants, work, n_lanes, h):
         c = load_constants(constants, j)
         y = _work_rows(work, 0, j)
         _set_work_rows(work, W_START, j, y)
-        applied = (pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
-                   - external_force(c.mode, y[4], c.load_force, c.spring_k, c.spring_rest))
+        applied = pneumatic_force(
+            y[2], y[3], c.area_cap, c.area_rod, c.rod_area, c.ambient_pa
+        ) - external_force(c.mode, y[4], c.load_force, c.spring_k, c.spring_rest)
         direction = motion_direction(y[4], y[5], applied, c.stick_threshold, c.half_stroke)
         work[W_DIRECTION * CHUNK_ENVS + j] = 0.0 if c.mode == MODE_FIXED else direction
         stiff = stiffness_ratio(c, y, h) > STIFFNESS_LIMIT  # refinement(c, y, h) > 1
@@ -107,11 +118,16 @@ def _base_substeps_vectorised(constants, work, n_lanes, h):
     """
     for j in range(n_lanes):
         c = load_constants(constants, j)
-        out = rk4_base_substep(c, _work_rows(work, 0, j), work[W_CURRENT * CHUNK_ENVS + j],
-                               work[W_DIRECTION * CHUNK_ENVS + j],
-                               work[W_SPOOL_DELAYED * CHUNK_ENVS + j],
-                               work[(W_SPOOL_DELAYED + 1) * CHUNK_ENVS + j],
-                               work[(W_SPOOL_DELAYED + 2) * CHUNK_ENVS + j], h)
+        out = rk4_base_substep(
+            c,
+            _work_rows(work, 0, j),
+            work[W_CURRENT * CHUNK_ENVS + j],
+            work[W_DIRECTION * CHUNK_ENVS + j],
+            work[W_SPOOL_DELAYED * CHUNK_ENVS + j],
+            work[(W_SPOOL_DELAYED + 1) * CHUNK_ENVS + j],
+            work[(W_SPOOL_DELAYED + 2) * CHUNK_ENVS + j],
+            h,
+        )
         _set_work_rows(work, 0, j, out)
 
 
@@ -127,8 +143,7 @@ def _end_substeps(constants, work, n_lanes):
         direction = work[W_DIRECTION * k + j]
         x0, v0 = work[(W_START + L.S_X) * k + j], work[(W_START + L.S_V) * k + j]
         x, v = work[L.S_X * k + j], work[L.S_V * k + j]
-        event = direction != 0.0 and event_fraction(x0, v0, x, v, direction,
-                                                    c.half_stroke) >= 0.0
+        event = direction != 0.0 and event_fraction(x0, v0, x, v, direction, c.half_stroke) >= 0.0
         work[W_REDO * k + j] = 1.0 if event else work[W_REDO * k + j]
         work[L.S_X * k + j], work[L.S_V * k + j] = end_of_substep(x, v, c.half_stroke)
 
@@ -184,17 +199,25 @@ def _delayed_spool_rows(constants, work, history, first, n_lanes, head_sub, same
     if same_delay:
         for stage in range(3):
             query, lower_slot, upper_slot, weight = _delay_slots(
-                head_sub, stage, constants[C_DELAY_SUBSTEPS * k], n_slots)
-            _interpolate_row(work, history[lower_slot, L.H_X_S, first:stop],
-                             history[upper_slot, L.H_X_S, first:stop], n_lanes,
-                             W_SPOOL_DELAYED + stage, weight, query >= 0.0)
+                head_sub, stage, constants[C_DELAY_SUBSTEPS * k], n_slots
+            )
+            _interpolate_row(
+                work,
+                history[lower_slot, L.H_X_S, first:stop],
+                history[upper_slot, L.H_X_S, first:stop],
+                n_lanes,
+                W_SPOOL_DELAYED + stage,
+                weight,
+                query >= 0.0,
+            )
         return
     for j in range(n_lanes):
         delay_substeps = constants[C_DELAY_SUBSTEPS * k + j]
         x_s = work[W_START * k + j]
         for stage in range(3):
-            query, lower_slot, upper_slot, weight = _delay_slots(head_sub, stage,
-                                                                 delay_substeps, n_slots)
+            query, lower_slot, upper_slot, weight = _delay_slots(
+                head_sub, stage, delay_substeps, n_slots
+            )
             lower = history[lower_slot, L.H_X_S, first + j]
             upper = history[upper_slot, L.H_X_S, first + j]
             interpolated = lower + weight * (upper - lower)
@@ -223,8 +246,9 @@ def _copy_fast_lanes(constants, work, n_lanes, work_row, target_row, keep_redone
     for j in range(n_lanes):
         # both entries loaded and bitwise logic: no branch, so no conditional load
         kept, advanced = target_row[j], work[work_row * k + j]
-        keep = ((constants[C_BASE_ONLY * k + j] == 0.0)
-                | (keep_redone & (work[W_REDO * k + j] != 0.0)))
+        keep = (constants[C_BASE_ONLY * k + j] == 0.0) | (
+            keep_redone & (work[W_REDO * k + j] != 0.0)
+        )
         target_row[j] = kept if keep else advanced
 
 
@@ -251,9 +275,13 @@ def _fast_output_forces(constants, work, n_lanes, force_row):
     for j in range(n_lanes):
         c = load_constants(constants, j)
         y = _work_rows(work, 0, j)
-        force = output_force(c.mode, pneumatic_force(y[2], y[3], c.area_cap, c.area_rod,
-                                                     c.rod_area, c.ambient_pa),
-                             y[4], c.spring_k, c.spring_rest)
+        force = output_force(
+            c.mode,
+            pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area, c.ambient_pa),
+            y[4],
+            c.spring_k,
+            c.spring_rest,
+        )
         kept = force_row[j]
         force_row[j] = kept if constants[C_BASE_ONLY * k + j] == 0.0 else force
 
@@ -264,7 +292,7 @@ def chunk_work(state, first, stop):
     rows, the other rows zero."""
     work = np.zeros(N_WORK * CHUNK_ENVS)
     for row in range(N_RK):
-        work[row * CHUNK_ENVS:row * CHUNK_ENVS + stop - first] = state[row, first:stop]
+        work[row * CHUNK_ENVS : row * CHUNK_ENVS + stop - first] = state[row, first:stop]
     return work
 
 
@@ -278,8 +306,20 @@ def prepare_substep(constants, work, history, first, n_lanes, head_sub, same_del
 
 
 @njit(cache=True)
-def advance_chunk(params, state, history, first, stop, head, coil_current_a, control_dt_s,
-                  n_substeps, outputs, key, constants):
+def advance_chunk(
+    params,
+    state,
+    history,
+    first,
+    stop,
+    head,
+    coil_current_a,
+    control_dt_s,
+    n_substeps,
+    outputs,
+    key,
+    constants,
+):
     """Advance environments ``first .. stop-1`` by one control period; write their outputs.
 
     ``first`` is a multiple of ``CHUNK_ENVS``; ``key``, ``constants`` are the cache of
@@ -299,16 +339,26 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
     n_slots = history.shape[0]
     chunk_constants = constants[first // CHUNK_ENVS]
     refresh_constants(params, first, stop, h, key, chunk_constants)
-    fast = chunk_constants[C_BASE_ONLY * CHUNK_ENVS:]
+    fast = chunk_constants[C_BASE_ONLY * CHUNK_ENVS :]
     for j in range(n):
         env = first + j
         if fast[j] == 0.0:
-            advance_env(params, state, history, env, head, coil_current_a[env], control_dt_s,
-                        n_substeps, outputs)
+            advance_env(
+                params,
+                state,
+                history,
+                env,
+                head,
+                coil_current_a[env],
+                control_dt_s,
+                n_substeps,
+                outputs,
+            )
     # lanes advance_env advanced are computed below too, and ignored
     work = chunk_work(state, first, stop)
-    _fast_commands(chunk_constants, work, n, coil_current_a[first:stop],
-                   state[L.S_PLAY, first:stop])
+    _fast_commands(
+        chunk_constants, work, n, coil_current_a[first:stop], state[L.S_PLAY, first:stop]
+    )
     same_delay = _same_delay(chunk_constants, n)
     for sub in range(n_substeps):
         head_sub = ring_slot(head + sub, n_slots)
@@ -317,17 +367,28 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
         _end_substeps(chunk_constants, work, n)
         slot = ring_slot(head_sub + 1, n_slots)
         for row, channel in ((L.S_X_S, L.H_X_S), (L.S_P1, L.H_P1), (L.S_P2, L.H_P2)):
-            _copy_fast_lanes(chunk_constants, work, n, row, history[slot, channel, first:stop],
-                             True)
+            _copy_fast_lanes(
+                chunk_constants, work, n, row, history[slot, channel, first:stop], True
+            )
         for j in range(n if _any_lane_set(work, W_REDO, n) else 0):
             if fast[j] != 0.0 and work[W_REDO * CHUNK_ENVS + j] != 0.0:
                 env = first + j
                 c = load_constants(chunk_constants, j)
                 y0 = _work_rows(work, W_START, j)
                 current = work[W_CURRENT * CHUNK_ENVS + j]
-                y, _ = _split_substep(c, history, env, head_sub, h, current,
-                                      (current, current), y0, refinement(c, y0, h),
-                                      c.ambient_pa, 0.0)
+                y, _ = _split_substep(
+                    c,
+                    history,
+                    env,
+                    head_sub,
+                    h,
+                    current,
+                    (current, current),
+                    y0,
+                    refinement(c, y0, h),
+                    c.ambient_pa,
+                    0.0,
+                )
                 _set_work_rows(work, 0, j, _close_substep(c, history, env, slot, y))
     # the batch path's lanes: state and outputs as _store_state writes them
     for row in range(N_RK):
@@ -340,37 +401,74 @@ def advance_chunk(params, state, history, first, stop, head, coil_current_a, con
 
 
 @njit(cache=True)
-def step_serial(params, state, history, head, coil_current_a, control_dt_s, n_substeps, outputs,
-                key, constants):
+def step_serial(
+    params, state, history, head, coil_current_a, control_dt_s, n_substeps, outputs, key, constants
+):
     """Advance every environment of the batch by one control period on one thread."""
     n_envs = state.shape[1]
     for first in range(0, n_envs, CHUNK_ENVS):
-        advance_chunk(params, state, history, first, min(first + CHUNK_ENVS, n_envs), head,
-                      coil_current_a, control_dt_s, n_substeps, outputs, key, constants)
+        advance_chunk(
+            params,
+            state,
+            history,
+            first,
+            min(first + CHUNK_ENVS, n_envs),
+            head,
+            coil_current_a,
+            control_dt_s,
+            n_substeps,
+            outputs,
+            key,
+            constants,
+        )
 
 
 @njit(cache=True, parallel=True)
-def step_parallel(params, state, history, head, coil_current_a, control_dt_s, n_substeps,
-                  outputs, key, constants):
+def step_parallel(
+    params, state, history, head, coil_current_a, control_dt_s, n_substeps, outputs, key, constants
+):
     """Advance every environment of the batch by one control period, chunks in parallel
     (``BatchSimulator.call_step_kernel`` hands them out)."""
     n_envs = state.shape[1]
     for chunk in prange((n_envs + CHUNK_ENVS - 1) // CHUNK_ENVS):
         first = chunk * CHUNK_ENVS
-        advance_chunk(params, state, history, first, min(first + CHUNK_ENVS, n_envs), head,
-                      coil_current_a, control_dt_s, n_substeps, outputs, key, constants)
+        advance_chunk(
+            params,
+            state,
+            history,
+            first,
+            min(first + CHUNK_ENVS, n_envs),
+            head,
+            coil_current_a,
+            control_dt_s,
+            n_substeps,
+            outputs,
+            key,
+            constants,
+        )
 
 
 @njit(cache=True)
-def rollout_serial(params, state, history, head, coil_current_a, control_dt_s, n_substeps,
-                   outputs, key, constants):
+def rollout_serial(
+    params, state, history, head, coil_current_a, control_dt_s, n_substeps, outputs, key, constants
+):
     """Run a whole open-loop current sequence ``coil_current_a[step, env]`` in one call.
 
     ``outputs[step, O_*, env]`` receives the outputs after each control period.
     """
     for step in range(coil_current_a.shape[0]):
-        step_serial(params, state, history, head + step * n_substeps, coil_current_a[step],
-                    control_dt_s, n_substeps, outputs[step], key, constants)
+        step_serial(
+            params,
+            state,
+            history,
+            head + step * n_substeps,
+            coil_current_a[step],
+            control_dt_s,
+            n_substeps,
+            outputs[step],
+            key,
+            constants,
+        )
 
 
 def history_slots(max_delay_s, control_dt_s, n_substeps):

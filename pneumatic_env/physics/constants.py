@@ -6,6 +6,7 @@ The effects beyond the paper's model (docs/effects.md, ``effects.py``) are switc
 environment by their parameter rows; ``env_constants`` turns each into a flag or a
 neutral constant, so an effect that is off costs a branch.
 """
+
 import math
 from collections import namedtuple
 
@@ -20,31 +21,94 @@ from .tube import reynolds_per_mass_flow, sound_speed, viscous_scale
 
 CHUNK_ENVS = 64  # environments advanced together by the batch path (their arrays stay in L1/L2)
 
-Constants = namedtuple("Constants", (
-    "gas_rt", "inv_sqrt_t", "k", "c1", "c2", "critical_ratio", "linear_ratio", "linear_slope",
-    "supply_pa", "ambient_pa", "viscosity", "alpha_in", "alpha_out", "alpha_motion",
-    "inv_spool_mass", "spool_damping", "spool_spring", "coil_force", "discharge", "hole_radius",
-    "half_width", "holes", "delay_s", "delay_substeps", "tube_diameter", "reynolds_turbulent",
-    "literal", "area_cap", "area_rod", "rod_area", "half_stroke", "dead_cap", "dead_rod",
-    "inv_moving_mass", "dynamic_friction", "stick_threshold", "viscous", "leak_area", "mode",
-    "load_force", "spring_k", "spring_rest",
-    # effects (docs/effects.md)
-    "discharge_ex", "null_leak", "seal_leak", "flow_law", "supply_resistance", "exhaust_vent",
-    "exhaust_capacity", "coil_lag", "coil_decay_half", "coil_decay_full", "coil_force_lag",
-    "force_rate", "force_rate_difference",
-    "energy", "gas", "temperature", "heat_conductance",
-    "static_friction", "stribeck", "stribeck_v", "spool_play_band",
-    "lugre", "lugre_stiffness", "lugre_damping",
-    "waves", "line_impedance", "line_friction",
-    # numerical guards (docs/convergence.md): pressures and gas temperatures stay positive
-    "pressure_floor", "temperature_floor",
-    "stiffness_volume",  # lambda_max * V (m^3/s): see refinement()
-    # reciprocals and products the right-hand side would otherwise divide by per evaluation
-    # (a division takes a divider's latency; a product does not), as inv_spool_mass (1/M_s)
-    # and inv_moving_mass (1/(M_p + M_L)) above: 1/k, 1/R_h, R T tau / 2, Re per kg/s,
-    # mu / D^2
-    "inv_k", "inv_hole_radius", "half_rt_delay", "reynolds_per_flow", "viscous_scale",
-))
+Constants = namedtuple(
+    "Constants",
+    (
+        "gas_rt",
+        "inv_sqrt_t",
+        "k",
+        "c1",
+        "c2",
+        "critical_ratio",
+        "linear_ratio",
+        "linear_slope",
+        "supply_pa",
+        "ambient_pa",
+        "viscosity",
+        "alpha_in",
+        "alpha_out",
+        "alpha_motion",
+        "inv_spool_mass",
+        "spool_damping",
+        "spool_spring",
+        "coil_force",
+        "discharge",
+        "hole_radius",
+        "half_width",
+        "holes",
+        "delay_s",
+        "delay_substeps",
+        "tube_diameter",
+        "reynolds_turbulent",
+        "literal",
+        "area_cap",
+        "area_rod",
+        "rod_area",
+        "half_stroke",
+        "dead_cap",
+        "dead_rod",
+        "inv_moving_mass",
+        "dynamic_friction",
+        "stick_threshold",
+        "viscous",
+        "leak_area",
+        "mode",
+        "load_force",
+        "spring_k",
+        "spring_rest",
+        # effects (docs/effects.md)
+        "discharge_ex",
+        "null_leak",
+        "seal_leak",
+        "flow_law",
+        "supply_resistance",
+        "exhaust_vent",
+        "exhaust_capacity",
+        "coil_lag",
+        "coil_decay_half",
+        "coil_decay_full",
+        "coil_force_lag",
+        "force_rate",
+        "force_rate_difference",
+        "energy",
+        "gas",
+        "temperature",
+        "heat_conductance",
+        "static_friction",
+        "stribeck",
+        "stribeck_v",
+        "spool_play_band",
+        "lugre",
+        "lugre_stiffness",
+        "lugre_damping",
+        "waves",
+        "line_impedance",
+        "line_friction",
+        # numerical guards (docs/convergence.md): pressures and gas temperatures stay positive
+        "pressure_floor",
+        "temperature_floor",
+        "stiffness_volume",  # lambda_max * V (m^3/s): see refinement()
+        # reciprocals and products the right-hand side would otherwise divide by per evaluation
+        # (a division takes a divider's latency; a product does not), as inv_spool_mass (1/M_s)
+        # and inv_moving_mass (1/(M_p + M_L)) above: 1/k, 1/R_h, R T tau / 2, Re per kg/s,
+        # mu / D^2
+        "inv_k",
+        "inv_hole_radius",
+        "half_rt_delay",
+        "reynolds_per_flow",
+        "viscous_scale",
+    ),
+)
 
 
 PRESSURE_FLOOR_FRACTION = 1e-3  # of ambient: a guard that keeps log/pow arguments positive
@@ -72,11 +136,9 @@ def env_constants(params, env, substep_s):
     tube_length = p[L.P_TUBE_LENGTH_M]
     tube_diameter = p[L.P_TUBE_INNER_DIAMETER_M]
     delay_s = tube_delay_s(tube_length, k, gas, temperature)
-    area_cap, area_rod, rod_area = piston_areas_m2(p[L.P_BORE_DIAMETER_M],
-                                                   p[L.P_ROD_DIAMETER_M])
+    area_cap, area_rod, rod_area = piston_areas_m2(p[L.P_BORE_DIAMETER_M], p[L.P_ROD_DIAMETER_M])
     tube_fraction = p[L.P_TUBE_VOLUME_FRACTION]
-    coil_tau, force_tau = coil_time_constants(p[L.P_COIL_TIME_CONSTANT_S],
-                                              p[L.P_COIL_LAG_SHAPE])
+    coil_tau, force_tau = coil_time_constants(p[L.P_COIL_TIME_CONSTANT_S], p[L.P_COIL_LAG_SHAPE])
     heat_conductance = p[L.P_WALL_HEAT_TRANSFER_W_PER_K]
     stribeck_v = p[L.P_STRIBECK_VELOCITY_M_PER_S]
     literal_flag = 1.0 if p[L.P_TUBE_COUPLING] == 1.0 else 0.0
@@ -128,10 +190,12 @@ def env_constants(params, env, substep_s):
         area_rod=area_rod,
         rod_area=rod_area,
         half_stroke=0.5 * p[L.P_STROKE_M],
-        dead_cap=dead_volume_with_tube(p[L.P_DEAD_VOLUME_CAP_M3], tube_fraction, tube_diameter,
-                                       tube_length),
-        dead_rod=dead_volume_with_tube(p[L.P_DEAD_VOLUME_ROD_M3], tube_fraction, tube_diameter,
-                                       tube_length),
+        dead_cap=dead_volume_with_tube(
+            p[L.P_DEAD_VOLUME_CAP_M3], tube_fraction, tube_diameter, tube_length
+        ),
+        dead_rod=dead_volume_with_tube(
+            p[L.P_DEAD_VOLUME_ROD_M3], tube_fraction, tube_diameter, tube_length
+        ),
         inv_moving_mass=1.0 / (p[L.P_PISTON_MASS_KG] + p[L.P_LOAD_MASS_KG]),
         dynamic_friction=p[L.P_DYNAMIC_FRICTION_N],
         stick_threshold=stick_threshold,
@@ -161,8 +225,7 @@ def env_constants(params, env, substep_s):
         static_friction=p[L.P_STATIC_FRICTION_N],
         stribeck=stribeck_flag,
         stribeck_v=stribeck_v,
-        spool_play_band=spool_play_band(p[L.P_SPOOL_COULOMB_FRICTION_N],
-                                        p[L.P_COIL_FORCE_N_PER_A]),
+        spool_play_band=spool_play_band(p[L.P_SPOOL_COULOMB_FRICTION_N], p[L.P_COIL_FORCE_N_PER_A]),
         lugre=lugre_flag,
         lugre_stiffness=p[L.P_LUGRE_STIFFNESS_N_PER_M],
         lugre_damping=p[L.P_LUGRE_DAMPING_N_S_PER_M],
@@ -172,13 +235,21 @@ def env_constants(params, env, substep_s):
         pressure_floor=PRESSURE_FLOOR_FRACTION * p[L.P_AMBIENT_PRESSURE_PA],
         temperature_floor=TEMPERATURE_FLOOR_FRACTION * temperature,
         stiffness_volume=(
-            gas * temperature * max(p[L.P_ALPHA_IN], k)
-            * p[L.P_DISCHARGE_COEFFICIENT] * max(1.0, p[L.P_EXHAUST_DISCHARGE_RATIO])
-            * (p[L.P_HOLES_PER_PATH] * math.pi * p[L.P_HOLE_RADIUS_M] ** 2
-               + p[L.P_VALVE_NULL_LEAK_AREA_M2] + p[L.P_LEAKAGE_AREA_M2]
-               + p[L.P_ROD_SEAL_LEAK_AREA_M2])
-            * (linear_slope + c1) / math.sqrt(temperature)
-            + waves_flag * gas * temperature * max(p[L.P_ALPHA_IN], k) / line_impedance),
+            gas
+            * temperature
+            * max(p[L.P_ALPHA_IN], k)
+            * p[L.P_DISCHARGE_COEFFICIENT]
+            * max(1.0, p[L.P_EXHAUST_DISCHARGE_RATIO])
+            * (
+                p[L.P_HOLES_PER_PATH] * math.pi * p[L.P_HOLE_RADIUS_M] ** 2
+                + p[L.P_VALVE_NULL_LEAK_AREA_M2]
+                + p[L.P_LEAKAGE_AREA_M2]
+                + p[L.P_ROD_SEAL_LEAK_AREA_M2]
+            )
+            * (linear_slope + c1)
+            / math.sqrt(temperature)
+            + waves_flag * gas * temperature * max(p[L.P_ALPHA_IN], k) / line_impedance
+        ),
         inv_k=1.0 / k,
         inv_hole_radius=1.0 / p[L.P_HOLE_RADIUS_M],
         half_rt_delay=0.5 * gas * temperature * delay_s,
@@ -197,12 +268,23 @@ def base_model_only(c):
     the tube volume, the spool friction, whose play acts before the substeps); the others
     send the environment to the general path.
     """
-    return (c.energy == 0.0 and c.supply_resistance == 0.0 and c.exhaust_vent == 0.0
-            and c.literal == 0.0 and c.leak_area == 0.0 and c.seal_leak == 0.0
-            and c.null_leak == 0.0 and c.coil_lag == 0.0 and c.coil_force_lag == 0.0
-            and c.stribeck == 0.0 and c.lugre == 0.0
-            and c.flow_law == FLOW_LAW_PAPER and c.waves == 0.0
-            and c.half_width >= c.hole_radius and c.delay_substeps >= 1.0)
+    return (
+        c.energy == 0.0
+        and c.supply_resistance == 0.0
+        and c.exhaust_vent == 0.0
+        and c.literal == 0.0
+        and c.leak_area == 0.0
+        and c.seal_leak == 0.0
+        and c.null_leak == 0.0
+        and c.coil_lag == 0.0
+        and c.coil_force_lag == 0.0
+        and c.stribeck == 0.0
+        and c.lugre == 0.0
+        and c.flow_law == FLOW_LAW_PAPER
+        and c.waves == 0.0
+        and c.half_width >= c.hole_radius
+        and c.delay_substeps >= 1.0
+    )
 
 
 N_CONSTANTS = len(Constants._fields)
@@ -222,32 +304,84 @@ def load_constants(constants, lane):
     # one argument per field, in order: a new Constants field makes this fail to compile
     k = CHUNK_ENVS
     return Constants(
-        constants[0 * k + lane], constants[1 * k + lane], constants[2 * k + lane],
-        constants[3 * k + lane], constants[4 * k + lane], constants[5 * k + lane],
-        constants[6 * k + lane], constants[7 * k + lane], constants[8 * k + lane],
-        constants[9 * k + lane], constants[10 * k + lane], constants[11 * k + lane],
-        constants[12 * k + lane], constants[13 * k + lane], constants[14 * k + lane],
-        constants[15 * k + lane], constants[16 * k + lane], constants[17 * k + lane],
-        constants[18 * k + lane], constants[19 * k + lane], constants[20 * k + lane],
-        constants[21 * k + lane], constants[22 * k + lane], constants[23 * k + lane],
-        constants[24 * k + lane], constants[25 * k + lane], constants[26 * k + lane],
-        constants[27 * k + lane], constants[28 * k + lane], constants[29 * k + lane],
-        constants[30 * k + lane], constants[31 * k + lane], constants[32 * k + lane],
-        constants[33 * k + lane], constants[34 * k + lane], constants[35 * k + lane],
-        constants[36 * k + lane], constants[37 * k + lane], constants[38 * k + lane],
-        constants[39 * k + lane], constants[40 * k + lane], constants[41 * k + lane],
-        constants[42 * k + lane], constants[43 * k + lane], constants[44 * k + lane],
-        constants[45 * k + lane], constants[46 * k + lane], constants[47 * k + lane],
-        constants[48 * k + lane], constants[49 * k + lane], constants[50 * k + lane],
-        constants[51 * k + lane], constants[52 * k + lane], constants[53 * k + lane],
-        constants[54 * k + lane], constants[55 * k + lane], constants[56 * k + lane],
-        constants[57 * k + lane], constants[58 * k + lane], constants[59 * k + lane],
-        constants[60 * k + lane], constants[61 * k + lane], constants[62 * k + lane],
-        constants[63 * k + lane], constants[64 * k + lane], constants[65 * k + lane],
-        constants[66 * k + lane], constants[67 * k + lane], constants[68 * k + lane],
-        constants[69 * k + lane], constants[70 * k + lane], constants[71 * k + lane],
-        constants[72 * k + lane], constants[73 * k + lane], constants[74 * k + lane],
-        constants[75 * k + lane], constants[76 * k + lane])
+        constants[0 * k + lane],
+        constants[1 * k + lane],
+        constants[2 * k + lane],
+        constants[3 * k + lane],
+        constants[4 * k + lane],
+        constants[5 * k + lane],
+        constants[6 * k + lane],
+        constants[7 * k + lane],
+        constants[8 * k + lane],
+        constants[9 * k + lane],
+        constants[10 * k + lane],
+        constants[11 * k + lane],
+        constants[12 * k + lane],
+        constants[13 * k + lane],
+        constants[14 * k + lane],
+        constants[15 * k + lane],
+        constants[16 * k + lane],
+        constants[17 * k + lane],
+        constants[18 * k + lane],
+        constants[19 * k + lane],
+        constants[20 * k + lane],
+        constants[21 * k + lane],
+        constants[22 * k + lane],
+        constants[23 * k + lane],
+        constants[24 * k + lane],
+        constants[25 * k + lane],
+        constants[26 * k + lane],
+        constants[27 * k + lane],
+        constants[28 * k + lane],
+        constants[29 * k + lane],
+        constants[30 * k + lane],
+        constants[31 * k + lane],
+        constants[32 * k + lane],
+        constants[33 * k + lane],
+        constants[34 * k + lane],
+        constants[35 * k + lane],
+        constants[36 * k + lane],
+        constants[37 * k + lane],
+        constants[38 * k + lane],
+        constants[39 * k + lane],
+        constants[40 * k + lane],
+        constants[41 * k + lane],
+        constants[42 * k + lane],
+        constants[43 * k + lane],
+        constants[44 * k + lane],
+        constants[45 * k + lane],
+        constants[46 * k + lane],
+        constants[47 * k + lane],
+        constants[48 * k + lane],
+        constants[49 * k + lane],
+        constants[50 * k + lane],
+        constants[51 * k + lane],
+        constants[52 * k + lane],
+        constants[53 * k + lane],
+        constants[54 * k + lane],
+        constants[55 * k + lane],
+        constants[56 * k + lane],
+        constants[57 * k + lane],
+        constants[58 * k + lane],
+        constants[59 * k + lane],
+        constants[60 * k + lane],
+        constants[61 * k + lane],
+        constants[62 * k + lane],
+        constants[63 * k + lane],
+        constants[64 * k + lane],
+        constants[65 * k + lane],
+        constants[66 * k + lane],
+        constants[67 * k + lane],
+        constants[68 * k + lane],
+        constants[69 * k + lane],
+        constants[70 * k + lane],
+        constants[71 * k + lane],
+        constants[72 * k + lane],
+        constants[73 * k + lane],
+        constants[74 * k + lane],
+        constants[75 * k + lane],
+        constants[76 * k + lane],
+    )
 
 
 # The batch path caches the per-environment constants (``env_constants``) between control

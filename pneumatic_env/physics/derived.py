@@ -8,6 +8,7 @@ bits. Keep each formula's arithmetic as it is: the order of a float formula deci
 last bits (``0.25 * pi * d * d`` and ``0.25 * pi * d ** 2`` differ for about a third of the
 diameters), and the tests compare outputs bit for bit.
 """
+
 import math
 
 from numba import njit
@@ -22,8 +23,15 @@ from .flow import (
 from .tube import sound_speed
 from .valve import steady_spool_position
 
-__all__ = ["circle_area_m2", "piston_areas_m2", "force_scale_n", "valve_currents_a",
-           "linear_flow_slope", "orifice_gas_constants", "tube_delay_s"]
+__all__ = [
+    "circle_area_m2",
+    "piston_areas_m2",
+    "force_scale_n",
+    "valve_currents_a",
+    "linear_flow_slope",
+    "orifice_gas_constants",
+    "tube_delay_s",
+]
 
 
 @njit(cache=True)
@@ -52,8 +60,7 @@ def force_scale_n(supply_pressure_pa, ambient_pressure_pa, bore_diameter_m, rod_
 
 
 @njit(cache=True)
-def valve_currents_a(spool_half_width_m, hole_radius_m, spool_spring_n_per_m,
-                     coil_force_n_per_a):
+def valve_currents_a(spool_half_width_m, hole_radius_m, spool_spring_n_per_m, coil_force_n_per_a):
     """(dead-band current, full-opening current) in A (Eqs. 43, 44, 46).
 
     The supply path opens when x_s > p_w - R_h and is fully open at x_s = p_w + R_h; Eq. 46
@@ -67,31 +74,38 @@ def valve_currents_a(spool_half_width_m, hole_radius_m, spool_spring_n_per_m,
 
 
 @njit(cache=True)
-def linear_flow_slope(linear_ratio, heat_capacity_ratio, c1, c2, critical_ratio,
-                      flow_law=FLOW_LAW_PAPER):
+def linear_flow_slope(
+    linear_ratio, heat_capacity_ratio, c1, c2, critical_ratio, flow_law=FLOW_LAW_PAPER
+):
     """Slope m_r(r_lin) / (1 - r_lin) of the reduced flow's linearisation above
     ``linear_ratio`` (``flow.reduced_flow``): Eq. 52's subsonic branch, or ISO 6358's with
     its critical ratio b as ``critical_ratio`` (``flow_law = FLOW_LAW_ISO``)."""
     if flow_law == FLOW_LAW_ISO:
-        return (iso_subsonic_reduced_flow(linear_ratio, c1, critical_ratio)
-                / (1.0 - linear_ratio))
+        return iso_subsonic_reduced_flow(linear_ratio, c1, critical_ratio) / (1.0 - linear_ratio)
     return subsonic_reduced_flow(linear_ratio, heat_capacity_ratio, c2) / (1.0 - linear_ratio)
 
 
 @njit(cache=True)
-def orifice_gas_constants(heat_capacity_ratio, gas_constant_j_per_kg_k, temperature_k,
-                          flow_linear_ratio):
+def orifice_gas_constants(
+    heat_capacity_ratio, gas_constant_j_per_kg_k, temperature_k, flow_linear_ratio
+):
     """The gas's arguments of ``flow.orifice_mass_flow`` after the pressures, for the
     paper's flow law (Eqs. 39, 40, 52): (1/sqrt(T), k, C1, C2, P_cr, the linear ratio, its
     slope ``linear_flow_slope``)."""
     c1, c2, critical_ratio = flow_constants(heat_capacity_ratio, gas_constant_j_per_kg_k)
     slope = linear_flow_slope(flow_linear_ratio, heat_capacity_ratio, c1, c2, critical_ratio)
-    return (1.0 / math.sqrt(temperature_k), heat_capacity_ratio, c1, c2, critical_ratio,
-            flow_linear_ratio, slope)
+    return (
+        1.0 / math.sqrt(temperature_k),
+        heat_capacity_ratio,
+        c1,
+        c2,
+        critical_ratio,
+        flow_linear_ratio,
+        slope,
+    )
 
 
 @njit(cache=True)
 def tube_delay_s(tube_length_m, heat_capacity_ratio, gas_constant_j_per_kg_k, temperature_k):
     """Tube delay tau = L_t / c (s) of Eq. 31, c = sqrt(k R T) the speed of sound."""
-    return tube_length_m / sound_speed(heat_capacity_ratio, gas_constant_j_per_kg_k,
-                                       temperature_k)
+    return tube_length_m / sound_speed(heat_capacity_ratio, gas_constant_j_per_kg_k, temperature_k)

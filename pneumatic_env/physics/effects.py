@@ -4,6 +4,7 @@ The kernel decides once per control period (``constants.env_constants``) which e
 on; the functions here are called only for those, or reduce exactly to the paper's
 quantity at the neutral value. The ISO 6358 flow law is in ``flow.py``.
 """
+
 import math
 
 from numba import njit
@@ -12,8 +13,9 @@ from .derived import circle_area_m2
 
 
 @njit(cache=True)
-def dead_volume_with_tube(dead_volume_m3, tube_volume_fraction, tube_inner_diameter_m,
-                          tube_length_m):
+def dead_volume_with_tube(
+    dead_volume_m3, tube_volume_fraction, tube_inner_diameter_m, tube_length_m
+):
     """Eq. 15's dead volume V0i plus a fraction f of the tube's air, f pi D^2/4 L_t.
 
     The paper leaves the tube's own air out of the chamber volume (docs/model.md); f = 0
@@ -24,8 +26,9 @@ def dead_volume_with_tube(dead_volume_m3, tube_volume_fraction, tube_inner_diame
 
 
 @njit(cache=True)
-def drooped_supply_pressure(supply_pressure_pa, supply_flow_kg_per_s,
-                            supply_resistance_pa_s_per_kg):
+def drooped_supply_pressure(
+    supply_pressure_pa, supply_flow_kg_per_s, supply_resistance_pa_s_per_kg
+):
     """First estimate of the supply pressure at the valve, P_s' = P_s - R_sup mdot_s(P_s').
 
     ``supply_flow_kg_per_s`` is the valve's total supply flow evaluated at P_s. With the
@@ -34,7 +37,8 @@ def drooped_supply_pressure(supply_pressure_pa, supply_flow_kg_per_s,
     (``kernel.supply_pressure_at_valve``). Returns P_s exactly when R_sup = 0.
     """
     return supply_pressure_pa / (
-        1.0 + supply_resistance_pa_s_per_kg * max(supply_flow_kg_per_s, 0.0) / supply_pressure_pa)
+        1.0 + supply_resistance_pa_s_per_kg * max(supply_flow_kg_per_s, 0.0) / supply_pressure_pa
+    )
 
 
 @njit(cache=True)
@@ -86,8 +90,9 @@ def coil_force_gain(coil_decay_now, elapsed_over_force_tau, elapsed_rate_differe
 
 
 @njit(cache=True)
-def lagged_coil_force_current(command_a, coil_at_start_a, force_at_start_a, force_decay,
-                              force_gain):
+def lagged_coil_force_current(
+    command_a, coil_at_start_a, force_at_start_a, force_decay, force_gain
+):
     """Force current j of tau_f dj/dt = i - j, driven by the lagged coil current i of
     ``lagged_coil_current`` with the command held (exact solution of the two cascaded lags).
 
@@ -95,15 +100,27 @@ def lagged_coil_force_current(command_a, coil_at_start_a, force_at_start_a, forc
     (Eq. 38) feels the coil force K_f j (eddy currents in the armature and pole pieces make
     the force lag the current).
     """
-    return (command_a + (force_at_start_a - command_a) * force_decay
-            + (coil_at_start_a - command_a) * force_gain)
+    return (
+        command_a
+        + (force_at_start_a - command_a) * force_decay
+        + (coil_at_start_a - command_a) * force_gain
+    )
 
 
 @njit(cache=True)
-def chamber_energy_rates(pressure_pa, temperature_k, volume_m3, volume_rate_m3_per_s,
-                         mass_in_kg_per_s, mass_out_kg_per_s, enthalpy_in_kg_k_per_s,
-                         gas_constant, heat_capacity_ratio, heat_conductance_w_per_k,
-                         wall_temperature_k):
+def chamber_energy_rates(
+    pressure_pa,
+    temperature_k,
+    volume_m3,
+    volume_rate_m3_per_s,
+    mass_in_kg_per_s,
+    mass_out_kg_per_s,
+    enthalpy_in_kg_k_per_s,
+    gas_constant,
+    heat_capacity_ratio,
+    heat_conductance_w_per_k,
+    wall_temperature_k,
+):
     """dP/dt and dT/dt of a chamber from the energy equation (Eqs. 5-8), replacing Eq. 14.
 
     dP/dt = (k-1)/V q + k R/V (sum mdot_in T_in - mdot_out T) - k P Vdot/V with the wall
@@ -113,18 +130,23 @@ def chamber_energy_rates(pressure_pa, temperature_k, volume_m3, volume_rate_m3_p
     """
     k = heat_capacity_ratio
     heat_w = heat_conductance_w_per_k * (wall_temperature_k - temperature_k)
-    dp = ((k - 1.0) * heat_w
-          + k * gas_constant * (enthalpy_in_kg_k_per_s - mass_out_kg_per_s * temperature_k)
-          - k * pressure_pa * volume_rate_m3_per_s) / volume_m3
-    dt = (temperature_k * (dp / pressure_pa + volume_rate_m3_per_s / volume_m3)
-          - gas_constant * temperature_k * temperature_k * (mass_in_kg_per_s - mass_out_kg_per_s)
-          / (pressure_pa * volume_m3))
+    dp = (
+        (k - 1.0) * heat_w
+        + k * gas_constant * (enthalpy_in_kg_k_per_s - mass_out_kg_per_s * temperature_k)
+        - k * pressure_pa * volume_rate_m3_per_s
+    ) / volume_m3
+    dt = temperature_k * (
+        dp / pressure_pa + volume_rate_m3_per_s / volume_m3
+    ) - gas_constant * temperature_k * temperature_k * (mass_in_kg_per_s - mass_out_kg_per_s) / (
+        pressure_pa * volume_m3
+    )
     return dp, dt
 
 
 @njit(cache=True)
-def stribeck_friction(velocity_m_per_s, dynamic_friction_n, static_friction_n,
-                      stribeck_velocity_m_per_s):
+def stribeck_friction(
+    velocity_m_per_s, dynamic_friction_n, static_friction_n, stribeck_velocity_m_per_s
+):
     """Sliding friction magnitude F_df + (F_sf - F_df) exp(-(v/v_s)^2) (Stribeck; Eq. 47's F_df).
 
     The kernel applies it with the sign of the motion; it falls from F_sf at breakaway
@@ -138,8 +160,9 @@ LUGRE_SERIES_BELOW = 1e-4  # rate * h below which lugre_bristle_step uses its se
 
 
 @njit(cache=True)
-def lugre_bristle_step(bristle_m, velocity_m_per_s, h_s, stiffness_n_per_m, damping_n_s_per_m,
-                       sliding_friction_n):
+def lugre_bristle_step(
+    bristle_m, velocity_m_per_s, h_s, stiffness_n_per_m, damping_n_s_per_m, sliding_friction_n
+):
     """LuGre friction (Canudas de Wit et al. 1995) over ``h_s`` at a velocity held over it.
 
     The mean bristle deflection z obeys dz/dt = v - r z, r = sigma0 |v| / g with g the

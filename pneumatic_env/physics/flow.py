@@ -1,4 +1,5 @@
 """Compressible flow through an orifice (paper Eqs. 39, 40, 52)."""
+
 import math
 
 from numba import njit
@@ -44,8 +45,16 @@ def iso_subsonic_reduced_flow(pressure_ratio, c1, critical_ratio_b):
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def reduced_flow(pressure_ratio, heat_capacity_ratio, c1, c2, critical_ratio,
-                 linear_ratio, linear_slope, flow_law=FLOW_LAW_PAPER):
+def reduced_flow(
+    pressure_ratio,
+    heat_capacity_ratio,
+    c1,
+    c2,
+    critical_ratio,
+    linear_ratio,
+    linear_slope,
+    flow_law=FLOW_LAW_PAPER,
+):
     """Reduced flow m_r(P_d/P_u) of Eq. 52, linearised above ``linear_ratio``.
 
     Eq. 52 has an infinite slope at r -> 1, which a fixed-step integrator cannot follow;
@@ -57,13 +66,29 @@ def reduced_flow(pressure_ratio, heat_capacity_ratio, c1, c2, critical_ratio,
     With ``flow_law = FLOW_LAW_ISO`` the subsonic branch is ISO 6358's ellipse and
     ``critical_ratio`` is its b (docs/effects.md); the linearisation is the same.
     """
-    return reduced_flow_inv_k(pressure_ratio, 1.0 / heat_capacity_ratio, c1, c2, critical_ratio,
-                              linear_ratio, linear_slope, flow_law)
+    return reduced_flow_inv_k(
+        pressure_ratio,
+        1.0 / heat_capacity_ratio,
+        c1,
+        c2,
+        critical_ratio,
+        linear_ratio,
+        linear_slope,
+        flow_law,
+    )
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def reduced_flow_inv_k(pressure_ratio, inverse_heat_capacity_ratio, c1, c2, critical_ratio,
-                       linear_ratio, linear_slope, flow_law=FLOW_LAW_PAPER):
+def reduced_flow_inv_k(
+    pressure_ratio,
+    inverse_heat_capacity_ratio,
+    c1,
+    c2,
+    critical_ratio,
+    linear_ratio,
+    linear_slope,
+    flow_law=FLOW_LAW_PAPER,
+):
     """``reduced_flow`` given 1/k (``subsonic_reduced_flow_inv_k``)."""
     iso = iso_subsonic_reduced_flow(pressure_ratio, c1, critical_ratio)
     paper = subsonic_reduced_flow_inv_k(pressure_ratio, inverse_heat_capacity_ratio, c2)
@@ -73,9 +98,20 @@ def reduced_flow_inv_k(pressure_ratio, inverse_heat_capacity_ratio, c1, c2, crit
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def orifice_mass_flow(area_m2, discharge_coefficient, p_from_pa, p_to_pa, inv_sqrt_temperature,
-                      heat_capacity_ratio, c1, c2, critical_ratio, linear_ratio, linear_slope,
-                      flow_law=FLOW_LAW_PAPER):
+def orifice_mass_flow(
+    area_m2,
+    discharge_coefficient,
+    p_from_pa,
+    p_to_pa,
+    inv_sqrt_temperature,
+    heat_capacity_ratio,
+    c1,
+    c2,
+    critical_ratio,
+    linear_ratio,
+    linear_slope,
+    flow_law=FLOW_LAW_PAPER,
+):
     """Signed mass flow (kg/s) from node ``from`` to node ``to`` through an orifice (Eq. 39).
 
     The flow always runs from the higher to the lower pressure; a negative value means
@@ -83,19 +119,49 @@ def orifice_mass_flow(area_m2, discharge_coefficient, p_from_pa, p_to_pa, inv_sq
     (:func:`reduced_flow`). Equal pressures give m_r(1) = 0 and a closed orifice a zero
     area, so neither needs a branch.
     """
-    return orifice_mass_flow_inv_k(area_m2, discharge_coefficient, p_from_pa, p_to_pa,
-                                   inv_sqrt_temperature, 1.0 / heat_capacity_ratio, c1, c2,
-                                   critical_ratio, linear_ratio, linear_slope, flow_law)
+    return orifice_mass_flow_inv_k(
+        area_m2,
+        discharge_coefficient,
+        p_from_pa,
+        p_to_pa,
+        inv_sqrt_temperature,
+        1.0 / heat_capacity_ratio,
+        c1,
+        c2,
+        critical_ratio,
+        linear_ratio,
+        linear_slope,
+        flow_law,
+    )
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def orifice_mass_flow_inv_k(area_m2, discharge_coefficient, p_from_pa, p_to_pa,
-                            inv_sqrt_temperature, inverse_heat_capacity_ratio, c1, c2,
-                            critical_ratio, linear_ratio, linear_slope, flow_law=FLOW_LAW_PAPER):
+def orifice_mass_flow_inv_k(
+    area_m2,
+    discharge_coefficient,
+    p_from_pa,
+    p_to_pa,
+    inv_sqrt_temperature,
+    inverse_heat_capacity_ratio,
+    c1,
+    c2,
+    critical_ratio,
+    linear_ratio,
+    linear_slope,
+    flow_law=FLOW_LAW_PAPER,
+):
     """``orifice_mass_flow`` given 1/k (``subsonic_reduced_flow_inv_k``)."""
     upstream = max(p_from_pa, p_to_pa)
     downstream = min(p_from_pa, p_to_pa)
     sign = 1.0 if p_from_pa > p_to_pa else -1.0
-    m_r = reduced_flow_inv_k(downstream / upstream, inverse_heat_capacity_ratio, c1, c2,
-                             critical_ratio, linear_ratio, linear_slope, flow_law)
+    m_r = reduced_flow_inv_k(
+        downstream / upstream,
+        inverse_heat_capacity_ratio,
+        c1,
+        c2,
+        critical_ratio,
+        linear_ratio,
+        linear_slope,
+        flow_law,
+    )
     return sign * discharge_coefficient * area_m2 * upstream * inv_sqrt_temperature * m_r

@@ -8,6 +8,7 @@ events (``_advance_interval``): friction and end stops are handled between RK4 s
 (``piston.motion_direction`` / ``piston.end_of_substep``), so each step integrates a smooth
 right-hand side. The delay history is written at the substep boundaries only.
 """
+
 import math
 
 from numba import njit
@@ -40,9 +41,16 @@ from .right_hand_side import (
 
 # advance_env integrates the state rows 0 .. S_T2 with RK4 and sets S_COIL, S_PLAY,
 # S_COIL_FORCE, S_EXHAUST_NODE and S_BRISTLE exactly.
-assert (L.S_T1, L.S_T2, L.S_COIL, L.S_PLAY, L.S_COIL_FORCE, L.S_EXHAUST_NODE, L.S_BRISTLE,
-        L.N_STATE) == (7, 8, 9, 10, 11, 12, 13, 14), \
-    "kernel assumes this state layout"
+assert (
+    L.S_T1,
+    L.S_T2,
+    L.S_COIL,
+    L.S_PLAY,
+    L.S_COIL_FORCE,
+    L.S_EXHAUST_NODE,
+    L.S_BRISTLE,
+    L.N_STATE,
+) == (7, 8, 9, 10, 11, 12, 13, 14), "kernel assumes this state layout"
 
 MAX_EVENTS_PER_SUBSTEP = 4
 MIN_EVENT_FRACTION = 1e-6  # events closer than this to the interval start are applied at once
@@ -77,8 +85,16 @@ def refinement(c, y, h):
     """
     ratio = stiffness_ratio(c, y, h)
     if c.lugre and c.mode != MODE_FIXED:  # the bristles act on the rod once per part
-        ratio = max(ratio, STIFFNESS_LIMIT / LUGRE_COUPLING_LIMIT * h * max(
-            math.sqrt(c.lugre_stiffness * c.inv_moving_mass), c.lugre_damping * c.inv_moving_mass))
+        ratio = max(
+            ratio,
+            STIFFNESS_LIMIT
+            / LUGRE_COUPLING_LIMIT
+            * h
+            * max(
+                math.sqrt(c.lugre_stiffness * c.inv_moving_mass),
+                c.lugre_damping * c.inv_moving_mass,
+            ),
+        )
     parts = 1
     while ratio > STIFFNESS_LIMIT and parts < MAX_REFINEMENT:
         parts *= 2
@@ -87,8 +103,21 @@ def refinement(c, y, h):
 
 
 @njit(cache=True)
-def _advance_interval(c, history, env, head, frac_start, frac_end, h, command_a, coil_start,
-                      y, y0, exhaust_node_pa, lugre_friction_n):
+def _advance_interval(
+    c,
+    history,
+    env,
+    head,
+    frac_start,
+    frac_end,
+    h,
+    command_a,
+    coil_start,
+    y,
+    y0,
+    exhaust_node_pa,
+    lugre_friction_n,
+):
     """Integrate substep fractions [frac_start, frac_end], splitting at piston events.
 
     When the sliding piston's attempted step crosses an end stop or its velocity reverses,
@@ -99,33 +128,77 @@ def _advance_interval(c, history, env, head, frac_start, frac_end, h, command_a,
     for _ in range(MAX_EVENTS_PER_SUBSTEP):
         direction = 0.0
         if c.mode != MODE_FIXED:
-            applied = (pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area,
-                                       c.ambient_pa)
-                       - external_force(c.mode, y[4], c.load_force, c.spring_k, c.spring_rest)
-                       - lugre_friction_n)
+            applied = (
+                pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
+                - external_force(c.mode, y[4], c.load_force, c.spring_k, c.spring_rest)
+                - lugre_friction_n
+            )
             direction = motion_direction(y[4], y[5], applied, c.stick_threshold, c.half_stroke)
         dfrac = frac_end - frac0
-        trial = _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start, y, y0,
-                     direction, exhaust_node_pa, lugre_friction_n)
+        trial = _rk4(
+            c,
+            history,
+            env,
+            head,
+            frac0,
+            dfrac,
+            h,
+            command_a,
+            coil_start,
+            y,
+            y0,
+            direction,
+            exhaust_node_pa,
+            lugre_friction_n,
+        )
         theta = -1.0
         if direction != 0.0:
             theta = event_fraction(y[4], y[5], trial[4], trial[5], direction, c.half_stroke)
         if theta < 0.0:
             return trial
         if theta * dfrac > MIN_EVENT_FRACTION:
-            y = _rk4(c, history, env, head, frac0, theta * dfrac, h, command_a, coil_start,
-                     y, y0, direction, exhaust_node_pa, lugre_friction_n)
+            y = _rk4(
+                c,
+                history,
+                env,
+                head,
+                frac0,
+                theta * dfrac,
+                h,
+                command_a,
+                coil_start,
+                y,
+                y0,
+                direction,
+                exhaust_node_pa,
+                lugre_friction_n,
+            )
             frac0 += theta * dfrac
         x, v = apply_event(y[4], y[5], direction, c.half_stroke)
         y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
     # out of events: the rest of the interval with the piston held
-    return _rk4(c, history, env, head, frac0, frac_end - frac0, h, command_a, coil_start, y,
-                y0, 0.0, exhaust_node_pa, lugre_friction_n)
+    return _rk4(
+        c,
+        history,
+        env,
+        head,
+        frac0,
+        frac_end - frac0,
+        h,
+        command_a,
+        coil_start,
+        y,
+        y0,
+        0.0,
+        exhaust_node_pa,
+        lugre_friction_n,
+    )
 
 
 @njit(cache=True)
-def _split_substep(c, history, env, head_sub, h, command_a, coil_start, y0, parts,
-                   exhaust_node_pa, bristle_m):
+def _split_substep(
+    c, history, env, head_sub, h, command_a, coil_start, y0, parts, exhaust_node_pa, bristle_m
+):
     """One substep from ``y0`` by the general path, in ``parts`` equal parts
     (``refinement``), each split further at piston events (``_advance_interval``).
 
@@ -139,10 +212,28 @@ def _split_substep(c, history, env, head_sub, h, command_a, coil_start, y0, part
         lugre_friction_n = 0.0
         if c.lugre:
             bristle_m, lugre_friction_n = lugre_bristle_step(
-                bristle_m, y[5], h / parts, c.lugre_stiffness, c.lugre_damping,
-                _sliding_friction(c, y[5]))
-        y = _advance_interval(c, history, env, head_sub, part / parts, (part + 1) / parts, h,
-                              command_a, coil_start, y, y0, exhaust_node_pa, lugre_friction_n)
+                bristle_m,
+                y[5],
+                h / parts,
+                c.lugre_stiffness,
+                c.lugre_damping,
+                _sliding_friction(c, y[5]),
+            )
+        y = _advance_interval(
+            c,
+            history,
+            env,
+            head_sub,
+            part / parts,
+            (part + 1) / parts,
+            h,
+            command_a,
+            coil_start,
+            y,
+            y0,
+            exhaust_node_pa,
+            lugre_friction_n,
+        )
     return y, bristle_m
 
 
@@ -162,7 +253,8 @@ def _close_substep(c, history, env, slot, y):
     y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
     if c.waves:  # the waves the line ends send at this boundary
         flow_1, flow_2, _, port_1, q_1, port_2, q_2 = line_flows(
-            c, y[0], _arriving_waves(c, history, env, slot, 0.0), y[2], y[3])
+            c, y[0], _arriving_waves(c, history, env, slot, 0.0), y[2], y[3]
+        )
         history[slot, L.H_WAVE_VALVE_1, env] = _sent_wave(c, port_1, q_1)
         history[slot, L.H_WAVE_VALVE_2, env] = _sent_wave(c, port_2, q_2)
         history[slot, L.H_WAVE_CHAMBER_1, env] = _sent_wave(c, y[2], -flow_1)
@@ -194,15 +286,23 @@ def exhaust_node_after_substep(c, history, env, slot, y, exhaust_node_pa, h):
     any volume, and the quasi-static node as V -> 0."""
     spool_delayed, valve_p1, valve_p2 = _valve_inputs(c, history, env, slot, 0.0, y, y)
     inv_sqrt_t1, inv_sqrt_t2 = _inv_sqrt_temperatures(c, y[7], y[8])
-    return exhaust_pressure_at_valve(c, _scalar_area(c, spool_delayed) + c.null_leak,
-                                     _scalar_area(c, -spool_delayed) + c.null_leak, valve_p1,
-                                     valve_p2, inv_sqrt_t1, inv_sqrt_t2,
-                                     c.exhaust_capacity / h, exhaust_node_pa)
+    return exhaust_pressure_at_valve(
+        c,
+        _scalar_area(c, spool_delayed) + c.null_leak,
+        _scalar_area(c, -spool_delayed) + c.null_leak,
+        valve_p1,
+        valve_p2,
+        inv_sqrt_t1,
+        inv_sqrt_t2,
+        c.exhaust_capacity / h,
+        exhaust_node_pa,
+    )
 
 
 @njit(cache=True)
-def advance_env(params, state, history, env, head, coil_current_a, control_dt_s, n_substeps,
-                outputs):
+def advance_env(
+    params, state, history, env, head, coil_current_a, control_dt_s, n_substeps, outputs
+):
     """Advance environment ``env`` by one control period; write its outputs row.
 
     ``n_substeps`` RK4 substeps, each split into equal parts where ``refinement`` finds the
@@ -213,9 +313,17 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
     c = env_constants(params, env, h)
     coil_current_a = spool_command(c.spool_play_band, state, env, coil_current_a)
     n_slots = history.shape[0]
-    y = (state[L.S_X_S, env], state[L.S_V_S, env], state[L.S_P1, env], state[L.S_P2, env],
-         state[L.S_X, env], state[L.S_V, env], state[L.S_EXHAUST, env], state[L.S_T1, env],
-         state[L.S_T2, env])
+    y = (
+        state[L.S_X_S, env],
+        state[L.S_V_S, env],
+        state[L.S_P1, env],
+        state[L.S_P2, env],
+        state[L.S_X, env],
+        state[L.S_V, env],
+        state[L.S_EXHAUST, env],
+        state[L.S_T1, env],
+        state[L.S_T2, env],
+    )
     coil = (state[L.S_COIL, env], state[L.S_COIL_FORCE, env])
     exhaust_node_pa = state[L.S_EXHAUST_NODE, env]
     bristle_m = state[L.S_BRISTLE, env]
@@ -223,22 +331,40 @@ def advance_env(params, state, history, env, head, coil_current_a, control_dt_s,
         head_sub = ring_slot(head + sub, n_slots)
         coil_now = coil[0] if c.coil_lag else coil_current_a  # the command without a lag
         coil_start = (coil_now, coil[1] if c.coil_force_lag else coil_now)
-        y, bristle_m = _split_substep(c, history, env, head_sub, h, coil_current_a, coil_start,
-                                      y, refinement(c, y, h), exhaust_node_pa, bristle_m)
+        y, bristle_m = _split_substep(
+            c,
+            history,
+            env,
+            head_sub,
+            h,
+            coil_current_a,
+            coil_start,
+            y,
+            refinement(c, y, h),
+            exhaust_node_pa,
+            bristle_m,
+        )
         coil = _coil_at(c, coil_current_a, coil_start, 1.0)
         slot = ring_slot(head_sub + 1, n_slots)
         y = _close_substep(c, history, env, slot, y)
         if c.exhaust_vent > 0.0 and c.exhaust_capacity > 0.0:
-            exhaust_node_pa = exhaust_node_after_substep(c, history, env, slot, y,
-                                                         exhaust_node_pa, h)
+            exhaust_node_pa = exhaust_node_after_substep(
+                c, history, env, slot, y, exhaust_node_pa, h
+            )
     state[L.S_EXHAUST_NODE, env] = exhaust_node_pa
     state[L.S_BRISTLE, env] = bristle_m
     _store_state(c, state, env, y, coil, outputs)
 
 
 # the outputs that are state rows: (outputs row, state row)
-OUTPUT_STATE_ROWS = ((L.O_P1, L.S_P1), (L.O_P2, L.S_P2), (L.O_X, L.S_X), (L.O_V, L.S_V),
-                     (L.O_X_S, L.S_X_S), (L.O_EXHAUST, L.S_EXHAUST))
+OUTPUT_STATE_ROWS = (
+    (L.O_P1, L.S_P1),
+    (L.O_P2, L.S_P2),
+    (L.O_X, L.S_X),
+    (L.O_V, L.S_V),
+    (L.O_X_S, L.S_X_S),
+    (L.O_EXHAUST, L.S_EXHAUST),
+)
 
 
 @njit(cache=True)
@@ -257,8 +383,7 @@ def _store_outputs(c, y, env, outputs):
     """The outputs row of ``env`` from its state rows ``y`` (the force by Eq. 1)."""
     for output_row, row in OUTPUT_STATE_ROWS:
         outputs[output_row, env] = y[row]
-    f_p = pneumatic_force(y[L.S_P1], y[L.S_P2], c.area_cap, c.area_rod, c.rod_area,
-                          c.ambient_pa)
+    f_p = pneumatic_force(y[L.S_P1], y[L.S_P2], c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
     outputs[L.O_F, env] = output_force(c.mode, f_p, y[L.S_X], c.spring_k, c.spring_rest)
 
 

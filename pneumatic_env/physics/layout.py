@@ -82,8 +82,9 @@ PARAMETER_NAMES = (
 )
 
 # The parameters a cylinder file (configs/cylinders/) defines: bore through leakage.
-CYLINDER_PARAMETERS = PARAMETER_NAMES[PARAMETER_NAMES.index("bore_diameter_m"):
-                                      PARAMETER_NAMES.index("leakage_area_m2") + 1]
+CYLINDER_PARAMETERS = PARAMETER_NAMES[
+    PARAMETER_NAMES.index("bore_diameter_m") : PARAMETER_NAMES.index("leakage_area_m2") + 1
+]
 
 # The value that switches each effect beyond the paper off (docs/effects.md).
 EFFECT_NEUTRAL_VALUES = {
@@ -228,14 +229,28 @@ S_BRISTLE = S_BRISTLE_DEFLECTION_M
 # Channels kept in the tube-delay ring buffer, one sample per substep boundary. The wave
 # channels (Pa) are the transmission line's wave variables (tube_waves = 1, docs/effects.md):
 # the wave each tube end sends into the line, which arrives at the other end one delay later.
-HISTORY_NAMES = ("spool_position_m", "p1_pa", "p2_pa", "wave_from_valve_1_pa",
-                 "wave_from_valve_2_pa", "wave_from_chamber_1_pa", "wave_from_chamber_2_pa")
+HISTORY_NAMES = (
+    "spool_position_m",
+    "p1_pa",
+    "p2_pa",
+    "wave_from_valve_1_pa",
+    "wave_from_valve_2_pa",
+    "wave_from_chamber_1_pa",
+    "wave_from_chamber_2_pa",
+)
 H_X_S, H_P1, H_P2, H_WAVE_VALVE_1, H_WAVE_VALVE_2, H_WAVE_CHAMBER_1, H_WAVE_CHAMBER_2 = range(7)
 N_HISTORY = len(HISTORY_NAMES)
 
 # Outputs written once per control step.
-OUTPUT_NAMES = ("p1_pa", "p2_pa", "piston_position_m", "force_n", "piston_velocity_m_per_s",
-                "spool_position_m", "exhaust_mass_kg")
+OUTPUT_NAMES = (
+    "p1_pa",
+    "p2_pa",
+    "piston_position_m",
+    "force_n",
+    "piston_velocity_m_per_s",
+    "spool_position_m",
+    "exhaust_mass_kg",
+)
 O_P1, O_P2, O_X, O_F, O_V, O_X_S, O_EXHAUST = range(7)
 N_OUTPUT = len(OUTPUT_NAMES)
 
@@ -245,17 +260,24 @@ def _check_rows(namespace: dict) -> None:
     ``name`` in PARAMETER_NAMES and ``S_<NAME>`` in STATE_NAMES, one constant per name and
     no other; the H_* and O_* rows count their tables in order."""
     for prefix, names in (("P_", PARAMETER_NAMES), ("S_", STATE_NAMES)):
-        written = {key: value for key, value in namespace.items()
-                   if key.startswith(prefix) and key[len(prefix):] in
-                   {name.upper() for name in names}}
+        written = {
+            key: value
+            for key, value in namespace.items()
+            if key.startswith(prefix) and key[len(prefix) :] in {name.upper() for name in names}
+        }
         expected = {prefix + name.upper(): row for row, name in enumerate(names)}
         if written != expected:
             wrong = sorted(set(expected.items()) ^ set(written.items()))
-            raise AssertionError(f"layout: row constants {wrong} disagree with the table "
-                                 f"of {prefix}* names")
-    for rows, names in (((H_X_S, H_P1, H_P2, H_WAVE_VALVE_1, H_WAVE_VALVE_2, H_WAVE_CHAMBER_1,
-                          H_WAVE_CHAMBER_2), HISTORY_NAMES),
-                        ((O_P1, O_P2, O_X, O_F, O_V, O_X_S, O_EXHAUST), OUTPUT_NAMES)):
+            raise AssertionError(
+                f"layout: row constants {wrong} disagree with the table of {prefix}* names"
+            )
+    for rows, names in (
+        (
+            (H_X_S, H_P1, H_P2, H_WAVE_VALVE_1, H_WAVE_VALVE_2, H_WAVE_CHAMBER_1, H_WAVE_CHAMBER_2),
+            HISTORY_NAMES,
+        ),
+        ((O_P1, O_P2, O_X, O_F, O_V, O_X_S, O_EXHAUST), OUTPUT_NAMES),
+    ):
         if rows != tuple(range(len(names))):
             raise AssertionError(f"layout: rows {rows} do not count {names} in order")
 

@@ -6,6 +6,7 @@ Illinois regula falsi (``_illinois_update``).
 
 Every function takes the environment's ``constants.Constants`` as ``c``.
 """
+
 from numba import njit
 
 from .effects import drooped_supply_pressure
@@ -24,9 +25,20 @@ def _flow(c, discharge, area, p_from, p_to, inv_sqrt_t_from, inv_sqrt_t_to, flow
     if area <= 0.0:
         return 0.0
     inv_sqrt_t = inv_sqrt_t_from if p_from >= p_to else inv_sqrt_t_to
-    return orifice_mass_flow_inv_k(area, discharge, p_from, p_to, inv_sqrt_t, c.inv_k, c.c1,
-                                   c.c2, c.critical_ratio, c.linear_ratio, c.linear_slope,
-                                   flow_law)
+    return orifice_mass_flow_inv_k(
+        area,
+        discharge,
+        p_from,
+        p_to,
+        inv_sqrt_t,
+        c.inv_k,
+        c.c1,
+        c.c2,
+        c.critical_ratio,
+        c.linear_ratio,
+        c.linear_slope,
+        flow_law,
+    )
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
@@ -34,9 +46,14 @@ def _tube(c, mass_flow, chamber_pa):
     """The flow delivered at the chamber end of the tube (Eq. 30); none in, none out."""
     if mass_flow == 0.0:
         return 0.0
-    return mass_flow * tube_attenuation_scaled(mass_flow, chamber_pa, c.half_rt_delay,
-                                               c.reynolds_per_flow, c.viscous_scale,
-                                               c.reynolds_turbulent)
+    return mass_flow * tube_attenuation_scaled(
+        mass_flow,
+        chamber_pa,
+        c.half_rt_delay,
+        c.reynolds_per_flow,
+        c.viscous_scale,
+        c.reynolds_turbulent,
+    )
 
 
 SUPPLY_DROOP_RTOL = 1e-10  # solver accuracy of the supply droop, relative to P_s (not physics)
@@ -59,18 +76,19 @@ def _illinois_update(lo, f_lo, hi, f_hi, x, f, side):
 
 
 @njit(cache=True)
-def _supply_flow(c, supply_pa, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1,
-                 inv_sqrt_t2):
+def _supply_flow(c, supply_pa, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2):
     """Total valve flow out of the supply (both paths, before the tubes), >= 0."""
-    return max(_flow(c, c.discharge, area_a, supply_pa, valve_p1_pa, c.inv_sqrt_t, inv_sqrt_t1,
-                     c.flow_law)
-               + _flow(c, c.discharge, area_b, supply_pa, valve_p2_pa, c.inv_sqrt_t,
-                       inv_sqrt_t2, c.flow_law), 0.0)
+    return max(
+        _flow(c, c.discharge, area_a, supply_pa, valve_p1_pa, c.inv_sqrt_t, inv_sqrt_t1, c.flow_law)
+        + _flow(
+            c, c.discharge, area_b, supply_pa, valve_p2_pa, c.inv_sqrt_t, inv_sqrt_t2, c.flow_law
+        ),
+        0.0,
+    )
 
 
 @njit(cache=True)
-def supply_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1,
-                             inv_sqrt_t2):
+def supply_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2):
     """Supply pressure the valve sees through the supply resistance (effect, docs/effects.md).
 
     The root of f(P) = P - P_s + R_sup mdot_s(P), mdot_s the total supply flow (its
@@ -81,23 +99,34 @@ def supply_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sq
     """
     supply_pa = c.supply_pa
     resistance = c.supply_resistance
-    flow_at_supply = _supply_flow(c, supply_pa, area_a, area_b, valve_p1_pa, valve_p2_pa,
-                                  inv_sqrt_t1, inv_sqrt_t2)
+    flow_at_supply = _supply_flow(
+        c, supply_pa, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2
+    )
     if flow_at_supply <= 0.0:
         return supply_pa
     tolerance = SUPPLY_DROOP_RTOL * supply_pa
     hi = supply_pa
     f_hi = resistance * flow_at_supply
     lo = max(supply_pa - f_hi, min(valve_p1_pa, valve_p2_pa))
-    f_lo = lo - supply_pa + resistance * _supply_flow(c, lo, area_a, area_b, valve_p1_pa,
-                                                      valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2)
+    f_lo = (
+        lo
+        - supply_pa
+        + resistance
+        * _supply_flow(c, lo, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2)
+    )
     if f_lo >= 0.0:
         return lo
     guess = drooped_supply_pressure(supply_pa, flow_at_supply, resistance)
     side = 0
     for _ in range(SUPPLY_DROOP_MAX_ITERATIONS):
-        f_guess = guess - supply_pa + resistance * _supply_flow(
-            c, guess, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2)
+        f_guess = (
+            guess
+            - supply_pa
+            + resistance
+            * _supply_flow(
+                c, guess, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2
+            )
+        )
         if abs(f_guess) <= tolerance:
             return guess
         lo, f_lo, hi, f_hi, side = _illinois_update(lo, f_lo, hi, f_hi, guess, f_guess, side)
@@ -106,23 +135,35 @@ def supply_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sq
 
 
 @njit(cache=True)
-def _exhaust_node_balance(c, exhaust_pa, area_a, area_b, valve_p1_pa, valve_p2_pa,
-                          inv_sqrt_t1, inv_sqrt_t2):
+def _exhaust_node_balance(
+    c, exhaust_pa, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2
+):
     """Valve flow into the exhaust node (chamber 1 through path b, chamber 2 through path
     a, Eq. 39) minus the vent's flow out of it to the atmosphere (Eq. 39 with C_f = 1 on
     the effective vent area), kg/s; it decreases as ``exhaust_pa`` rises."""
-    into_node = (_flow(c, c.discharge_ex, area_b, valve_p1_pa, exhaust_pa, inv_sqrt_t1,
-                       c.inv_sqrt_t, c.flow_law)
-                 + _flow(c, c.discharge_ex, area_a, valve_p2_pa, exhaust_pa, inv_sqrt_t2,
-                         c.inv_sqrt_t, c.flow_law))
-    vented = _flow(c, 1.0, c.exhaust_vent, exhaust_pa, c.ambient_pa, c.inv_sqrt_t,
-                   c.inv_sqrt_t, c.flow_law)
+    into_node = _flow(
+        c, c.discharge_ex, area_b, valve_p1_pa, exhaust_pa, inv_sqrt_t1, c.inv_sqrt_t, c.flow_law
+    ) + _flow(
+        c, c.discharge_ex, area_a, valve_p2_pa, exhaust_pa, inv_sqrt_t2, c.inv_sqrt_t, c.flow_law
+    )
+    vented = _flow(
+        c, 1.0, c.exhaust_vent, exhaust_pa, c.ambient_pa, c.inv_sqrt_t, c.inv_sqrt_t, c.flow_law
+    )
     return into_node - vented
 
 
 @njit(cache=True)
-def exhaust_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1,
-                              inv_sqrt_t2, storage_kg_per_pa, previous_pa):
+def exhaust_pressure_at_valve(
+    c,
+    area_a,
+    area_b,
+    valve_p1_pa,
+    valve_p2_pa,
+    inv_sqrt_t1,
+    inv_sqrt_t2,
+    storage_kg_per_pa,
+    previous_pa,
+):
     """Pressure of the exhaust node behind a vent (exhaust back-pressure, docs/effects.md).
 
     The root of ``_exhaust_node_balance(P) - storage_kg_per_pa (P - previous_pa)``. With no
@@ -143,9 +184,11 @@ def exhaust_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_s
         hi = max(hi, previous_pa)
     # regula falsi on the negative of the falling function, which rises
     lo_f = storage_kg_per_pa * (lo - previous_pa) - _exhaust_node_balance(
-        c, lo, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2)
+        c, lo, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2
+    )
     hi_f = storage_kg_per_pa * (hi - previous_pa) - _exhaust_node_balance(
-        c, hi, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2)
+        c, hi, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2
+    )
     if lo_f >= 0.0:
         return lo
     if hi_f <= 0.0:
@@ -155,7 +198,8 @@ def exhaust_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_s
     side = 0
     for _ in range(SUPPLY_DROOP_MAX_ITERATIONS):
         f_guess = storage_kg_per_pa * (guess - previous_pa) - _exhaust_node_balance(
-            c, guess, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2)
+            c, guess, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2
+        )
         if f_guess == 0.0:
             return guess
         lo, lo_f, hi, hi_f, side = _illinois_update(lo, lo_f, hi, hi_f, guess, f_guess, side)
@@ -171,13 +215,21 @@ def _scalar_area(c, spool_m):
     """``orifice_area`` on the general (scalar) path, returning at once for a closed hole."""
     if spool_m <= c.half_width - c.hole_radius:
         return 0.0
-    return orifice_area_inv_radius(spool_m, c.hole_radius, c.inv_hole_radius, c.half_width,
-                                   c.holes)
+    return orifice_area_inv_radius(spool_m, c.hole_radius, c.inv_hole_radius, c.half_width, c.holes)
 
 
 @njit(cache=True)
-def valve_chamber_flows(c, spool_delayed_m, valve_p1_pa, valve_p2_pa, p1_pa, p2_pa,
-                        inv_sqrt_t1, inv_sqrt_t2, exhaust_node_pa):
+def valve_chamber_flows(
+    c,
+    spool_delayed_m,
+    valve_p1_pa,
+    valve_p2_pa,
+    p1_pa,
+    p2_pa,
+    inv_sqrt_t1,
+    inv_sqrt_t2,
+    exhaust_node_pa,
+):
     """Mass flows into (+) each chamber through its tube: supply and exhaust paths (Eqs. 50-55).
 
     ``spool_delayed_m`` is x_s(t - tau); ``valve_p*`` are the chamber pressures the valve
@@ -195,22 +247,66 @@ def valve_chamber_flows(c, spool_delayed_m, valve_p1_pa, valve_p2_pa, p1_pa, p2_
     area_b = _scalar_area(c, -spool_delayed_m) + c.null_leak
     supply_pa = c.supply_pa
     if c.supply_resistance > 0.0:
-        supply_pa = supply_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa,
-                                             inv_sqrt_t1, inv_sqrt_t2)
+        supply_pa = supply_pressure_at_valve(
+            c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2
+        )
     exhaust_pa = c.ambient_pa
     if c.exhaust_vent > 0.0:
         exhaust_pa = exhaust_node_pa
         if c.exhaust_capacity == 0.0:
-            exhaust_pa = exhaust_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa,
-                                                   inv_sqrt_t1, inv_sqrt_t2, 0.0, c.ambient_pa)
-    supply_1 = _tube(c, _flow(c, c.discharge, area_a, supply_pa, valve_p1_pa, c.inv_sqrt_t,
-                              inv_sqrt_t1, c.flow_law), p1_pa)
-    exhaust_1 = _tube(c, _flow(c, c.discharge_ex, area_b, valve_p1_pa, exhaust_pa, inv_sqrt_t1,
-                               c.inv_sqrt_t, c.flow_law), p1_pa)
-    supply_2 = _tube(c, _flow(c, c.discharge, area_b, supply_pa, valve_p2_pa, c.inv_sqrt_t,
-                              inv_sqrt_t2, c.flow_law), p2_pa)
-    exhaust_2 = _tube(c, _flow(c, c.discharge_ex, area_a, valve_p2_pa, exhaust_pa, inv_sqrt_t2,
-                               c.inv_sqrt_t, c.flow_law), p2_pa)
+            exhaust_pa = exhaust_pressure_at_valve(
+                c,
+                area_a,
+                area_b,
+                valve_p1_pa,
+                valve_p2_pa,
+                inv_sqrt_t1,
+                inv_sqrt_t2,
+                0.0,
+                c.ambient_pa,
+            )
+    supply_1 = _tube(
+        c,
+        _flow(
+            c, c.discharge, area_a, supply_pa, valve_p1_pa, c.inv_sqrt_t, inv_sqrt_t1, c.flow_law
+        ),
+        p1_pa,
+    )
+    exhaust_1 = _tube(
+        c,
+        _flow(
+            c,
+            c.discharge_ex,
+            area_b,
+            valve_p1_pa,
+            exhaust_pa,
+            inv_sqrt_t1,
+            c.inv_sqrt_t,
+            c.flow_law,
+        ),
+        p1_pa,
+    )
+    supply_2 = _tube(
+        c,
+        _flow(
+            c, c.discharge, area_b, supply_pa, valve_p2_pa, c.inv_sqrt_t, inv_sqrt_t2, c.flow_law
+        ),
+        p2_pa,
+    )
+    exhaust_2 = _tube(
+        c,
+        _flow(
+            c,
+            c.discharge_ex,
+            area_a,
+            valve_p2_pa,
+            exhaust_pa,
+            inv_sqrt_t2,
+            c.inv_sqrt_t,
+            c.flow_law,
+        ),
+        p2_pa,
+    )
     return supply_1, exhaust_1, supply_2, exhaust_2
 
 
@@ -221,10 +317,19 @@ LINE_PRESSURE_RTOL = 1e-10  # solver accuracy of the line's valve-end pressure, 
 def _port_flow_into_line(c, supply_area, exhaust_area, port_pa):
     """Net valve flow into a line at valve-end pressure ``port_pa``, and its exhaust part
     (port -> atmosphere, Eq. 39; the line's air at ``temperature_k``)."""
-    supply = _flow(c, c.discharge, supply_area, c.supply_pa, port_pa, c.inv_sqrt_t, c.inv_sqrt_t,
-                   c.flow_law)
-    exhaust = _flow(c, c.discharge_ex, exhaust_area, port_pa, c.ambient_pa, c.inv_sqrt_t,
-                    c.inv_sqrt_t, c.flow_law)
+    supply = _flow(
+        c, c.discharge, supply_area, c.supply_pa, port_pa, c.inv_sqrt_t, c.inv_sqrt_t, c.flow_law
+    )
+    exhaust = _flow(
+        c,
+        c.discharge_ex,
+        exhaust_area,
+        port_pa,
+        c.ambient_pa,
+        c.inv_sqrt_t,
+        c.inv_sqrt_t,
+        c.flow_law,
+    )
     return supply - exhaust, exhaust
 
 
@@ -232,8 +337,9 @@ def _port_flow_into_line(c, supply_area, exhaust_area, port_pa):
 def _line_valve_end_residual(c, supply_area, exhaust_area, wave_in_pa, port_pa):
     """f(P) = P - W_in - (Z_c + R(q, P)/2) q(P) at a valve-end pressure, and q, the exhaust flow."""
     q, exhaust = _port_flow_into_line(c, supply_area, exhaust_area, port_pa)
-    resistance = line_resistance(q, port_pa, c.line_friction, c.tube_diameter, c.viscosity,
-                                 c.reynolds_turbulent)
+    resistance = line_resistance(
+        q, port_pa, c.line_friction, c.tube_diameter, c.viscosity, c.reynolds_turbulent
+    )
     return port_pa - wave_in_pa - (c.line_impedance + 0.5 * resistance) * q, q, exhaust
 
 
@@ -290,16 +396,40 @@ def line_flows(c, spool_m, arriving, p1_pa, p2_pa):
     area_b = _scalar_area(c, -spool_m) + c.null_leak
     port_1, q_1, exhaust_1 = _line_valve_end(c, area_a, area_b, arriving[0])
     port_2, q_2, exhaust_2 = _line_valve_end(c, area_b, area_a, arriving[1])
-    flow_1 = line_chamber_flow(arriving[2], p1_pa, c.line_impedance, c.line_friction,
-                               c.tube_diameter, c.viscosity, c.reynolds_turbulent)
-    flow_2 = line_chamber_flow(arriving[3], p2_pa, c.line_impedance, c.line_friction,
-                               c.tube_diameter, c.viscosity, c.reynolds_turbulent)
+    flow_1 = line_chamber_flow(
+        arriving[2],
+        p1_pa,
+        c.line_impedance,
+        c.line_friction,
+        c.tube_diameter,
+        c.viscosity,
+        c.reynolds_turbulent,
+    )
+    flow_2 = line_chamber_flow(
+        arriving[3],
+        p2_pa,
+        c.line_impedance,
+        c.line_friction,
+        c.tube_diameter,
+        c.viscosity,
+        c.reynolds_turbulent,
+    )
     return flow_1, flow_2, exhaust_1 + exhaust_2, port_1, q_1, port_2, q_2
 
 
 @njit(cache=True)
 def _sent_wave(c, pressure_pa, mass_flow_into_line):
     """The wave a line end sends (``tube.line_end_wave``) with the line's friction there."""
-    return line_end_wave(pressure_pa, mass_flow_into_line, c.line_impedance, line_resistance(
-        mass_flow_into_line, pressure_pa, c.line_friction, c.tube_diameter, c.viscosity,
-        c.reynolds_turbulent))
+    return line_end_wave(
+        pressure_pa,
+        mass_flow_into_line,
+        c.line_impedance,
+        line_resistance(
+            mass_flow_into_line,
+            pressure_pa,
+            c.line_friction,
+            c.tube_diameter,
+            c.viscosity,
+            c.reynolds_turbulent,
+        ),
+    )

@@ -1,4 +1,5 @@
 """Piston and load (Eq. 1) with Karnopp stick-slip friction (Eq. 47 corrected) and end stops."""
+
 from numba import njit
 
 MODE_FIXED = 0
@@ -13,18 +14,21 @@ def pneumatic_force(p1_pa, p2_pa, area_cap_m2, area_rod_m2, rod_area_m2, ambient
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def external_force(mode, piston_position_m, load_force_n, spring_stiffness_n_per_m,
-                   spring_rest_position_m):
+def external_force(
+    mode, piston_position_m, load_force_n, spring_stiffness_n_per_m, spring_rest_position_m
+):
     """F_L of Eq. 1 (positive resists extension): a constant force, plus the spring's push."""
     if mode == MODE_SPRING:
-        return load_force_n + spring_stiffness_n_per_m * (piston_position_m
-                                                          - spring_rest_position_m)
+        return load_force_n + spring_stiffness_n_per_m * (
+            piston_position_m - spring_rest_position_m
+        )
     return load_force_n
 
 
 @njit(cache=True)
-def output_force(mode, pneumatic_force_n, piston_position_m, spring_stiffness_n_per_m,
-                 spring_rest_position_m):
+def output_force(
+    mode, pneumatic_force_n, piston_position_m, spring_stiffness_n_per_m, spring_rest_position_m
+):
     """The force channel: the load cell (fixed rod), the spring force (spring), else F_p."""
     if mode == MODE_SPRING:
         return spring_stiffness_n_per_m * (piston_position_m - spring_rest_position_m)
@@ -32,8 +36,9 @@ def output_force(mode, pneumatic_force_n, piston_position_m, spring_stiffness_n_
 
 
 @njit(cache=True)
-def motion_direction(piston_position_m, piston_velocity_m_per_s, applied_force_n,
-                     stick_threshold_n, half_stroke_m):
+def motion_direction(
+    piston_position_m, piston_velocity_m_per_s, applied_force_n, stick_threshold_n, half_stroke_m
+):
     """Direction of motion over the next substep: -1, +1, or 0 when the piston is held.
 
     A moving piston keeps its direction. A piston at rest (velocity exactly zero) stays
@@ -55,15 +60,23 @@ def motion_direction(piston_position_m, piston_velocity_m_per_s, applied_force_n
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def piston_acceleration(applied_force_n, piston_velocity_m_per_s, direction,
-                        dynamic_friction_n, viscous_friction_n_s_per_m,
-                        inverse_moving_mass_per_kg):
+def piston_acceleration(
+    applied_force_n,
+    piston_velocity_m_per_s,
+    direction,
+    dynamic_friction_n,
+    viscous_friction_n_s_per_m,
+    inverse_moving_mass_per_kg,
+):
     """Eq. 1 while sliding: (F_p - F_L - beta v - F_df dir) / (M_p + M_L), given
     1 / (M_p + M_L); zero while held."""
     if direction == 0.0:
         return 0.0
-    return (applied_force_n - viscous_friction_n_s_per_m * piston_velocity_m_per_s
-            - dynamic_friction_n * direction) * inverse_moving_mass_per_kg
+    return (
+        applied_force_n
+        - viscous_friction_n_s_per_m * piston_velocity_m_per_s
+        - dynamic_friction_n * direction
+    ) * inverse_moving_mass_per_kg
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")

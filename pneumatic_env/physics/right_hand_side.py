@@ -7,6 +7,7 @@ read from the ring buffer of substep boundaries (``delayed_value``); ``_rk4`` ta
 step of the general form over a fraction of a substep, ``rk4_base_substep`` one whole
 substep of the base form.
 """
+
 import math
 
 from numba import njit
@@ -31,12 +32,15 @@ N_RK = 9  # state rows the RK4 integrates (S_X_S .. S_T2)
 @njit(cache=True, forceinline=True, error_model="numpy")
 def _motion_and_spool(c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction, friction_n):
     """Piston acceleration (Eq. 1; zero while held) and spool acceleration (Eq. 38)."""
-    applied = (pneumatic_force(p1, p2, c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
-               - external_force(c.mode, x, c.load_force, c.spring_k, c.spring_rest))
-    accel = piston_acceleration(applied, velocity, direction, friction_n, c.viscous,
-                                c.inv_moving_mass)
-    a_s = spool_acceleration(x_s, v_s, coil_current_a, c.inv_spool_mass, c.spool_damping,
-                             c.spool_spring, c.coil_force)
+    applied = pneumatic_force(
+        p1, p2, c.area_cap, c.area_rod, c.rod_area, c.ambient_pa
+    ) - external_force(c.mode, x, c.load_force, c.spring_k, c.spring_rest)
+    accel = piston_acceleration(
+        applied, velocity, direction, friction_n, c.viscous, c.inv_moving_mass
+    )
+    a_s = spool_acceleration(
+        x_s, v_s, coil_current_a, c.inv_spool_mass, c.spool_damping, c.spool_spring, c.coil_force
+    )
     return accel, a_s
 
 
@@ -54,13 +58,31 @@ def _volumes(c, x):
     """Chamber volumes (Eq. 15) with the position held in the stroke (a trial step may
     overshoot)."""
     x_in_stroke = min(max(x, -c.half_stroke), c.half_stroke)
-    return chamber_volumes(x_in_stroke, c.half_stroke, c.area_cap, c.area_rod, c.dead_cap,
-                           c.dead_rod)
+    return chamber_volumes(
+        x_in_stroke, c.half_stroke, c.area_cap, c.area_rod, c.dead_cap, c.dead_rod
+    )
 
 
 @njit(cache=True)
-def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, spool_delayed,
-                valve_p1, valve_p2, arriving, exhaust_node_pa, lugre_friction_n=0.0):
+def derivatives(
+    c,
+    coil_current_a,
+    x_s,
+    v_s,
+    p1,
+    p2,
+    x,
+    v,
+    t1,
+    t2,
+    direction,
+    spool_delayed,
+    valve_p1,
+    valve_p2,
+    arriving,
+    exhaust_node_pa,
+    lugre_friction_n=0.0,
+):
     """Right-hand side of the state (x_s, v_s, P1, P2, x, v, exhaust mass, T1, T2).
 
     The general form: all four valve paths, the leakage orifices and every effect.
@@ -79,11 +101,12 @@ def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, sp
         exhaust_2 = 0.0
     else:
         supply_1, exhaust_1, supply_2, exhaust_2 = valve_chamber_flows(
-            c, spool_delayed, valve_p1, valve_p2, p1, p2, inv_sqrt_t1, inv_sqrt_t2,
-            exhaust_node_pa)
+            c, spool_delayed, valve_p1, valve_p2, p1, p2, inv_sqrt_t1, inv_sqrt_t2, exhaust_node_pa
+        )
     leak_12 = _flow(c, c.discharge, c.leak_area, p1, p2, inv_sqrt_t1, inv_sqrt_t2, c.flow_law)
-    seal_2 = _flow(c, c.discharge, c.seal_leak, p2, c.ambient_pa, inv_sqrt_t2, c.inv_sqrt_t,
-                   c.flow_law)
+    seal_2 = _flow(
+        c, c.discharge, c.seal_leak, p2, c.ambient_pa, inv_sqrt_t2, c.inv_sqrt_t, c.flow_law
+    )
     in_1 = max(supply_1, 0.0) + max(-exhaust_1, 0.0) + max(-leak_12, 0.0)
     out_1 = max(-supply_1, 0.0) + max(exhaust_1, 0.0) + max(leak_12, 0.0)
     in_2 = max(supply_2, 0.0) + max(-exhaust_2, 0.0) + max(leak_12, 0.0) + max(-seal_2, 0.0)
@@ -93,27 +116,68 @@ def derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, t1, t2, direction, sp
     if c.energy:
         # air from the supply or the atmosphere enters at temperature_k, leakage air at
         # the temperature of the chamber it left
-        enthalpy_1 = ((max(supply_1, 0.0) + max(-exhaust_1, 0.0)) * c.temperature
-                      + max(-leak_12, 0.0) * t2)
-        enthalpy_2 = ((max(supply_2, 0.0) + max(-exhaust_2, 0.0) + max(-seal_2, 0.0))
-                      * c.temperature + max(leak_12, 0.0) * t1)
-        dp1, dt1 = chamber_energy_rates(p1, t1, v1, c.area_cap * velocity, in_1, out_1,
-                                        enthalpy_1, c.gas, c.k, c.heat_conductance,
-                                        c.temperature)
-        dp2, dt2 = chamber_energy_rates(p2, t2, v2, -c.area_rod * velocity, in_2, out_2,
-                                        enthalpy_2, c.gas, c.k, c.heat_conductance,
-                                        c.temperature)
+        enthalpy_1 = (max(supply_1, 0.0) + max(-exhaust_1, 0.0)) * c.temperature + max(
+            -leak_12, 0.0
+        ) * t2
+        enthalpy_2 = (
+            max(supply_2, 0.0) + max(-exhaust_2, 0.0) + max(-seal_2, 0.0)
+        ) * c.temperature + max(leak_12, 0.0) * t1
+        dp1, dt1 = chamber_energy_rates(
+            p1,
+            t1,
+            v1,
+            c.area_cap * velocity,
+            in_1,
+            out_1,
+            enthalpy_1,
+            c.gas,
+            c.k,
+            c.heat_conductance,
+            c.temperature,
+        )
+        dp2, dt2 = chamber_energy_rates(
+            p2,
+            t2,
+            v2,
+            -c.area_rod * velocity,
+            in_2,
+            out_2,
+            enthalpy_2,
+            c.gas,
+            c.k,
+            c.heat_conductance,
+            c.temperature,
+        )
     else:
-        dp1 = pressure_rate(p1, v1, c.area_cap * velocity, in_1, out_1, c.gas_rt,
-                            c.alpha_in, c.alpha_out, c.alpha_motion)
-        dp2 = pressure_rate(p2, v2, -c.area_rod * velocity, in_2, out_2, c.gas_rt,
-                            c.alpha_in, c.alpha_out, c.alpha_motion)
+        dp1 = pressure_rate(
+            p1,
+            v1,
+            c.area_cap * velocity,
+            in_1,
+            out_1,
+            c.gas_rt,
+            c.alpha_in,
+            c.alpha_out,
+            c.alpha_motion,
+        )
+        dp2 = pressure_rate(
+            p2,
+            v2,
+            -c.area_rod * velocity,
+            in_2,
+            out_2,
+            c.gas_rt,
+            c.alpha_in,
+            c.alpha_out,
+            c.alpha_motion,
+        )
         dt1 = 0.0
         dt2 = 0.0
     # piston_acceleration applies friction * direction (+-1 while moving)
     friction = lugre_friction_n * direction if c.lugre else _sliding_friction(c, velocity)
-    accel, a_s = _motion_and_spool(c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction,
-                                   friction)
+    accel, a_s = _motion_and_spool(
+        c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction, friction
+    )
     exhaust_rate = max(exhaust_1, 0.0) + max(exhaust_2, 0.0) + max(seal_2, 0.0) + vented
     return v_s, a_s, dp1, dp2, velocity, accel, exhaust_rate, dt1, dt2
 
@@ -129,24 +193,46 @@ def base_derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, direction, spool
     6, and compiles to SIMD code.
     """
     to_chamber_1 = spool_delayed > 0.0
-    area = orifice_area_inv_radius(abs(spool_delayed), c.hole_radius, c.inv_hole_radius,
-                                   c.half_width, c.holes)
+    area = orifice_area_inv_radius(
+        abs(spool_delayed), c.hole_radius, c.inv_hole_radius, c.half_width, c.holes
+    )
     node_1 = c.supply_pa if to_chamber_1 else c.ambient_pa
     node_2 = c.ambient_pa if to_chamber_1 else c.supply_pa
     discharge_1 = c.discharge if to_chamber_1 else c.discharge_ex
     discharge_2 = c.discharge_ex if to_chamber_1 else c.discharge
-    flow_1 = _tube(c, _flow(c, discharge_1, area, node_1, p1, c.inv_sqrt_t, c.inv_sqrt_t,
-                            FLOW_LAW_PAPER), p1)
-    flow_2 = _tube(c, _flow(c, discharge_2, area, node_2, p2, c.inv_sqrt_t, c.inv_sqrt_t,
-                            FLOW_LAW_PAPER), p2)
+    flow_1 = _tube(
+        c, _flow(c, discharge_1, area, node_1, p1, c.inv_sqrt_t, c.inv_sqrt_t, FLOW_LAW_PAPER), p1
+    )
+    flow_2 = _tube(
+        c, _flow(c, discharge_2, area, node_2, p2, c.inv_sqrt_t, c.inv_sqrt_t, FLOW_LAW_PAPER), p2
+    )
     velocity = v if direction != 0.0 else 0.0
     v1, v2 = _volumes(c, x)
-    dp1 = pressure_rate(p1, v1, c.area_cap * velocity, max(flow_1, 0.0), max(-flow_1, 0.0),
-                        c.gas_rt, c.alpha_in, c.alpha_out, c.alpha_motion)
-    dp2 = pressure_rate(p2, v2, -c.area_rod * velocity, max(flow_2, 0.0), max(-flow_2, 0.0),
-                        c.gas_rt, c.alpha_in, c.alpha_out, c.alpha_motion)
-    accel, a_s = _motion_and_spool(c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction,
-                                   c.dynamic_friction)
+    dp1 = pressure_rate(
+        p1,
+        v1,
+        c.area_cap * velocity,
+        max(flow_1, 0.0),
+        max(-flow_1, 0.0),
+        c.gas_rt,
+        c.alpha_in,
+        c.alpha_out,
+        c.alpha_motion,
+    )
+    dp2 = pressure_rate(
+        p2,
+        v2,
+        -c.area_rod * velocity,
+        max(flow_2, 0.0),
+        max(-flow_2, 0.0),
+        c.gas_rt,
+        c.alpha_in,
+        c.alpha_out,
+        c.alpha_motion,
+    )
+    accel, a_s = _motion_and_spool(
+        c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction, c.dynamic_friction
+    )
     exhaust_rate = max(-flow_2, 0.0) if to_chamber_1 else max(-flow_1, 0.0)
     return v_s, a_s, dp1, dp2, velocity, accel, exhaust_rate, 0.0, 0.0
 
@@ -162,8 +248,9 @@ def ring_slot(index, n_slots):
 
 
 @njit(cache=True)
-def delayed_value(history, env, channel, head, stage_substeps, delay_substeps, value_at_head,
-                  value_at_stage):
+def delayed_value(
+    history, env, channel, head, stage_substeps, delay_substeps, value_at_head, value_at_stage
+):
     """Value of a history channel at (stage time - delay), by linear interpolation.
 
     Times are in substeps relative to the last boundary ``head``; a query after ``head``
@@ -190,9 +277,11 @@ def _valve_inputs(c, history, env, head, frac, y, y0):
     evaluated with (the delayed ones with the literal Eq. 55, else the present ones)."""
     spool_delayed = delayed_value(history, env, L.H_X_S, head, frac, c.delay_substeps, y0[0], y[0])
     if c.literal:
-        return (spool_delayed,
-                delayed_value(history, env, L.H_P1, head, frac, c.delay_substeps, y0[2], y[2]),
-                delayed_value(history, env, L.H_P2, head, frac, c.delay_substeps, y0[3], y[3]))
+        return (
+            spool_delayed,
+            delayed_value(history, env, L.H_P1, head, frac, c.delay_substeps, y0[2], y[2]),
+            delayed_value(history, env, L.H_P2, head, frac, c.delay_substeps, y0[3], y[3]),
+        )
     return spool_delayed, y[2], y[3]
 
 
@@ -206,15 +295,32 @@ def _inv_sqrt_temperatures(c, t1, t2):
 
 
 @njit(cache=True, inline="always")  # inlined: a call would pass every constant as an argument
-def _stage(c, history, env, head, frac, coil_current_a, y, y0, direction, exhaust_node_pa,
-           lugre_friction_n):
+def _stage(
+    c, history, env, head, frac, coil_current_a, y, y0, direction, exhaust_node_pa, lugre_friction_n
+):
     spool_delayed, valve_p1, valve_p2 = _valve_inputs(c, history, env, head, frac, y, y0)
     arriving = (0.0, 0.0, 0.0, 0.0)
     if c.waves:
         arriving = _arriving_waves(c, history, env, head, frac)
-    return derivatives(c, coil_current_a, y[0], y[1], y[2], y[3], y[4], y[5], y[7], y[8],
-                       direction, spool_delayed, valve_p1, valve_p2, arriving, exhaust_node_pa,
-                       lugre_friction_n)
+    return derivatives(
+        c,
+        coil_current_a,
+        y[0],
+        y[1],
+        y[2],
+        y[3],
+        y[4],
+        y[5],
+        y[7],
+        y[8],
+        direction,
+        spool_delayed,
+        valve_p1,
+        valve_p2,
+        arriving,
+        exhaust_node_pa,
+        lugre_friction_n,
+    )
 
 
 @njit(cache=True)
@@ -222,17 +328,27 @@ def _arriving_waves(c, history, env, head, frac):
     """The waves at the four line ends ``frac`` of a substep after boundary ``head``: each
     sent by the other end one delay earlier (the delay is at least one substep)."""
     d = c.delay_substeps
-    return (delayed_value(history, env, L.H_WAVE_CHAMBER_1, head, frac, d, 0.0, 0.0),
-            delayed_value(history, env, L.H_WAVE_CHAMBER_2, head, frac, d, 0.0, 0.0),
-            delayed_value(history, env, L.H_WAVE_VALVE_1, head, frac, d, 0.0, 0.0),
-            delayed_value(history, env, L.H_WAVE_VALVE_2, head, frac, d, 0.0, 0.0))
+    return (
+        delayed_value(history, env, L.H_WAVE_CHAMBER_1, head, frac, d, 0.0, 0.0),
+        delayed_value(history, env, L.H_WAVE_CHAMBER_2, head, frac, d, 0.0, 0.0),
+        delayed_value(history, env, L.H_WAVE_VALVE_1, head, frac, d, 0.0, 0.0),
+        delayed_value(history, env, L.H_WAVE_VALVE_2, head, frac, d, 0.0, 0.0),
+    )
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
 def _axpy(y, h, k):
-    return (y[0] + h * k[0], y[1] + h * k[1], y[2] + h * k[2], y[3] + h * k[3],
-            y[4] + h * k[4], y[5] + h * k[5], y[6] + h * k[6], y[7] + h * k[7],
-            y[8] + h * k[8])
+    return (
+        y[0] + h * k[0],
+        y[1] + h * k[1],
+        y[2] + h * k[2],
+        y[3] + h * k[3],
+        y[4] + h * k[4],
+        y[5] + h * k[5],
+        y[6] + h * k[6],
+        y[7] + h * k[7],
+        y[8] + h * k[8],
+    )
 
 
 @njit(cache=True, inline="always")
@@ -250,18 +366,36 @@ def _coil_at(c, command_a, coil_start, frac):
     elif frac == 1.0:
         decay = c.coil_decay_full
     else:
-        decay = c.coil_decay_full ** frac
+        decay = c.coil_decay_full**frac
     coil = lagged_coil_current(command_a, coil_start[0], decay)
     if not c.coil_force_lag:
         return coil, coil
     return coil, lagged_coil_force_current(
-        command_a, coil_start[0], coil_start[1], math.exp(-frac * c.force_rate),
-        coil_force_gain(decay, frac * c.force_rate, frac * c.force_rate_difference))
+        command_a,
+        coil_start[0],
+        coil_start[1],
+        math.exp(-frac * c.force_rate),
+        coil_force_gain(decay, frac * c.force_rate, frac * c.force_rate_difference),
+    )
 
 
 @njit(cache=True)
-def _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start, y, y0, direction,
-         exhaust_node_pa, lugre_friction_n):
+def _rk4(
+    c,
+    history,
+    env,
+    head,
+    frac0,
+    dfrac,
+    h,
+    command_a,
+    coil_start,
+    y,
+    y0,
+    direction,
+    exhaust_node_pa,
+    lugre_friction_n,
+):
     """One classical RK4 step over substep fractions [frac0, frac0 + dfrac] (h: substep, s).
 
     ``y0`` is the state at the substep boundary ``head`` (the delay interpolation's anchor);
@@ -272,14 +406,58 @@ def _rk4(c, history, env, head, frac0, dfrac, h, command_a, coil_start, y, y0, d
     hh = dfrac * h
     fm = frac0 + 0.5 * dfrac
     fe = frac0 + dfrac
-    k1 = _stage(c, history, env, head, frac0, _coil_at(c, command_a, coil_start, frac0)[1], y,
-                y0, direction, exhaust_node_pa, lugre_friction_n)
-    k2 = _stage(c, history, env, head, fm, _coil_at(c, command_a, coil_start, fm)[1],
-                _axpy(y, 0.5 * hh, k1), y0, direction, exhaust_node_pa, lugre_friction_n)
-    k3 = _stage(c, history, env, head, fm, _coil_at(c, command_a, coil_start, fm)[1],
-                _axpy(y, 0.5 * hh, k2), y0, direction, exhaust_node_pa, lugre_friction_n)
-    k4 = _stage(c, history, env, head, fe, _coil_at(c, command_a, coil_start, fe)[1],
-                _axpy(y, hh, k3), y0, direction, exhaust_node_pa, lugre_friction_n)
+    k1 = _stage(
+        c,
+        history,
+        env,
+        head,
+        frac0,
+        _coil_at(c, command_a, coil_start, frac0)[1],
+        y,
+        y0,
+        direction,
+        exhaust_node_pa,
+        lugre_friction_n,
+    )
+    k2 = _stage(
+        c,
+        history,
+        env,
+        head,
+        fm,
+        _coil_at(c, command_a, coil_start, fm)[1],
+        _axpy(y, 0.5 * hh, k1),
+        y0,
+        direction,
+        exhaust_node_pa,
+        lugre_friction_n,
+    )
+    k3 = _stage(
+        c,
+        history,
+        env,
+        head,
+        fm,
+        _coil_at(c, command_a, coil_start, fm)[1],
+        _axpy(y, 0.5 * hh, k2),
+        y0,
+        direction,
+        exhaust_node_pa,
+        lugre_friction_n,
+    )
+    k4 = _stage(
+        c,
+        history,
+        env,
+        head,
+        fe,
+        _coil_at(c, command_a, coil_start, fe)[1],
+        _axpy(y, hh, k3),
+        y0,
+        direction,
+        exhaust_node_pa,
+        lugre_friction_n,
+    )
     return _rk4_combine(c, y, k1, k2, k3, k4, hh, direction)
 
 
@@ -302,25 +480,38 @@ def _rk4_combine(c, y, k1, k2, k3, k4, hh, direction):
     if c.energy:
         t1 = max(t1 + w * (k1[7] + 2.0 * k2[7] + 2.0 * k3[7] + k4[7]), c.temperature_floor)
         t2 = max(t2 + w * (k1[8] + 2.0 * k2[8] + 2.0 * k3[8] + k4[8]), c.temperature_floor)
-    return (y[0] + w * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
-            y[1] + w * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]),
-            p1, p2, x, v, y[6] + w * (k1[6] + 2.0 * k2[6] + 2.0 * k3[6] + k4[6]), t1, t2)
+    return (
+        y[0] + w * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
+        y[1] + w * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]),
+        p1,
+        p2,
+        x,
+        v,
+        y[6] + w * (k1[6] + 2.0 * k2[6] + 2.0 * k3[6] + k4[6]),
+        t1,
+        t2,
+    )
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def rk4_base_substep(c, y, coil_current_a, direction, spool_delayed_start, spool_delayed_mid,
-                     spool_delayed_end, h):
+def rk4_base_substep(
+    c, y, coil_current_a, direction, spool_delayed_start, spool_delayed_mid, spool_delayed_end, h
+):
     """One whole RK4 substep of ``base_derivatives``; the delayed spool positions at its
     start, middle and end are read from the ring buffer beforehand (``delayed_value``)."""
-    k1 = base_derivatives(c, coil_current_a, y[0], y[1], y[2], y[3], y[4], y[5], direction,
-                          spool_delayed_start)
+    k1 = base_derivatives(
+        c, coil_current_a, y[0], y[1], y[2], y[3], y[4], y[5], direction, spool_delayed_start
+    )
     y2 = _axpy(y, 0.5 * h, k1)
-    k2 = base_derivatives(c, coil_current_a, y2[0], y2[1], y2[2], y2[3], y2[4], y2[5],
-                          direction, spool_delayed_mid)
+    k2 = base_derivatives(
+        c, coil_current_a, y2[0], y2[1], y2[2], y2[3], y2[4], y2[5], direction, spool_delayed_mid
+    )
     y3 = _axpy(y, 0.5 * h, k2)
-    k3 = base_derivatives(c, coil_current_a, y3[0], y3[1], y3[2], y3[3], y3[4], y3[5],
-                          direction, spool_delayed_mid)
+    k3 = base_derivatives(
+        c, coil_current_a, y3[0], y3[1], y3[2], y3[3], y3[4], y3[5], direction, spool_delayed_mid
+    )
     y4 = _axpy(y, h, k3)
-    k4 = base_derivatives(c, coil_current_a, y4[0], y4[1], y4[2], y4[3], y4[4], y4[5],
-                          direction, spool_delayed_end)
+    k4 = base_derivatives(
+        c, coil_current_a, y4[0], y4[1], y4[2], y4[3], y4[4], y4[5], direction, spool_delayed_end
+    )
     return _rk4_combine(c, y, k1, k2, k3, k4, h, direction)

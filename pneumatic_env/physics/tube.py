@@ -1,4 +1,5 @@
 """Connecting tube: delay and attenuation of the valve flow (Eqs. 30, 31, 33, 35)."""
+
 import math
 
 from numba import njit
@@ -12,8 +13,9 @@ TURBULENT_RESISTANCE_FACTOR = 0.158  # Eq. 35: R_t = 0.158 mu Re^(3/4) / D^2 (Bl
 @njit(cache=True, forceinline=True, error_model="numpy")
 def reynolds_number(mass_flow_kg_per_s, tube_inner_diameter_m, air_viscosity_pa_s):
     """Re = 4 |mdot| / (pi D mu) of the flow through a tube."""
-    return abs(mass_flow_kg_per_s) * reynolds_per_mass_flow(tube_inner_diameter_m,
-                                                            air_viscosity_pa_s)
+    return abs(mass_flow_kg_per_s) * reynolds_per_mass_flow(
+        tube_inner_diameter_m, air_viscosity_pa_s
+    )
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
@@ -32,8 +34,9 @@ def viscous_scale(tube_inner_diameter_m, air_viscosity_pa_s):
 def tube_resistance(reynolds, tube_inner_diameter_m, air_viscosity_pa_s, reynolds_turbulent):
     """Tube resistance R_t (Pa s / m^2): laminar Eq. 33 below ``reynolds_turbulent``, else
     Eq. 35."""
-    return scaled_tube_resistance(reynolds, viscous_scale(tube_inner_diameter_m,
-                                                          air_viscosity_pa_s), reynolds_turbulent)
+    return scaled_tube_resistance(
+        reynolds, viscous_scale(tube_inner_diameter_m, air_viscosity_pa_s), reynolds_turbulent
+    )
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
@@ -45,21 +48,38 @@ def scaled_tube_resistance(reynolds, viscous_scale_pa_s_per_m2, reynolds_turbule
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def tube_attenuation(mass_flow_kg_per_s, end_pressure_pa, gas_rt, delay_s, tube_inner_diameter_m,
-                     air_viscosity_pa_s, reynolds_turbulent):
+def tube_attenuation(
+    mass_flow_kg_per_s,
+    end_pressure_pa,
+    gas_rt,
+    delay_s,
+    tube_inner_diameter_m,
+    air_viscosity_pa_s,
+    reynolds_turbulent,
+):
     """phi = exp(-R_t R T tau / (2 P)) of Eq. 30, with R_t chosen by the flow's Reynolds number.
 
     Branch-free (a zero delay gives phi = 1), so a loop over environments vectorises.
     """
     return tube_attenuation_scaled(
-        mass_flow_kg_per_s, end_pressure_pa, 0.5 * gas_rt * delay_s,
+        mass_flow_kg_per_s,
+        end_pressure_pa,
+        0.5 * gas_rt * delay_s,
         reynolds_per_mass_flow(tube_inner_diameter_m, air_viscosity_pa_s),
-        viscous_scale(tube_inner_diameter_m, air_viscosity_pa_s), reynolds_turbulent)
+        viscous_scale(tube_inner_diameter_m, air_viscosity_pa_s),
+        reynolds_turbulent,
+    )
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def tube_attenuation_scaled(mass_flow_kg_per_s, end_pressure_pa, half_rt_delay,
-                            reynolds_per_flow, viscous_scale_pa_s_per_m2, reynolds_turbulent):
+def tube_attenuation_scaled(
+    mass_flow_kg_per_s,
+    end_pressure_pa,
+    half_rt_delay,
+    reynolds_per_flow,
+    viscous_scale_pa_s_per_m2,
+    reynolds_turbulent,
+):
     """``tube_attenuation`` given R T tau / 2, ``reynolds_per_mass_flow`` and
     ``viscous_scale``, which the kernel caches per environment (multiplications where
     divisions by constants would take a divider's latency per evaluation)."""
@@ -90,16 +110,25 @@ LINE_MAX_ITERATIONS = 60  # a safeguard; Newton from above takes a handful
 
 
 @njit(cache=True)
-def line_resistance(mass_flow_kg_per_s, pressure_pa, line_friction, tube_inner_diameter_m,
-                    air_viscosity_pa_s, reynolds_turbulent):
+def line_resistance(
+    mass_flow_kg_per_s,
+    pressure_pa,
+    line_friction,
+    tube_inner_diameter_m,
+    air_viscosity_pa_s,
+    reynolds_turbulent,
+):
     """Friction of the whole line, R = R_t L_t / (rho A_t) with rho = P / (R T) (Pa s/kg).
 
     ``line_friction = L_t R T / A_t``; R_t laminar (Eq. 33) or turbulent (Eq. 35) by the
     flow's Reynolds number, as in the attenuation of Eq. 30.
     """
     reynolds = reynolds_number(mass_flow_kg_per_s, tube_inner_diameter_m, air_viscosity_pa_s)
-    return (tube_resistance(reynolds, tube_inner_diameter_m, air_viscosity_pa_s,
-                            reynolds_turbulent) * line_friction / pressure_pa)
+    return (
+        tube_resistance(reynolds, tube_inner_diameter_m, air_viscosity_pa_s, reynolds_turbulent)
+        * line_friction
+        / pressure_pa
+    )
 
 
 @njit(cache=True)
@@ -109,8 +138,15 @@ def line_end_wave(pressure_pa, mass_flow_into_line_kg_per_s, impedance, resistan
 
 
 @njit(cache=True)
-def line_chamber_flow(wave_in_pa, chamber_pa, impedance, line_friction, tube_inner_diameter_m,
-                      air_viscosity_pa_s, reynolds_turbulent):
+def line_chamber_flow(
+    wave_in_pa,
+    chamber_pa,
+    impedance,
+    line_friction,
+    tube_inner_diameter_m,
+    air_viscosity_pa_s,
+    reynolds_turbulent,
+):
     """Mass flow from the line into a chamber, m, the root of m (Z_c + R(m)/2) = W_in - P.
 
     The left side grows with |m|: linear while laminar, m (Z_c + K |m|^(3/4)) when
@@ -122,22 +158,36 @@ def line_chamber_flow(wave_in_pa, chamber_pa, impedance, line_friction, tube_inn
         return 0.0
     sign = 1.0 if drive > 0.0 else -1.0
     magnitude = abs(drive)
-    laminar = magnitude / (impedance + 0.5 * line_resistance(
-        0.0, chamber_pa, line_friction, tube_inner_diameter_m, air_viscosity_pa_s,
-        reynolds_turbulent))
+    laminar = magnitude / (
+        impedance
+        + 0.5
+        * line_resistance(
+            0.0,
+            chamber_pa,
+            line_friction,
+            tube_inner_diameter_m,
+            air_viscosity_pa_s,
+            reynolds_turbulent,
+        )
+    )
     transition = reynolds_turbulent * math.pi * tube_inner_diameter_m * air_viscosity_pa_s / 4.0
     if laminar < transition:
         return sign * laminar
     # turbulent: R(u) = k u^(3/4) (Eq. 35 with Re = 4 u / (pi D mu)); Newton on the convex
     # g(u) = Z_c u + k/2 u^(7/4) - |drive| from above
     reynolds_per_flow = 4.0 / (math.pi * tube_inner_diameter_m * air_viscosity_pa_s)
-    k = (TURBULENT_RESISTANCE_FACTOR * air_viscosity_pa_s
-         / (tube_inner_diameter_m * tube_inner_diameter_m)
-         * reynolds_per_flow ** 0.75 * line_friction / chamber_pa)
+    k = (
+        TURBULENT_RESISTANCE_FACTOR
+        * air_viscosity_pa_s
+        / (tube_inner_diameter_m * tube_inner_diameter_m)
+        * reynolds_per_flow**0.75
+        * line_friction
+        / chamber_pa
+    )
     u = magnitude / impedance
     for _ in range(LINE_MAX_ITERATIONS):
-        g = impedance * u + 0.5 * k * u ** 1.75 - magnitude
-        step = g / (impedance + 0.875 * k * u ** 0.75)
+        g = impedance * u + 0.5 * k * u**1.75 - magnitude
+        step = g / (impedance + 0.875 * k * u**0.75)
         u -= step
         if abs(step) <= LINE_FLOW_RTOL * u:
             break

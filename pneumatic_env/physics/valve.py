@@ -1,4 +1,5 @@
 """Proportional spool valve: spool dynamics (Eq. 38) and orifice areas (Eqs. 41-45)."""
+
 import math
 
 from numba import njit
@@ -7,13 +8,22 @@ from .vecmath import acos_
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def spool_acceleration(spool_position_m, spool_velocity_m_per_s, coil_current_a,
-                       inverse_spool_mass_per_kg, spool_damping_n_s_per_m, spool_spring_n_per_m,
-                       coil_force_n_per_a):
+def spool_acceleration(
+    spool_position_m,
+    spool_velocity_m_per_s,
+    coil_current_a,
+    inverse_spool_mass_per_kg,
+    spool_damping_n_s_per_m,
+    spool_spring_n_per_m,
+    coil_force_n_per_a,
+):
     """Eq. 38: M_s x_s'' + c_s x_s' + 2 k_s x_s = K_fc i_c, given 1/M_s (a multiplication
     where a division would take a divider's latency per evaluation)."""
-    return (coil_force_n_per_a * coil_current_a - spool_damping_n_s_per_m * spool_velocity_m_per_s
-            - 2.0 * spool_spring_n_per_m * spool_position_m) * inverse_spool_mass_per_kg
+    return (
+        coil_force_n_per_a * coil_current_a
+        - spool_damping_n_s_per_m * spool_velocity_m_per_s
+        - 2.0 * spool_spring_n_per_m * spool_position_m
+    ) * inverse_spool_mass_per_kg
 
 
 @njit(cache=True)
@@ -32,16 +42,23 @@ def orifice_area(spool_position_m, hole_radius_m, spool_half_width_m, holes_per_
     for a closed hole, pi R_h^2 for a fully open one. The exhaust path of Eq. 45 is
     ``orifice_area(-x_s, ...)``. Branch-free (``vecmath``), so it vectorises.
     """
-    return orifice_area_inv_radius(spool_position_m, hole_radius_m, 1.0 / hole_radius_m,
-                                   spool_half_width_m, holes_per_path)
+    return orifice_area_inv_radius(
+        spool_position_m, hole_radius_m, 1.0 / hole_radius_m, spool_half_width_m, holes_per_path
+    )
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def orifice_area_inv_radius(spool_position_m, hole_radius_m, inverse_hole_radius_per_m,
-                            spool_half_width_m, holes_per_path):
+def orifice_area_inv_radius(
+    spool_position_m, hole_radius_m, inverse_hole_radius_per_m, spool_half_width_m, holes_per_path
+):
     """``orifice_area`` given 1/R_h as well, which the kernel caches per environment."""
-    u = min(max((spool_position_m - (spool_half_width_m - hole_radius_m))
-                * inverse_hole_radius_per_m, 0.0), 2.0)
+    u = min(
+        max(
+            (spool_position_m - (spool_half_width_m - hole_radius_m)) * inverse_hole_radius_per_m,
+            0.0,
+        ),
+        2.0,
+    )
     depth = 1.0 - u
     segment = acos_(depth) - depth * math.sqrt(u * (2.0 - u))
     return holes_per_path * hole_radius_m * hole_radius_m * segment

@@ -17,6 +17,7 @@ sub-models use).
   (atan(w) = pi/6 + atan((sqrt3 w - 1)/(sqrt3 + w)), atan(w) = pi/2 - atan(1/w)), then
   its series to w^29.
 """
+
 import math
 
 import numpy as np
@@ -45,6 +46,7 @@ def _bits_to_float(typingctx, bits):
 
     def codegen(context, builder, signature, args):
         return builder.bitcast(args[0], ir.DoubleType())
+
     return sig, codegen
 
 
@@ -55,6 +57,7 @@ def _float_to_bits(typingctx, value):
 
     def codegen(context, builder, signature, args):
         return builder.bitcast(args[0], ir.IntType(64))
+
     return sig, codegen
 
 
@@ -69,11 +72,18 @@ def exp_(x):
     r2 = r * r
     r4 = r2 * r2
     r8 = r4 * r4
-    p = (((1.0 + r) + (0.5 + r * (1.0 / 6.0)) * r2)
-         + ((1.0 / 24.0 + r * (1.0 / 120.0)) + (1.0 / 720.0 + r * (1.0 / 5040.0)) * r2) * r4
-         + (((1.0 / 40320.0 + r * (1.0 / 362880.0))
-             + (1.0 / 3628800.0 + r * (1.0 / 39916800.0)) * r2)
-            + (1.0 / 479001600.0 + r * (1.0 / 6227020800.0)) * r4) * r8)
+    p = (
+        ((1.0 + r) + (0.5 + r * (1.0 / 6.0)) * r2)
+        + ((1.0 / 24.0 + r * (1.0 / 120.0)) + (1.0 / 720.0 + r * (1.0 / 5040.0)) * r2) * r4
+        + (
+            (
+                (1.0 / 40320.0 + r * (1.0 / 362880.0))
+                + (1.0 / 3628800.0 + r * (1.0 / 39916800.0)) * r2
+            )
+            + (1.0 / 479001600.0 + r * (1.0 / 6227020800.0)) * r4
+        )
+        * r8
+    )
     # int32 conversions: AVX2 converts doubles to and from int32 lanes, not int64
     return p * _bits_to_float(np.int64(np.int32(n) + EXPONENT_BIAS) << MANTISSA_BITS)
 
@@ -93,10 +103,15 @@ def log_(x):
     z2 = z * z
     z4 = z2 * z2
     z8 = z4 * z4
-    q = (((1.0 + z * (1.0 / 3.0)) + (1.0 / 5.0 + z * (1.0 / 7.0)) * z2)
-         + ((1.0 / 9.0 + z * (1.0 / 11.0)) + (1.0 / 13.0 + z * (1.0 / 15.0)) * z2) * z4
-         + (((1.0 / 17.0 + z * (1.0 / 19.0)) + (1.0 / 21.0 + z * (1.0 / 23.0)) * z2)
-            + z4 * (1.0 / 25.0)) * z8)
+    q = (
+        ((1.0 + z * (1.0 / 3.0)) + (1.0 / 5.0 + z * (1.0 / 7.0)) * z2)
+        + ((1.0 / 9.0 + z * (1.0 / 11.0)) + (1.0 / 13.0 + z * (1.0 / 15.0)) * z2) * z4
+        + (
+            ((1.0 / 17.0 + z * (1.0 / 19.0)) + (1.0 / 21.0 + z * (1.0 / 23.0)) * z2)
+            + z4 * (1.0 / 25.0)
+        )
+        * z8
+    )
     return exponent * LN2_HI + (exponent * LN2_LO + 2.0 * s * q)
 
 
@@ -111,10 +126,15 @@ def _atan_unit(w):
     z2 = z * z
     z4 = z2 * z2
     z8 = z4 * z4
-    q = (((1.0 - z * (1.0 / 3.0)) + (1.0 / 5.0 - z * (1.0 / 7.0)) * z2)
-         + ((1.0 / 9.0 - z * (1.0 / 11.0)) + (1.0 / 13.0 - z * (1.0 / 15.0)) * z2) * z4
-         + (((1.0 / 17.0 - z * (1.0 / 19.0)) + (1.0 / 21.0 - z * (1.0 / 23.0)) * z2)
-            + ((1.0 / 25.0 - z * (1.0 / 27.0)) + z2 * (1.0 / 29.0)) * z4) * z8)
+    q = (
+        ((1.0 - z * (1.0 / 3.0)) + (1.0 / 5.0 - z * (1.0 / 7.0)) * z2)
+        + ((1.0 / 9.0 - z * (1.0 / 11.0)) + (1.0 / 13.0 - z * (1.0 / 15.0)) * z2) * z4
+        + (
+            ((1.0 / 17.0 - z * (1.0 / 19.0)) + (1.0 / 21.0 - z * (1.0 / 23.0)) * z2)
+            + ((1.0 / 25.0 - z * (1.0 / 27.0)) + z2 * (1.0 / 29.0)) * z4
+        )
+        * z8
+    )
     return (math.pi / 6.0 if reduce else 0.0) + w * q
 
 

@@ -12,17 +12,23 @@ from scipy.optimize import brentq
 if TYPE_CHECKING:
     from .hybrid import _HybridSimulation
 
+
 class _EventSet:
     """The event functions watched during one integration, evaluated all at once:
     selected switching surfaces, then the piston-mode events."""
 
-    def __init__(self, sim: _HybridSimulation, surface_index: np.ndarray,
-                 directions: np.ndarray, actions: list):
+    def __init__(
+        self,
+        sim: _HybridSimulation,
+        surface_index: np.ndarray,
+        directions: np.ndarray,
+        actions: list,
+    ):
         self.sim = sim
         self.surface_index = surface_index
         self.directions = directions
         self.actions = actions
-        self.piston_actions = actions[len(surface_index):]
+        self.piston_actions = actions[len(surface_index) :]
 
     def __len__(self) -> int:
         return len(self.actions)
@@ -50,14 +56,17 @@ def _active_events(g_old: np.ndarray, g_new: np.ndarray, direction: np.ndarray) 
     """Events whose function changed sign in their direction (solve_ivp's convention)."""
     up = (g_old <= 0) & (g_new >= 0)
     down = (g_old >= 0) & (g_new <= 0)
-    return np.nonzero((up & (direction > 0)) | (down & (direction < 0))
-                      | ((up | down) & (direction == 0)))[0]
+    return np.nonzero(
+        (up & (direction > 0)) | (down & (direction < 0)) | ((up | down) & (direction == 0))
+    )[0]
 
 
 def _event_root(events: _EventSet, e: int, dense, t_a: float, t_b: float) -> float:
     """Root of event ``e`` along the dense output in ``[t_a, t_b]``."""
+
     def f(t):
         return events.values(t, dense(t))[e]
+
     fa, fb = f(t_a), f(t_b)
     if fa == 0.0:
         # The function starts on the surface (a slip phase starts at v = 0). It first

@@ -45,8 +45,16 @@ _METHODS = {"DOP853": DOP853, "Radau": Radau, "LSODA": LSODA, "RK45": RK45, "BDF
 
 
 class _HybridSimulation:
-    def __init__(self, m: ModelConstants, currents: np.ndarray, dt: float, y0: np.ndarray,
-                 rtol: float, atol, method: str):
+    def __init__(
+        self,
+        m: ModelConstants,
+        currents: np.ndarray,
+        dt: float,
+        y0: np.ndarray,
+        rtol: float,
+        atol,
+        method: str,
+    ):
         if method not in _METHODS:
             raise ValueError(f"method must be one of {sorted(_METHODS)}, got {method!r}")
         self.m = m
@@ -82,8 +90,11 @@ class _HybridSimulation:
         # below this distance a kink surface counts as "on the surface" at a restart
         tiny = 10.0 * max(rtol, 1e-13)
         self.surface_noise = np.array(
-            [0.0 if kind == "regime" else tiny * (m.r_h if j < 4 else m.p_a)
-             for kind, j in self.kinds])
+            [
+                0.0 if kind == "regime" else tiny * (m.r_h if j < 4 else m.p_a)
+                for kind, j in self.kinds
+            ]
+        )
         self.n_events = 0
         self.small_first_step = 0.0
 
@@ -114,10 +125,12 @@ class _HybridSimulation:
         p1b, p2b = self.valve_pressures(t, y)
         a_in = orifice_area(m, x_d)
         a_ex = orifice_area(m, -x_d)
-        return (orifice_mass_flow(m, a_in, m.p_s, p1b),
-                orifice_mass_flow(m, a_ex, m.p_a, p1b),
-                orifice_mass_flow(m, a_ex, m.p_s, p2b),
-                orifice_mass_flow(m, a_in, m.p_a, p2b))
+        return (
+            orifice_mass_flow(m, a_in, m.p_s, p1b),
+            orifice_mass_flow(m, a_ex, m.p_a, p1b),
+            orifice_mass_flow(m, a_ex, m.p_s, p2b),
+            orifice_mass_flow(m, a_in, m.p_a, p2b),
+        )
 
     def evaluate(self, t: float, y: np.ndarray):
         """``(dy/dt, valve flows, applied force F_p - F_L)``, cached for the last point."""
@@ -362,8 +375,14 @@ class _HybridSimulation:
             pts = np.asarray(sub)
         return pts
 
-    def integrate(self, t0: float, t1: float, y0: np.ndarray, events: _EventSet | None,
-                  first_step: float | None = None) -> _Piece:
+    def integrate(
+        self,
+        t0: float,
+        t1: float,
+        y0: np.ndarray,
+        events: _EventSet | None,
+        first_step: float | None = None,
+    ) -> _Piece:
         """Integrate ``[t0, t1]`` in the present discrete state, stopping at the first
         event.
 
@@ -373,8 +392,9 @@ class _HybridSimulation:
         ``Re_t``, a velocity reversal) is not missed. The root is then found with
         ``brentq`` on the dense output.
         """
-        solver = _METHODS[self.method](self.rhs, t0, y0, t1, rtol=self.rtol, atol=self.atol,
-                                       first_step=first_step)
+        solver = _METHODS[self.method](
+            self.rhs, t0, y0, t1, rtol=self.rtol, atol=self.atol, first_step=first_step
+        )
         if events is not None and len(events) == 0:
             events = None
         if events is not None:
@@ -385,8 +405,9 @@ class _HybridSimulation:
             t_old, y_old = solver.t, solver.y.copy()
             solver.step()
             if solver.status == "failed":
-                raise RuntimeError(f"integration failed at t = {t_old}: "
-                                   f"step size {solver.step_size}")
+                raise RuntimeError(
+                    f"integration failed at t = {t_old}: step size {solver.step_size}"
+                )
             t_new = solver.t
             dense = solver.dense_output() if (events is not None or self.literal) else None
             if events is not None:

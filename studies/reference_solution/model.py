@@ -26,18 +26,43 @@ PATH_CHAMBER = (0, 0, 1, 1)
 
 
 _REQUIRED = (
-    "gas_constant_j_per_kg_k", "heat_capacity_ratio", "temperature_k",
-    "ambient_pressure_pa", "supply_pressure_pa", "air_viscosity_pa_s",
-    "alpha_in", "alpha_out", "alpha_motion",
-    "spool_mass_kg", "spool_damping_n_s_per_m", "spool_spring_n_per_m",
-    "coil_force_n_per_a", "discharge_coefficient", "hole_radius_m",
-    "spool_half_width_m", "holes_per_path",
-    "tube_length_m", "tube_inner_diameter_m", "reynolds_turbulent", "tube_coupling",
-    "bore_diameter_m", "rod_diameter_m", "stroke_m", "dead_volume_cap_m3",
-    "dead_volume_rod_m3", "piston_mass_kg", "static_friction_n", "dynamic_friction_n",
-    "viscous_friction_n_s_per_m", "leakage_area_m2",
-    "piston_mode", "fixed_position_m", "load_mass_kg", "load_force_n",
-    "spring_stiffness_n_per_m", "spring_rest_position_m",
+    "gas_constant_j_per_kg_k",
+    "heat_capacity_ratio",
+    "temperature_k",
+    "ambient_pressure_pa",
+    "supply_pressure_pa",
+    "air_viscosity_pa_s",
+    "alpha_in",
+    "alpha_out",
+    "alpha_motion",
+    "spool_mass_kg",
+    "spool_damping_n_s_per_m",
+    "spool_spring_n_per_m",
+    "coil_force_n_per_a",
+    "discharge_coefficient",
+    "hole_radius_m",
+    "spool_half_width_m",
+    "holes_per_path",
+    "tube_length_m",
+    "tube_inner_diameter_m",
+    "reynolds_turbulent",
+    "tube_coupling",
+    "bore_diameter_m",
+    "rod_diameter_m",
+    "stroke_m",
+    "dead_volume_cap_m3",
+    "dead_volume_rod_m3",
+    "piston_mass_kg",
+    "static_friction_n",
+    "dynamic_friction_n",
+    "viscous_friction_n_s_per_m",
+    "leakage_area_m2",
+    "piston_mode",
+    "fixed_position_m",
+    "load_mass_kg",
+    "load_force_n",
+    "spring_stiffness_n_per_m",
+    "spring_rest_position_m",
     "flow_linear_ratio",
 )
 
@@ -50,6 +75,7 @@ NEUTRAL_EFFECTS = EFFECT_NEUTRAL_VALUES
 # --------------------------------------------------------------------------------------
 # Constants
 # --------------------------------------------------------------------------------------
+
 
 def flow_constants(k: float, gas_constant: float) -> tuple[float, float, float]:
     """``(C1, C2, P_cr)`` of the orifice flow (Eq. 40, exponents corrected).
@@ -122,12 +148,16 @@ class ModelConstants:
         missing = [n for n in _REQUIRED if n not in params]
         if missing:
             raise KeyError(f"parameter set lacks {missing}")
-        switched_on = [n for n, neutral in NEUTRAL_EFFECTS.items()
-                       if n in params and float(params[n]) != neutral]
+        switched_on = [
+            n
+            for n, neutral in NEUTRAL_EFFECTS.items()
+            if n in params and float(params[n]) != neutral
+        ]
         if switched_on:
             raise NotImplementedError(
                 f"the reference solution implements docs/model.md only; effects switched "
-                f"on: {switched_on} (set them to their neutral values {NEUTRAL_EFFECTS})")
+                f"on: {switched_on} (set them to their neutral values {NEUTRAL_EFFECTS})"
+            )
         p = {n: float(params[n]) for n in _REQUIRED}
         R, k, T = p["gas_constant_j_per_kg_k"], p["heat_capacity_ratio"], p["temperature_k"]
         c1, c2, p_cr = flow_constants(k, R)
@@ -142,26 +172,51 @@ class ModelConstants:
         if coupling not in (COUPLING_COMMAND, COUPLING_LITERAL):
             raise ValueError(f"tube_coupling must be 0 or 1, got {p['tube_coupling']}")
         const = cls(
-            R=R, k=k, T=T, sqrt_T=math.sqrt(T),
-            p_a=p["ambient_pressure_pa"], p_s=p["supply_pressure_pa"],
+            R=R,
+            k=k,
+            T=T,
+            sqrt_T=math.sqrt(T),
+            p_a=p["ambient_pressure_pa"],
+            p_s=p["supply_pressure_pa"],
             mu=p["air_viscosity_pa_s"],
-            alpha_in=p["alpha_in"], alpha_out=p["alpha_out"], alpha=p["alpha_motion"],
-            m_s=p["spool_mass_kg"], c_s=p["spool_damping_n_s_per_m"],
-            k_s=p["spool_spring_n_per_m"], k_fc=p["coil_force_n_per_a"],
-            c_f=p["discharge_coefficient"], r_h=p["hole_radius_m"],
-            p_w=p["spool_half_width_m"], n_h=p["holes_per_path"],
-            c1=c1, c2=c2, p_cr=p_cr, r_lin=r_lin, m_r_lin=0.0,
-            tube_length=p["tube_length_m"], tube_d=p["tube_inner_diameter_m"],
-            re_t=p["reynolds_turbulent"], c_sound=c_sound,
-            tau=p["tube_length_m"] / c_sound, coupling=coupling,
-            a1=a1, a2=a1 - a_r, a_r=a_r, stroke=p["stroke_m"],
-            v01=p["dead_volume_cap_m3"], v02=p["dead_volume_rod_m3"],
+            alpha_in=p["alpha_in"],
+            alpha_out=p["alpha_out"],
+            alpha=p["alpha_motion"],
+            m_s=p["spool_mass_kg"],
+            c_s=p["spool_damping_n_s_per_m"],
+            k_s=p["spool_spring_n_per_m"],
+            k_fc=p["coil_force_n_per_a"],
+            c_f=p["discharge_coefficient"],
+            r_h=p["hole_radius_m"],
+            p_w=p["spool_half_width_m"],
+            n_h=p["holes_per_path"],
+            c1=c1,
+            c2=c2,
+            p_cr=p_cr,
+            r_lin=r_lin,
+            m_r_lin=0.0,
+            tube_length=p["tube_length_m"],
+            tube_d=p["tube_inner_diameter_m"],
+            re_t=p["reynolds_turbulent"],
+            c_sound=c_sound,
+            tau=p["tube_length_m"] / c_sound,
+            coupling=coupling,
+            a1=a1,
+            a2=a1 - a_r,
+            a_r=a_r,
+            stroke=p["stroke_m"],
+            v01=p["dead_volume_cap_m3"],
+            v02=p["dead_volume_rod_m3"],
             mass=p["piston_mass_kg"] + p["load_mass_kg"],
-            f_sf=p["static_friction_n"], f_df=p["dynamic_friction_n"],
+            f_sf=p["static_friction_n"],
+            f_df=p["dynamic_friction_n"],
             f_stick=max(p["static_friction_n"], p["dynamic_friction_n"]),
-            beta=p["viscous_friction_n_s_per_m"], a_leak=p["leakage_area_m2"],
-            piston_mode=mode, x_fixed=p["fixed_position_m"],
-            f_load=p["load_force_n"], k_env=p["spring_stiffness_n_per_m"],
+            beta=p["viscous_friction_n_s_per_m"],
+            a_leak=p["leakage_area_m2"],
+            piston_mode=mode,
+            x_fixed=p["fixed_position_m"],
+            f_load=p["load_force_n"],
+            k_env=p["spring_stiffness_n_per_m"],
             x_rest=p["spring_rest_position_m"],
         )
         if r_lin < 1.0:
@@ -172,6 +227,7 @@ class ModelConstants:
 # --------------------------------------------------------------------------------------
 # Sub-models
 # --------------------------------------------------------------------------------------
+
 
 def spool_acceleration(m: ModelConstants, x_s: float, v_s: float, i_c: float) -> float:
     """Spool acceleration from ``M_s x_s'' + c_s x_s' + 2 k_s x_s = K_fc i_c`` (Eq. 38)."""
@@ -241,8 +297,8 @@ def tube_resistance(m: ModelConstants, reynolds: float, turbulent: bool) -> floa
     between located switching times.
     """
     if turbulent:
-        return 0.158 * m.mu * reynolds ** 0.75 / m.tube_d ** 2
-    return 32.0 * m.mu / m.tube_d ** 2
+        return 0.158 * m.mu * reynolds**0.75 / m.tube_d**2
+    return 32.0 * m.mu / m.tube_d**2
 
 
 def tube_attenuation(m: ModelConstants, r_t: float, p_end: float) -> float:
@@ -257,12 +313,14 @@ def chamber_volumes(m: ModelConstants, x: float) -> tuple[float, float]:
     return m.v01 + m.a1 * (half + x), m.v02 + m.a2 * (half - x)
 
 
-def chamber_pressure_rate(m: ModelConstants, p: float, volume: float, volume_rate: float,
-                          mdot_in: float, mdot_out: float) -> float:
+def chamber_pressure_rate(
+    m: ModelConstants, p: float, volume: float, volume_rate: float, mdot_in: float, mdot_out: float
+) -> float:
     """``dP/dt = R T / V (alpha_in mdot_in - alpha_out mdot_out) - alpha P V' / V``
     (Eq. 14 with Eq. 15, i.e. Eq. 16 / corrected Eq. 55); ``mdot_in``, ``mdot_out >= 0``."""
-    return (m.R * m.T * (m.alpha_in * mdot_in - m.alpha_out * mdot_out)
-            - m.alpha * p * volume_rate) / volume
+    return (
+        m.R * m.T * (m.alpha_in * mdot_in - m.alpha_out * mdot_out) - m.alpha * p * volume_rate
+    ) / volume
 
 
 def pneumatic_force(m: ModelConstants, p1: float, p2: float) -> float:
@@ -280,8 +338,9 @@ def load_force(m: ModelConstants, x: float) -> float:
     return 0.0
 
 
-def piston_acceleration(m: ModelConstants, applied_force: float, v: float,
-                        slip_direction: float) -> float:
+def piston_acceleration(
+    m: ModelConstants, applied_force: float, v: float, slip_direction: float
+) -> float:
     """Piston acceleration while slipping (Eq. 1 with Karnopp friction, Eq. 47 corrected):
     ``(M_p + M_L) x'' = (F_p - F_L) - beta v - F_df s``, ``s = sign(v)`` the slip direction
     (locked during a slip phase, so it is defined at ``v = 0`` too)."""

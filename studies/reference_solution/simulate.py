@@ -35,9 +35,15 @@ def _default_atol(m: ModelConstants, rtol: float) -> np.ndarray:
     return rtol * scale
 
 
-def simulate_reference(params: dict, coil_current_a: np.ndarray, control_dt_s: float,
-                       initial: dict | None = None, rtol: float = 1e-9, atol=None,
-                       method: str = "DOP853") -> dict:
+def simulate_reference(
+    params: dict,
+    coil_current_a: np.ndarray,
+    control_dt_s: float,
+    initial: dict | None = None,
+    rtol: float = 1e-9,
+    atol=None,
+    method: str = "DOP853",
+) -> dict:
     """Integrate the model of ``docs/model.md`` to high accuracy.
 
     Parameters
@@ -75,8 +81,14 @@ def simulate_reference(params: dict, coil_current_a: np.ndarray, control_dt_s: f
         raise ValueError("coil_current_a contains non-finite values")
     if not control_dt_s > 0.0:
         raise ValueError("control_dt_s must be positive")
-    init = {"p1": m.p_a, "p2": m.p_a, "x": m.x_fixed if m.piston_mode == PISTON_FIXED else 0.0,
-            "v": 0.0, "x_s": 0.0, "v_s": 0.0}
+    init = {
+        "p1": m.p_a,
+        "p2": m.p_a,
+        "x": m.x_fixed if m.piston_mode == PISTON_FIXED else 0.0,
+        "v": 0.0,
+        "x_s": 0.0,
+        "v_s": 0.0,
+    }
     if initial:
         unknown = set(initial) - set(init)
         if unknown:

@@ -26,6 +26,7 @@ processes spreads over all of them. No number here is a test assertion.
 ``ceiling`` the kernel's ceiling (6, reading the x86 assembly of the compiled loops) and
 ``report`` the Markdown report; this module is the command (``add_arguments``, ``run``).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -46,24 +47,39 @@ def _positive_int(name):
         except ValueError:
             value = None
         if value is None or value < 1:
-            raise argparse.ArgumentTypeError(f"{name} = {text!r} is not allowed: "
-                                             "must be an integer >= 1")
+            raise argparse.ArgumentTypeError(
+                f"{name} = {text!r} is not allowed: must be an integer >= 1"
+            )
         return value
+
     return parse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--quick", action="store_true",
-                        help="a smoke run: tiny N (up to --max-n, default 8), one repeat, "
-                             "short measurements")
-    parser.add_argument("--max-n", type=_positive_int("--max-n"), default=None,
-                        help=f"largest number of vector environments (default "
-                             f"{VECTOR_SIZES[-1]}; SyncVectorEnv stops at {SYNC_MAX_N})")
-    parser.add_argument("--repeats", type=_positive_int("--repeats"), default=None,
-                        help="repeats of every measurement; medians are reported "
-                             "(default 3, --quick 1)")
-    parser.add_argument("--out", metavar="FILE.md", default=None,
-                        help="also write the report (tables, command, machine) as Markdown")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="a smoke run: tiny N (up to --max-n, default 8), one repeat, short measurements",
+    )
+    parser.add_argument(
+        "--max-n",
+        type=_positive_int("--max-n"),
+        default=None,
+        help=f"largest number of vector environments (default "
+        f"{VECTOR_SIZES[-1]}; SyncVectorEnv stops at {SYNC_MAX_N})",
+    )
+    parser.add_argument(
+        "--repeats",
+        type=_positive_int("--repeats"),
+        default=None,
+        help="repeats of every measurement; medians are reported (default 3, --quick 1)",
+    )
+    parser.add_argument(
+        "--out",
+        metavar="FILE.md",
+        default=None,
+        help="also write the report (tables, command, machine) as Markdown",
+    )
 
 
 def _command(args) -> str:
@@ -81,6 +97,7 @@ def _command(args) -> str:
 
 def run(args) -> int:
     import numba
+
     started = time.time()
     plan = make_plan(args.quick, args.max_n, args.repeats)
     threads_before = numba.get_num_threads()
@@ -98,24 +115,31 @@ def run(args) -> int:
         op_ns = measure_op_costs(plan, [ops for _, ops, _ in pairs])
         regimes = res["vector"]["regimes"]
         n_ref = res["vector"]["regime_n"]
-        serial = [r for r in res["vector"]["kernel"]
-                  if r["n"] == n_ref and r["kernel"] == "serial"][0]
+        serial = [
+            r for r in res["vector"]["kernel"] if r["n"] == n_ref and r["kernel"] == "serial"
+        ][0]
         instructions = vector_loop_instructions()
         ceiling = kernel_ceiling(instructions, op_ns, serial["substeps"])
         # measured / ceiling of each pair (kernel, operation costs and the RK4 loop alone,
         # timed interleaved); the ratios reported are their medians
-        ratios = [ns / kernel_ceiling(instructions, ops, serial["substeps"])["total_ns"]
-                  for ns, ops, _ in pairs]
+        ratios = [
+            ns / kernel_ceiling(instructions, ops, serial["substeps"])["total_ns"]
+            for ns, ops, _ in pairs
+        ]
         rk4 = instructions["loops"]["_base_substeps_vectorised"]
-        rk4_ceilings = [sum(count * ops[op] for op, count in rk4.items())
-                        for _, ops, _ in pairs]
-        ceiling.update(op_ns=op_ns, lanes=instructions["lanes"],
-                       vectorised=instructions["vectorised"], parts=regimes["parts"],
-                       redone=regimes["redone"], pair_ratios=ratios,
-                       measured_ns=median([ns for ns, _, _ in pairs]),
-                       rk4_ns=median([ns for _, _, ns in pairs]),
-                       rk4_ceiling_ns=sum(count * op_ns[op] for op, count in rk4.items()),
-                       rk4_ratios=[ns / c for (_, _, ns), c in zip(pairs, rk4_ceilings)])
+        rk4_ceilings = [sum(count * ops[op] for op, count in rk4.items()) for _, ops, _ in pairs]
+        ceiling.update(
+            op_ns=op_ns,
+            lanes=instructions["lanes"],
+            vectorised=instructions["vectorised"],
+            parts=regimes["parts"],
+            redone=regimes["redone"],
+            pair_ratios=ratios,
+            measured_ns=median([ns for ns, _, _ in pairs]),
+            rk4_ns=median([ns for _, _, ns in pairs]),
+            rk4_ceiling_ns=sum(count * op_ns[op] for op, count in rk4.items()),
+            rk4_ratios=[ns / c for (_, _, ns), c in zip(pairs, rk4_ceilings)],
+        )
         res["ceiling"] = ceiling
     finally:
         numba.set_num_threads(threads_before)

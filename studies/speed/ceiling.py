@@ -1,6 +1,7 @@
 """The kernel's ceiling: the work per environment and substep (the SIMD instructions of the
 compiled vectorised loops, read from their x86 assembly, and the scalar work counted in
 ``KERNEL_WORK``), each at its throughput measured in a Numba loop on this machine."""
+
 from __future__ import annotations
 
 import math
@@ -53,13 +54,17 @@ KERNEL_WORK = {
     "control_step:cache": {"flop": 3},
 }
 # the vectorised loops in kernel: calls per substep and per control period
-VECTOR_LOOPS = {"_begin_substeps": (1, 0), "_interpolate_row": (3, 0),
-                "_base_substeps_vectorised": (1, 0),
-                "_end_substeps": (1, 0),
-                "_fast_commands": (0, 1), "_fast_output_forces": (0, 1),
-                # 3 history channels per substep; per period the RK4 state rows, the two
-                # coil rows and the outputs that are state rows
-                "_copy_fast_lanes": (3, N_RK + 2 + len(OUTPUT_STATE_ROWS))}
+VECTOR_LOOPS = {
+    "_begin_substeps": (1, 0),
+    "_interpolate_row": (3, 0),
+    "_base_substeps_vectorised": (1, 0),
+    "_end_substeps": (1, 0),
+    "_fast_commands": (0, 1),
+    "_fast_output_forces": (0, 1),
+    # 3 history channels per substep; per period the RK4 state rows, the two
+    # coil rows and the outputs that are state rows
+    "_copy_fast_lanes": (3, N_RK + 2 + len(OUTPUT_STATE_ROWS)),
+}
 
 
 def ceiling_pair(plan: Plan, sim, currents: np.ndarray) -> tuple:
@@ -73,8 +78,7 @@ def ceiling_pair(plan: Plan, sim, currents: np.ndarray) -> tuple:
         kernel_ns.append(1e9 / (rate * sim.n_substeps))
         samples.append(op_cost_sample(plan))
         rk4_ns.append(_rk4_loop_ns(sim, currents[0], plan.vector_s / PAIR_BURSTS))
-    return (min(kernel_ns), {op: min(s[op] for s in samples) for op in samples[0]},
-            min(rk4_ns))
+    return (min(kernel_ns), {op: min(s[op] for s in samples) for op in samples[0]}, min(rk4_ns))
 
 
 @njit(cache=True)
@@ -95,9 +99,17 @@ def _rk4_loop_ns(sim, currents: np.ndarray, seconds: float) -> float:
     h = sim.control_dt_s / sim.n_substeps
     constants = sim.constants[0]
     work = K.chunk_work(sim.state, 0, n)
-    work[K.W_CURRENT * K.CHUNK_ENVS:K.W_CURRENT * K.CHUNK_ENVS + n] = currents[:n]
-    K.prepare_substep(constants, work, sim.history, 0, n,
-                      K.ring_slot(sim.head, sim.history.shape[0]), K._same_delay(constants, n), h)
+    work[K.W_CURRENT * K.CHUNK_ENVS : K.W_CURRENT * K.CHUNK_ENVS + n] = currents[:n]
+    K.prepare_substep(
+        constants,
+        work,
+        sim.history,
+        0,
+        n,
+        K.ring_slot(sim.head, sim.history.shape[0]),
+        K._same_delay(constants, n),
+        h,
+    )
     start = work.copy()
     reps = 16
     while True:  # calls that take about ``seconds``
@@ -195,9 +207,9 @@ def _vmicro_div(a, out, idx, sweeps):  # 8 divisions and 15 adds, independent
     for _ in range(sweeps):
         for j in range(a.shape[0]):
             v = a[j]
-            out[j] = (((1.0 / (v + 1.0) + 1.0 / (v + 2.0)) + (1.0 / (v + 3.0) + 1.0 / (v + 4.0)))
-                      + ((1.0 / (v + 5.0) + 1.0 / (v + 6.0))
-                         + (1.0 / (v + 7.0) + 1.0 / (v + 8.0))))
+            out[j] = ((1.0 / (v + 1.0) + 1.0 / (v + 2.0)) + (1.0 / (v + 3.0) + 1.0 / (v + 4.0))) + (
+                (1.0 / (v + 5.0) + 1.0 / (v + 6.0)) + (1.0 / (v + 7.0) + 1.0 / (v + 8.0))
+            )
 
 
 @njit(cache=True, error_model="numpy")
@@ -205,10 +217,13 @@ def _vmicro_sqrt(a, out, idx, sweeps):  # 8 square roots and 15 adds, independen
     for _ in range(sweeps):
         for j in range(a.shape[0]):
             v = a[j]
-            out[j] = (((math.sqrt(v + 1.0) + math.sqrt(v + 2.0))
-                       + (math.sqrt(v + 3.0) + math.sqrt(v + 4.0)))
-                      + ((math.sqrt(v + 5.0) + math.sqrt(v + 6.0))
-                         + (math.sqrt(v + 7.0) + math.sqrt(v + 8.0))))
+            out[j] = (
+                (math.sqrt(v + 1.0) + math.sqrt(v + 2.0))
+                + (math.sqrt(v + 3.0) + math.sqrt(v + 4.0))
+            ) + (
+                (math.sqrt(v + 5.0) + math.sqrt(v + 6.0))
+                + (math.sqrt(v + 7.0) + math.sqrt(v + 8.0))
+            )
 
 
 @njit(cache=True, error_model="numpy")
@@ -225,12 +240,17 @@ def _vmicro_flop(a, out, idx, sweeps):  # four independent degree-4 Horner chain
 
 # op -> (loop, its baseline, operations per element, other flops per element (subtracted
 # at the cost of "flop" or "vother"))
-_MICRO = {"exp": (_micro_exp, _micro_base, 1, 0), "log": (_micro_log, _micro_base, 1, 0),
-          "sqrt": (_micro_sqrt, _micro_base, 1, 0), "div": (_micro_div, _micro_base, 1, 0),
-          "flop": (_micro_flop, _micro_base, 9, 0),
-          "imod": (_micro_imod, _micro_imod_base, 1, 0),
-          "vother": (_vmicro_flop, _vmicro_base, 35, 0),
-          "vdiv": (_vmicro_div, _vmicro_base, 8, 15), "vsqrt": (_vmicro_sqrt, _vmicro_base, 8, 15)}
+_MICRO = {
+    "exp": (_micro_exp, _micro_base, 1, 0),
+    "log": (_micro_log, _micro_base, 1, 0),
+    "sqrt": (_micro_sqrt, _micro_base, 1, 0),
+    "div": (_micro_div, _micro_base, 1, 0),
+    "flop": (_micro_flop, _micro_base, 9, 0),
+    "imod": (_micro_imod, _micro_imod_base, 1, 0),
+    "vother": (_vmicro_flop, _vmicro_base, 35, 0),
+    "vdiv": (_vmicro_div, _vmicro_base, 8, 15),
+    "vsqrt": (_vmicro_sqrt, _vmicro_base, 8, 15),
+}
 
 
 def op_cost_sample(plan: Plan) -> dict:
@@ -265,8 +285,7 @@ def measure_op_costs(plan: Plan, samples: list | None = None) -> dict:
     """Median ns per operation over ``max(repeats, 3)`` samples of ``op_cost_sample``
     (``samples`` taken elsewhere in the run, e.g. paired with the kernel, count too)."""
     set_threads(1)
-    samples = list(samples or []) + [op_cost_sample(plan)
-                                     for _ in range(max(plan.repeats, 3))]
+    samples = list(samples or []) + [op_cost_sample(plan) for _ in range(max(plan.repeats, 3))]
     set_threads(plan.threads[-1])
     return {op: median([sample[op] for sample in samples]) for op in _MICRO}
 
@@ -285,7 +304,7 @@ def sample_regimes(sim, currents: np.ndarray, steps: int = 8, envs: int = 128) -
     for step in range(steps):
         sim.step(currents[step % len(currents)])
         for env in picks:
-            state = tuple(float(v) for v in sim.state[:L.S_T2 + 1, env])
+            state = tuple(float(v) for v in sim.state[: L.S_T2 + 1, env])
             n_parts = kernel.refinement(constants[int(env)], state, h)
             parts += n_parts
             split += n_parts > 1
@@ -298,13 +317,26 @@ SIMD_REGISTERS = (("%zmm", 8), ("%ymm", 4), ("%xmm", 2))  # register name, float
 
 # the Numba type of each argument of the VECTOR_LOOPS, by name
 _ROW = types.float64[::1]
-_LOOP_ARGUMENT_TYPES = {"constants": _ROW, "work": _ROW, "target_row": _ROW,
-                        "lower_row": _ROW, "upper_row": _ROW, "row": types.int64,
-                        "weight": types.float64, "at_start": types.boolean,
-                        "force_row": _ROW, "command_row": _ROW, "play_row": _ROW,
-                        "values": _ROW, "key_values": _ROW, "differing_bits": types.int64[::1],
-                        "n_lanes": types.int64, "work_row": types.int64,
-                        "keep_redone": types.boolean, "h": types.float64}
+_LOOP_ARGUMENT_TYPES = {
+    "constants": _ROW,
+    "work": _ROW,
+    "target_row": _ROW,
+    "lower_row": _ROW,
+    "upper_row": _ROW,
+    "row": types.int64,
+    "weight": types.float64,
+    "at_start": types.boolean,
+    "force_row": _ROW,
+    "command_row": _ROW,
+    "play_row": _ROW,
+    "values": _ROW,
+    "key_values": _ROW,
+    "differing_bits": types.int64[::1],
+    "n_lanes": types.int64,
+    "work_row": types.int64,
+    "keep_redone": types.boolean,
+    "h": types.float64,
+}
 
 
 _ASM_LABEL = re.compile(r"^(\.LBB\d+_\d+):")
@@ -331,13 +363,16 @@ def _vector_body(asm: str, register: str) -> tuple[list, int]:
             continue
         found = _ASM_JUMP.match(line)
         if found and label and found.group(1) == label[0]:
-            body = lines[label[1] + 1:i]
+            body = lines[label[1] + 1 : i]
             simd = [b for b in body if register in b]
             if len(simd) > len(best[1]):
                 best = (body, simd)
     body, simd = best
-    steps = {int(m.group(1)) for m in map(_ASM_INDEX_STEP.match, body)
-             if m and any(f",{m.group(2)},8)" in line for line in simd)}
+    steps = {
+        int(m.group(1))
+        for m in map(_ASM_INDEX_STEP.match, body)
+        if m and any(f",{m.group(2)},8)" in line for line in simd)
+    }
     return simd, (steps.pop() if len(steps) == 1 else 0)
 
 
@@ -352,13 +387,14 @@ def vector_loop_instructions() -> dict:
     class of each loop, the lanes per vector and whether every loop was vectorised.
     """
     from pneumatic_env.physics import kernel
+
     loops = {}
     found = []
     for name in VECTOR_LOOPS:
         counts = loops[name] = dict.fromkeys(VECTOR_OPS, 0.0)
         py_func = getattr(kernel, name).py_func
         fn = njit(error_model="numpy")(py_func)
-        arguments = py_func.__code__.co_varnames[:py_func.__code__.co_argcount]
+        arguments = py_func.__code__.co_varnames[: py_func.__code__.co_argcount]
         signature = tuple(_LOOP_ARGUMENT_TYPES[a] for a in arguments)
         fn.compile(signature)
         asm = fn.inspect_asm(signature)
@@ -373,9 +409,13 @@ def vector_loop_instructions() -> dict:
         found.append(lanes)
         for line in body if lanes > 1 else []:
             op = line.split()[0]
-            counts["vdiv" if op.startswith("vdivp") or op == "divpd" else
-                   "vsqrt" if op.startswith("vsqrtp") or op == "sqrtpd" else
-                   "vother"] += lanes / elements
+            counts[
+                "vdiv"
+                if op.startswith("vdivp") or op == "divpd"
+                else "vsqrt"
+                if op.startswith("vsqrtp") or op == "sqrtpd"
+                else "vother"
+            ] += lanes / elements
     return {"loops": loops, "lanes": min(found), "vectorised": min(found) > 1}
 
 

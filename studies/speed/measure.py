@@ -1,5 +1,6 @@
 """The measurements of ``pneumatic-env speed``: single envs, the native vector env and the
 bare kernel, SyncVectorEnv and the SciPy reference solution."""
+
 from __future__ import annotations
 
 import time
@@ -52,16 +53,16 @@ def _autoreset_s(env, core, steady_rate: float, warmup_steps: int, episode_steps
     return max(elapsed - env.num_envs / steady_rate, 0.0)
 
 
-def _amortized_rate(steady_rate: float, autoreset_s: float, n_envs: int,
-                    episode_steps: int) -> float:
+def _amortized_rate(
+    steady_rate: float, autoreset_s: float, n_envs: int, episode_steps: int
+) -> float:
     """Env-steps per second over whole episodes: ``episode_steps`` steps, one autoreset."""
     return n_envs * episode_steps / (n_envs * episode_steps / steady_rate + autoreset_s)
 
 
 def _array_bytes(*objects) -> int:
     """Bytes of the NumPy arrays held as attributes of ``objects``."""
-    return sum(v.nbytes for obj in objects for v in vars(obj).values()
-               if isinstance(v, np.ndarray))
+    return sum(v.nbytes for obj in objects for v in vars(obj).values() if isinstance(v, np.ndarray))
 
 
 def measure_single(plan: Plan, log) -> dict:
@@ -70,6 +71,7 @@ def measure_single(plan: Plan, log) -> dict:
     from gymnasium.utils.performance import benchmark_step
 
     import pneumatic_env  # noqa: F401  (registers the ids)
+
     envs = {YARDSTICK_ID: gym.make(YARDSTICK_ID), ENV_ID: gym.make(ENV_ID)}
     rates = {k: [] for k in envs}
     cpu = {k: [] for k in envs}
@@ -78,14 +80,17 @@ def measure_single(plan: Plan, log) -> dict:
     for rep in range(plan.repeats):
         for name, env in envs.items():
             env.action_space.seed(rep)
-            rate, share = with_cpu_share(1, benchmark_step, env,
-                                         target_duration=plan.single_s, seed=rep)
+            rate, share = with_cpu_share(
+                1, benchmark_step, env, target_duration=plan.single_s, seed=rep
+            )
             rates[name].append(rate)
             cpu[name].append(share)
     for env in envs.values():
         env.close()
-    log(f"single envs: Pendulum {median(rates[YARDSTICK_ID]):.0f} steps/s, "
-        f"ours {median(rates[ENV_ID]):.0f} steps/s")
+    log(
+        f"single envs: Pendulum {median(rates[YARDSTICK_ID]):.0f} steps/s, "
+        f"ours {median(rates[ENV_ID]):.0f} steps/s"
+    )
     return {"rates": rates, "cpu": cpu}
 
 
@@ -113,9 +118,15 @@ def measure_vector(plan: Plan, log) -> dict:
         configs = [("serial", 1)]
         if n >= PARALLEL_MIN_ENVS:
             configs += [("parallel", t) for t in plan.threads if t > 1]
-        sims = {kind: BatchSimulator(np.repeat(core.sim.params[:, :1], n, axis=1), dt,
-                                     n_substeps, parallel=kind == "parallel")
-                for kind, _ in configs}
+        sims = {
+            kind: BatchSimulator(
+                np.repeat(core.sim.params[:, :1], n, axis=1),
+                dt,
+                n_substeps,
+                parallel=kind == "parallel",
+            )
+            for kind, _ in configs
+        }
         for kind, threads in configs:  # warm-up, then the env's warmed state
             set_threads(threads)
             sims[kind].step(np.zeros(n))
@@ -127,8 +138,10 @@ def measure_vector(plan: Plan, log) -> dict:
         sims["serial"].step(np.asarray(action, dtype=np.float64).reshape(n))
         if not np.array_equal(core.sim.state, sims["serial"].state):
             mismatch.append(n)
-            log(f"WARNING N={n}: the env's step does not reproduce BatchSimulator.step "
-                "(stale Numba cache? clear the __pycache__ folders of pneumatic_env)")
+            log(
+                f"WARNING N={n}: the env's step does not reproduce BatchSimulator.step "
+                "(stale Numba cache? clear the __pycache__ folders of pneumatic_env)"
+            )
         for sim in sims.values():
             _copy_batch(core.sim, sim)
 
@@ -141,25 +154,36 @@ def measure_vector(plan: Plan, log) -> dict:
                 for threads in plan.threads:
                     set_threads(threads)
                     rate, share = with_cpu_share(
-                        threads if core.sim.parallel else 1, _vector_rate, env,
-                        plan.vector_s / WINDOWS_PER_REPEAT, plan.min_steps)
+                        threads if core.sim.parallel else 1,
+                        _vector_rate,
+                        env,
+                        plan.vector_s / WINDOWS_PER_REPEAT,
+                        plan.min_steps,
+                    )
                     steady[threads].append(rate)
                     cpu[threads].append(share)
                     if window == WINDOWS_PER_REPEAT - 1:
-                        autoreset[threads].append(_autoreset_s(
-                            env, core, rate, plan.warmup_steps, episode_steps))
+                        autoreset[threads].append(
+                            _autoreset_s(env, core, rate, plan.warmup_steps, episode_steps)
+                        )
         for threads in plan.threads:
-            env_rows.append({"n": n, "threads": threads,
-                             "kernel": ("parallel" if core.sim.parallel and threads > 1
-                                        else "serial"),
-                             "rates": [_amortized_rate(r, median(autoreset[threads]), n,
-                                                       episode_steps)
-                                       for r in steady[threads]],
-                             "steady_rates": steady[threads],
-                             "autoreset_s": autoreset[threads],
-                             "episode_steps": episode_steps, "cpu": cpu[threads],
-                             "substeps": n_substeps,
-                             "bytes_per_env": _array_bytes(core, core.sim) / n})
+            env_rows.append(
+                {
+                    "n": n,
+                    "threads": threads,
+                    "kernel": ("parallel" if core.sim.parallel and threads > 1 else "serial"),
+                    "rates": [
+                        _amortized_rate(r, median(autoreset[threads]), n, episode_steps)
+                        for r in steady[threads]
+                    ],
+                    "steady_rates": steady[threads],
+                    "autoreset_s": autoreset[threads],
+                    "episode_steps": episode_steps,
+                    "cpu": cpu[threads],
+                    "substeps": n_substeps,
+                    "bytes_per_env": _array_bytes(core, core.sim) / n,
+                }
+            )
         i_max = core.i_max
         env.close()
 
@@ -169,26 +193,53 @@ def measure_vector(plan: Plan, log) -> dict:
         for _ in range(plan.repeats * WINDOWS_PER_REPEAT):
             for kind, threads in configs:
                 set_threads(threads)
-                rate, share = with_cpu_share(threads, kernel_rate, sims[kind], currents,
-                                             plan.vector_s / WINDOWS_PER_REPEAT, plan.min_steps)
+                rate, share = with_cpu_share(
+                    threads,
+                    kernel_rate,
+                    sims[kind],
+                    currents,
+                    plan.vector_s / WINDOWS_PER_REPEAT,
+                    plan.min_steps,
+                )
                 krates[(kind, threads)].append(rate)
                 kcpu[(kind, threads)].append(share)
         for cfg in configs:
-            kernel_rows.append({"n": n, "kernel": cfg[0], "threads": cfg[1],
-                                "rates": krates[cfg], "cpu": kcpu[cfg],
-                                "substeps": n_substeps})
+            kernel_rows.append(
+                {
+                    "n": n,
+                    "kernel": cfg[0],
+                    "threads": cfg[1],
+                    "rates": krates[cfg],
+                    "cpu": kcpu[cfg],
+                    "substeps": n_substeps,
+                }
+            )
         if n == regime_n:
             set_threads(1)
-            pairs = [ceiling_pair(plan, sims["serial"], currents)
-                     for _ in range(max(plan.repeats, CEILING_PAIRS))]
+            pairs = [
+                ceiling_pair(plan, sims["serial"], currents)
+                for _ in range(max(plan.repeats, CEILING_PAIRS))
+            ]
             regimes = sample_regimes(sims["serial"], currents)
-        log(f"vector N={n}: " + ", ".join(
-            f"{r['threads']} thread(s) {median(r['rates']):.0f}" for r in env_rows
-            if r["n"] == n) + " env-steps/s")
+        log(
+            f"vector N={n}: "
+            + ", ".join(
+                f"{r['threads']} thread(s) {median(r['rates']):.0f}"
+                for r in env_rows
+                if r["n"] == n
+            )
+            + " env-steps/s"
+        )
         sims.clear()  # free the batches before the next N
     set_threads(plan.threads[-1])
-    return {"env": env_rows, "kernel": kernel_rows, "regimes": regimes, "regime_n": regime_n,
-            "mismatch": mismatch, "ceiling_pairs": pairs}
+    return {
+        "env": env_rows,
+        "kernel": kernel_rows,
+        "regimes": regimes,
+        "regime_n": regime_n,
+        "mismatch": mismatch,
+        "ceiling_pairs": pairs,
+    }
 
 
 def _copy_batch(source, target) -> None:
@@ -208,9 +259,10 @@ def measure_sync(plan: Plan, log) -> dict:
     rows = []
     for n in plan.sync_sizes:
         env = gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="sync")
-        measured = [with_cpu_share(1, benchmark_vector_step, env,
-                                   target_duration=plan.vector_s, seed=rep)
-                    for rep in range(plan.repeats)]
+        measured = [
+            with_cpu_share(1, benchmark_vector_step, env, target_duration=plan.vector_s, seed=rep)
+            for rep in range(plan.repeats)
+        ]
         env.close()
         rates = [m[0] for m in measured]
         rows.append({"n": n, "rates": rates, "cpu": [m[1] for m in measured]})
@@ -239,17 +291,26 @@ def measure_scipy(plan: Plan, log) -> dict:
     set_threads(1)
     sim = BatchSimulator(parameter_array([params]), dt, n_substeps, parallel=False)
     sim.rollout(currents[:1, None])  # warm-up
-    ours_rates = [_rollout_rate(sim, currents, simulated_s, plan.vector_s)
-                  for _ in range(plan.repeats)]
+    ours_rates = [
+        _rollout_rate(sim, currents, simulated_s, plan.vector_s) for _ in range(plan.repeats)
+    ]
     set_threads(plan.threads[-1])
     ours = simulate_currents(params, currents, dt, substeps=n_substeps)
-    result = {"scenario": scenario.name, "ours_rates": ours_rates, "substeps": n_substeps,
-              "control_dt_s": dt, "simulated_s": simulated_s, "rows": [], "message": None}
+    result = {
+        "scenario": scenario.name,
+        "ours_rates": ours_rates,
+        "substeps": n_substeps,
+        "control_dt_s": dt,
+        "simulated_s": simulated_s,
+        "rows": [],
+        "message": None,
+    }
     try:
         from ..reference_solution import simulate_reference
     except ImportError as exc:
-        result["message"] = ("skipped: pneumatic_env.studies.reference_solution is not "
-                             f"available ({exc})")
+        result["message"] = (
+            f"skipped: pneumatic_env.studies.reference_solution is not available ({exc})"
+        )
         log(result["message"])
         return result
 
@@ -281,12 +342,16 @@ def measure_scipy(plan: Plan, log) -> dict:
     ok = [r for r in rows if r["error"] <= ACCURACY_FULL_SCALE]
     result["chosen"] = max(ok, key=lambda r: median(r["rates"])) if ok else None
     if result["chosen"] is None:
-        result["message"] = (f"failed: no tolerance in {plan.scipy_rtols} reached "
-                             f"{ACCURACY_FULL_SCALE:.1%} of full scale")
+        result["message"] = (
+            f"failed: no tolerance in {plan.scipy_rtols} reached "
+            f"{ACCURACY_FULL_SCALE:.1%} of full scale"
+        )
         log(result["message"])
         return result
-    log(f"SciPy: {median(result['chosen']['rates']):.3g} simulated s per wall s at rtol "
-        f"{result['chosen']['rtol']:g}; ours {median(ours_rates):.3g}")
+    log(
+        f"SciPy: {median(result['chosen']['rates']):.3g} simulated s per wall s at rtol "
+        f"{result['chosen']['rtol']:g}; ours {median(ours_rates):.3g}"
+    )
     return result
 
 

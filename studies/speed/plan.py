@@ -1,5 +1,6 @@
 """What one ``pneumatic-env speed`` run measures: the targets, the plan and the timing
 helpers the measurements and the ceiling share."""
+
 from __future__ import annotations
 
 import time
@@ -67,13 +68,42 @@ def make_plan(quick: bool, max_n: int | None, repeats: int | None) -> Plan:
     sizes = sorted({n for n in VECTOR_SIZES if n <= max_n} | {max_n})
     sync = tuple(n for n in sizes if n <= SYNC_MAX_N)
     import numba
+
     all_threads = int(numba.config.NUMBA_NUM_THREADS)
     threads = (1,) if all_threads == 1 else (1, all_threads)
     if quick:
-        return Plan(True, repeats or 1, tuple(sizes), sync, 0.02, 0.02, 1, 5, (1e-4,), 1e-8,
-                    1024, 2, 1, threads)
-    return Plan(False, repeats or 3, tuple(sizes), sync, 1.0, 0.5, 2, 100, SCIPY_RTOLS,
-                SCIPY_REFERENCE_RTOL, 4096, 100, WARMUP_STEPS, threads)
+        return Plan(
+            True,
+            repeats or 1,
+            tuple(sizes),
+            sync,
+            0.02,
+            0.02,
+            1,
+            5,
+            (1e-4,),
+            1e-8,
+            1024,
+            2,
+            1,
+            threads,
+        )
+    return Plan(
+        False,
+        repeats or 3,
+        tuple(sizes),
+        sync,
+        1.0,
+        0.5,
+        2,
+        100,
+        SCIPY_RTOLS,
+        SCIPY_REFERENCE_RTOL,
+        4096,
+        100,
+        WARMUP_STEPS,
+        threads,
+    )
 
 
 def median(values) -> float:
@@ -93,6 +123,7 @@ def with_cpu_share(threads: int, measure, *args, **kwargs):
 
 def set_threads(n: int) -> None:
     import numba
+
     numba.set_num_threads(n)
 
 
