@@ -543,7 +543,13 @@ def leaderboard(paths: Sequence[str | Path]) -> str:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--controller",
-        help="pid | sliding_mode | zero | path to a trained policy (.npz export or SB3 .zip)",
+        help="pid | sliding_mode | zero | a shipped policy "
+        "(--list) | path to a trained policy (.npz export or SB3 .zip)",
+    )
+    parser.add_argument(
+        "--list",
+        action="store_true",
+        help="print every controller name --controller accepts, one a line",
     )
     parser.add_argument(
         "--variants",
@@ -568,6 +574,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.list:
+        from .registry import controller_names
+
+        print("\n".join(controller_names()))
+        return 0
     if args.leaderboard:
         text = leaderboard(args.leaderboard)
         if args.out:
@@ -577,8 +588,10 @@ def run(args: argparse.Namespace) -> int:
             print(text)
         return 0
     if not args.controller:
-        raise SystemExit("pneumatic-env bench: give --controller (or --leaderboard)")
+        raise SystemExit("pneumatic-env bench: give --controller (or --leaderboard, --list)")
     suite = load_suite(args.suite)
+    for variant in args.variants or suite.variants:  # a bad name fails before any run
+        resolve_controller(args.controller, variant, args.config, suite.preview_steps)
     name = Path(args.controller).stem if Path(args.controller).suffix else args.controller
     out = Path(args.out or Path("runs") / "bench" / name)
     command = (

@@ -13,7 +13,9 @@ from .base import Controller, ControllerContext, ZeroController
 from .config import agent_config_path, load_agent_config
 from .suite import suite_preview_steps
 
-__all__ = ["ControllerSpec", "resolve_controller"]
+__all__ = ["ControllerSpec", "resolve_controller", "controller_names", "CLASSICAL"]
+
+CLASSICAL = ("pid", "sliding_mode", "zero")
 
 
 @dataclass
@@ -62,15 +64,23 @@ def _classical(
     )
 
 
+def controller_names() -> list[str]:
+    """Every name ``resolve_controller`` accepts besides file paths: the classical
+    controllers, then the shipped policies (``agents/policies``)."""
+    from .learned import shipped_policies
+
+    return list(CLASSICAL) + sorted(shipped_policies())
+
+
 def resolve_controller(
     spec: str, variant: str, config: str | None = None, preview_steps: int | None = None
 ) -> ControllerSpec:
-    """``pid``, ``sliding_mode``, ``zero``, or a trained policy (``.npz`` export, SB3 ``.zip``).
+    """``pid``, ``sliding_mode``, ``zero``, a shipped policy's name (``controller_names``)
+    or a trained policy file (``.npz`` export of ``pneumatic-env train``, SB3 ``.zip``).
 
     ``preview_steps``: the preview a classical controller gets unless its config sets one;
     default the benchmark suite's (``suite_preview_steps()``, not the env's default).
     """
-    names = ("pid", "sliding_mode", "zero")
     if spec in ("pid", "sliding_mode"):
         return _classical(spec, variant, config, preview_steps)
     if spec == "zero":
@@ -80,11 +90,20 @@ def resolve_controller(
         )
     path = Path(spec)
     if path.suffix in (".npz", ".zip"):
+        from .learned import is_learned, learned_spec
+
+        if path.suffix == ".npz" and path.is_file() and is_learned(path):
+            return learned_spec(path, variant)
         from .policy import load_policy_spec
 
         return load_policy_spec(path)
+    names = controller_names()
+    if spec in names:
+        from .learned import learned_spec, shipped_policy_path
+
+        return learned_spec(shipped_policy_path(spec, variant), variant, name=spec)
     raise ValueError(
-        f"controller = {spec!r} is not allowed: use one of {list(names)} or a path "
-        "to a trained policy (.npz from pneumatic_env.agents.policy.export_policy, "
-        "or SB3 .zip)"
+        f"controller = {spec!r} is not allowed: use one of {names} or a path "
+        "to a trained policy (.npz from pneumatic-env train or "
+        "pneumatic_env.agents.policy.export_policy, or SB3 .zip)"
     )

@@ -381,18 +381,22 @@ class SlidingModeController(Controller):
     def _rows(self, obs) -> np.ndarray:
         return np.asarray(obs, dtype=np.float64).reshape(-1, self.context.obs_dim)
 
-    def applied(self, obs, current) -> None:
+    def applied(self, obs, current, rows=None) -> None:
         """Tell the predictor the current actually applied after the last ``act(obs)``
-        (e.g. the controller's plus a learned correction): the model rate of the command in
-        flight is recomputed for it. Without this the prediction believes the controller's
-        own command is in flight, and a correction can hold a force offset the integral
-        never sees. ``obs``: the observation ``act`` got (any normalisation)."""
+        (e.g. the controller's plus a learned correction) in ``rows`` (default all): the
+        model rate of the command in flight is recomputed for it. Without this the
+        prediction believes the controller's own command is in flight, and a correction can
+        hold a force offset the integral never sees. ``obs``: the observation ``act`` got
+        (any normalisation); ``current``: one per row of ``obs``."""
         if self.d == 0:
             return
-        o = self.observation_si(self._rows(obs))
+        rows = np.arange(self.pending.shape[0]) if rows is None else np.asarray(rows)
+        if rows.size == 0:
+            return
+        o = self.observation_si(self._rows(obs))[rows]
         spool = (
             np.clip(
-                np.asarray(current, dtype=np.float64).reshape(-1),
+                np.asarray(current, dtype=np.float64).reshape(-1)[rows],
                 -self.context.i_max_a,
                 self.context.i_max_a,
             )
@@ -408,7 +412,7 @@ class SlidingModeController(Controller):
             np.ascontiguousarray(spool),
             rate,
         )
-        self.pending[:, (self.head - 1) % self.d] = rate
+        self.pending[rows, (self.head - 1) % self.d] = rate
 
     def peek(self, obs, rows):
         """(current, predicted error in N) that ``act`` would give rows ``rows`` for their

@@ -1,7 +1,11 @@
-"""``pneumatic-env train``: PPO or SAC on the native vector env (Stable-Baselines3).
+"""``pneumatic-env train``: PPO or SAC on the native vector env (Stable-Baselines3), or the
+fast PPO of ``agents/ppo.py`` (``--algo ppo_fast``: thousands of envs, delay-aware
+features, residual policies; its docstring).
 
     pneumatic-env train --algo ppo --env pneumatic_env/ForceTrack-Numatics-2m-v0 \\
         --config configs/agents/ppo-numatics-2m.yaml [--timesteps N] [--seed S] [--out DIR]
+    pneumatic-env train --algo ppo_fast --env pneumatic_env/ForceTrack-Numatics-2m-v0 \\
+        [--config FILE] [--seed S] [--minutes M] [--out DIR] [--resume]
 
 Hyperparameters come from ``configs/agents/<algo>-<variant>.yaml`` (one file per algorithm and
 variant, rl-zoo style; every number with unit and source). The env is ``gym.make_vec`` (our
@@ -30,7 +34,7 @@ from .config import ConfigError, agent_config_path, load_agent_config
 
 __all__ = ["train", "evaluate", "add_arguments", "run"]
 
-ALGOS = ("ppo", "sac")
+ALGOS = ("ppo", "sac")  # Stable-Baselines3; "ppo_fast" is agents/ppo.py
 
 
 def _variant_of(env_id: str) -> str:
@@ -211,14 +215,26 @@ def _jsonable(x):
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--algo", required=True, choices=ALGOS)
+    parser.add_argument("--algo", required=True, choices=ALGOS + ("ppo_fast",))
     parser.add_argument(
         "--env", required=True, help="env id, e.g. pneumatic_env/ForceTrack-Numatics-2m-v0"
     )
     parser.add_argument(
         "--config", help="hyperparameter YAML (default configs/agents/<algo>-<variant>.yaml)"
     )
-    parser.add_argument("--timesteps", type=int, help="env steps (default: the config's)")
+    parser.add_argument(
+        "--timesteps",
+        type=int,
+        help="env steps (default: the config's; ppo_fast: a cap besides --minutes)",
+    )
+    parser.add_argument(
+        "--minutes",
+        type=float,
+        help="ppo_fast: wall-time budget of the training (default: the config's training.minutes)",
+    )
+    parser.add_argument(
+        "--resume", action="store_true", help="ppo_fast: continue from OUT/checkpoint.pt"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", help="output directory (default runs/<algo>-<variant>-s<seed>)")
     parser.add_argument(
@@ -240,6 +256,10 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit(
             f"--env {args.env!r} is not registered: use one of {pneumatic_env.registered_ids()}"
         )
+    if args.algo == "ppo_fast":
+        from .ppo import run_fast
+
+        return run_fast(args)
     variant = _variant_of(args.env)
     config = args.config or agent_config_path(f"{args.algo}-{variant}")
     if not Path(config).is_file():

@@ -28,6 +28,11 @@ COMMANDS: dict[str, Command] = {
         "pneumatic_env.agents.bench", "run the force-tracking benchmark for a controller", "plots"
     ),
     "train": Command("pneumatic_env.agents.train", "train a learning agent", "train"),
+    "tune": Command(
+        "pneumatic_env.agents.tune",
+        "search the fast trainer's hyperparameters (Optuna, or Ray Tune)",
+        "train",
+    ),
     "paper": Command(
         "pneumatic_env.studies.paper",
         "reproduce the paper's experiments (figures + table)",

@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pneumatic_env import ids
+
 __all__ = [
     "FORMAT_NAME",
     "FORMAT_VERSION",
@@ -56,20 +58,15 @@ REQUIRED_COLUMNS = ("t", "i_c")
 OUTPUT_COLUMNS = ("p1", "p2", "x", "f")
 PRESSURE_COLUMNS = ("p1", "p2", "p_s")
 
-#: Canonical cylinder names and their case-insensitive aliases.
-CYLINDERS = ("numatics-0750D02-03A", "airpel-E16D3.0N")
-_CYLINDER_ALIASES = {
-    "numatics-0750d02-03a": "numatics-0750D02-03A",
-    "numatics": "numatics-0750D02-03A",
-    "airpel-e16d3.0n": "airpel-E16D3.0N",
-    "airpel": "airpel-E16D3.0N",
-}
+#: Canonical cylinder names and their case-insensitive aliases (pneumatic_env.ids).
+CYLINDERS = tuple(ids.CYLINDERS)
+_CYLINDER_ALIASES = ids.CYLINDER_ALIASES
 
-#: Piston modes, their physics-core code and their required keys.
+#: Piston modes, their physics-core code (ids.PISTON_MODE_CODES) and their required keys.
 PISTON_MODES = {
-    "fixed": (0, ("position_m",)),
-    "free": (1, ("load_mass_kg", "load_force_n")),
-    "spring": (2, ("stiffness_n_per_m", "rest_position_m", "load_mass_kg")),
+    "fixed": (ids.MODE_FIXED, ("position_m",)),
+    "free": (ids.MODE_FREE, ("load_mass_kg", "load_force_n")),
+    "spring": (ids.MODE_SPRING, ("stiffness_n_per_m", "rest_position_m", "load_mass_kg")),
 }
 _PISTON_KEYS = {
     "mode",
@@ -248,7 +245,8 @@ def canonical_cylinder(name: str) -> str:
 
 
 def _allowed_cylinders() -> str:
-    return ", ".join(f'"{c}"' for c in CYLINDERS) + ' (or the aliases "numatics", "airpel")'
+    aliases = ", ".join(f'"{a}"' for names in ids.CYLINDERS.values() for a in names)
+    return ", ".join(f'"{c}"' for c in CYLINDERS) + f" (or the aliases {aliases})"
 
 
 def validate_rig(rig, source: str = "rig") -> list[str]:
@@ -444,6 +442,98 @@ def _pressure_value_warnings(label: str, value: float, ambient: float) -> list[s
     return []
 
 
+#: Gauge data (0 Pa at ambient) at rest sit within this fraction of ambient around 0 Pa,
+#: where an absolute pressure cannot stay: a sealed chamber expanding against a spring
+#: falls below ambient (44-90 kPa measured, issue 20), not to a few kPa for long.
+GAUGE_ZERO_BAND = 0.05
+#: A chamber's absolute pressure spends most of a recording at or above ambient: a median
+#: below this fraction of ambient is gauge data (or a wrong ambient in the sidecar).
+GAUGE_MEDIAN_FRACTION = 0.5
+#: A flat run within this of the ambient pressure (Pa), or within this fraction of the
+#: span above the stated supply, is the chamber at the pressure of the line it is open
+#: to (physical saturation), not a sensor at its range: transducer noise and offset
+#: (0.5 % of a 1 MPa span) and the regulator's setting (the stated supply is nominal).
+SATURATION_TOLERANCE_PA = 5e3
+SATURATION_SUPPLY_FRACTION = 0.1
+
+
+def _gauge_pressure_warnings(label: str, y: np.ndarray, ambient: float) -> list[str]:
+    """Warnings when a pressure channel looks like gauge data, judged by what gauge data
+    look like, not by a value below ambient (which a sealed chamber expanding against a
+    spring reaches physically): negative values, samples held near 0 Pa, or a median
+    far below ambient."""
+    lo = float(y.min())
+    if lo < 0.0:
+        return [
+            f"{label} looks like gauge pressure: values below ambient (min {lo:.6g} Pa); "
+            "the format wants absolute Pa"
+        ]
+    near_zero = float(np.mean(np.abs(y) < GAUGE_ZERO_BAND * ambient))
+    if near_zero > CLIP_FRACTION:
+        return [
+            f"{label} looks like gauge pressure: {100.0 * near_zero:.1f}% of the samples "
+            f"within {GAUGE_ZERO_BAND * ambient:.6g} Pa of 0 Pa, where an absolute "
+            "pressure cannot stay; the format wants absolute Pa"
+        ]
+    median = float(np.median(y))
+    if median < GAUGE_MEDIAN_FRACTION * ambient:
+        return [
+            f"{label} looks like gauge pressure: median {median:.6g} Pa is below "
+            f"{GAUGE_MEDIAN_FRACTION:g} x ambient ({ambient:.6g} Pa); the format wants "
+            "absolute Pa"
+        ]
+    return []
+
+
+def physical_limit(
+    name: str, value: float, y: np.ndarray, rig: dict, channels: dict | None = None
+) -> str | None:
+    """``"supply"`` or ``"ambient"`` when a pressure channel's flat ``value`` is the
+    pressure a chamber saturates at (the sidecar's supply or ambient pressure, within
+    ``SATURATION_TOLERANCE_PA`` plus five times the channel's noise, and for the supply
+    within ``SATURATION_SUPPLY_FRACTION`` of the span), else None. A value another
+    chamber's pressure in ``channels`` exceeds by more than that tolerance is not the
+    supply (a sensor at its range below the supply). The force ``f`` of a clamped rod is
+    flat where both chambers are: ``"saturated chambers"`` when p1 and p2 sit at their
+    extremes on nine in ten of the samples at ``value`` (whether those are physical is
+    the pressure channels' own check)."""
+    if not isinstance(rig, dict):
+        return None
+    if name == "f" and channels is not None and "p1" in channels and "p2" in channels:
+        at_value = y == value
+        saturated = np.ones(len(y), dtype=bool)
+        for c in ("p1", "p2"):
+            p = channels[c]
+            saturated &= (p == p.min()) | (p == p.max())
+        if at_value.any() and np.mean(saturated[at_value]) >= 0.9:
+            return "saturated chambers"
+        return None
+    if name not in PRESSURE_COLUMNS:
+        return None
+    ambient = rig.get("ambient_pressure_pa", DEFAULT_AMBIENT_PA)
+    ambient = float(ambient) if _is_number(ambient) else DEFAULT_AMBIENT_PA
+    steps = np.abs(np.diff(y))
+    steps = steps[steps > 0]
+    noise = 1.4826 * float(np.median(steps)) / math.sqrt(2.0) if steps.size else 0.0
+    tolerance = SATURATION_TOLERANCE_PA + 5.0 * noise
+    if abs(value - ambient) <= tolerance:
+        return "ambient"
+    raw_supply = rig.get("supply_pressure_pa")
+    if raw_supply is None or not _is_number(raw_supply):
+        return None
+    supply = float(raw_supply)
+    if not (
+        supply > ambient
+        and abs(value - supply) <= max(tolerance, SATURATION_SUPPLY_FRACTION * (supply - ambient))
+    ):
+        return None
+    chambers = channels or {}
+    others = [c for c in ("p1", "p2") if c != name and c in chambers]
+    if any(float(np.max(chambers[c])) > value + tolerance for c in others):
+        return None
+    return "supply"
+
+
 def _extreme_run_fraction(y: np.ndarray, value: float) -> tuple[int, int]:
     """Samples equal to ``value`` that lie in runs of >= CLIP_MIN_RUN, skipping a leading run.
 
@@ -475,11 +565,8 @@ def _channel_warnings(name: str, channels: dict, rig: dict, source: str) -> list
             out.append(
                 f"{source}: {name} looks like kPa (max {_fmt(hi)}); the format wants absolute Pa"
             )
-        elif lo < max(0.5 * ambient, 2e4):
-            out.append(
-                f"{source}: {name} looks like gauge pressure: values below ambient "
-                f"(min {lo:.6g} Pa); the format wants absolute Pa"
-            )
+        else:
+            out.extend(_gauge_pressure_warnings(f"{source}: {name}", y, ambient))
     if name == "x" and max(abs(lo), abs(hi)) > 0.5:
         out.append(
             f"{source}: x looks like millimetres (max |x| {max(abs(lo), abs(hi)):.6g}); "
@@ -500,6 +587,8 @@ def _channel_warnings(name: str, channels: dict, rig: dict, source: str) -> list
         return out
     n = len(y)
     for label, value in (("minimum", lo), ("maximum", hi)):
+        if physical_limit(name, value, y, rig, channels) is not None:
+            continue  # a chamber at supply or ambient pressure: saturation, not clipping
         count, longest = _extreme_run_fraction(y, value)
         if count > CLIP_FRACTION * n:
             note = " or the piston at an end stop" if name == "x" else ""

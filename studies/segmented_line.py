@@ -22,14 +22,13 @@ kernel's sub-model functions; ``tests/test_virtual_rig.py`` compares the two.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 
 from pneumatic_env.physics import layout as L
 from pneumatic_env.physics.chamber import chamber_volumes, pressure_rate
-from pneumatic_env.physics.flow import flow_constants, orifice_mass_flow, subsonic_reduced_flow
+from pneumatic_env.physics.derived import circle_area_m2, orifice_gas_constants, piston_areas_m2
+from pneumatic_env.physics.flow import orifice_mass_flow
 from pneumatic_env.physics.piston import MODE_FIXED, pneumatic_force
 from pneumatic_env.physics.tube import reynolds_number, tube_resistance
 from pneumatic_env.physics.valve import orifice_area, spool_acceleration
@@ -94,11 +93,11 @@ def line_constants(p: dict, n_segments: int) -> np.ndarray:
         )
     if not (isinstance(n_segments, (int, np.integer)) and n_segments >= 2):
         raise ValueError(f"n_segments = {n_segments!r} is not allowed: must be an integer >= 2")
-    k, r_gas, temp = p["heat_capacity_ratio"], p["gas_constant_j_per_kg_k"], p["temperature_k"]
-    c1, c2, pcr = flow_constants(k, r_gas)
-    lin = p["flow_linear_ratio"]
-    area_cap = 0.25 * math.pi * p["bore_diameter_m"] ** 2
-    area_rod_side = area_cap - 0.25 * math.pi * p["rod_diameter_m"] ** 2
+    r_gas, temp = p["gas_constant_j_per_kg_k"], p["temperature_k"]
+    inv_sqrt_t, k, c1, c2, pcr, lin, slope = orifice_gas_constants(
+        p["heat_capacity_ratio"], r_gas, temp, p["flow_linear_ratio"]
+    )
+    area_cap, area_rod_side, _ = piston_areas_m2(p["bore_diameter_m"], p["rod_diameter_m"])
     v1, v2 = chamber_volumes(
         p["fixed_position_m"],
         0.5 * p["stroke_m"],
@@ -117,13 +116,13 @@ def line_constants(p: dict, n_segments: int) -> np.ndarray:
         p["supply_pressure_pa"],
         p["ambient_pressure_pa"],
     )
-    c[_INV_SQRT_T], c[_K], c[_C1], c[_C2], c[_P_CR] = 1.0 / math.sqrt(temp), k, c1, c2, pcr
+    c[_INV_SQRT_T], c[_K], c[_C1], c[_C2], c[_P_CR] = inv_sqrt_t, k, c1, c2, pcr
     c[_LIN] = lin
-    c[_SLOPE] = subsonic_reduced_flow(lin, k, c2) / (1.0 - lin)
+    c[_SLOPE] = slope
     c[_RT] = r_gas * temp
     c[_ALPHA_IN], c[_ALPHA_OUT], c[_ALPHA_MOTION] = p["alpha_in"], p["alpha_out"], p["alpha_motion"]
     c[_V1], c[_V2] = v1, v2
-    c[_A_T] = 0.25 * math.pi * p["tube_inner_diameter_m"] ** 2
+    c[_A_T] = circle_area_m2(p["tube_inner_diameter_m"])
     c[_DX] = p["tube_length_m"] / n_segments
     c[_D_T], c[_MU], c[_RE_T] = (
         p["tube_inner_diameter_m"],

@@ -11,7 +11,9 @@ import pytest
 from pneumatic_env.identification.config import load_config
 from pneumatic_env.params import load_parameters
 from pneumatic_env.recording import read_recording
-from pneumatic_env.studies.virtual_rig import _two_lags, excitation, run_rig
+from pneumatic_env.studies.rig_excitation import excitation
+from pneumatic_env.studies.rig_plants import _two_lags
+from pneumatic_env.studies.virtual_rig import run_rig
 
 DURATION_S = 1.0
 
@@ -87,7 +89,7 @@ def test_rig_coil_without_its_hold_is_the_candidates_two_lags():
     from pneumatic_env.params import load_parameters, parameter_array
     from pneumatic_env.physics import layout as L
     from pneumatic_env.simulator import BatchSimulator
-    from pneumatic_env.studies.virtual_rig import _coil_plant
+    from pneumatic_env.studies.rig_plants import _coil_plant
 
     dt, total, share = 1e-4, 3e-3, 0.35
     command = np.repeat([0.0, 0.8, -0.5, 0.3], 41)  # changes between amplifier updates
@@ -112,7 +114,7 @@ def test_rig_spool_friction_is_a_stick_slip_play():
     """Without a breakaway excess the rig's spool friction is the candidate's play; with it
     the spool sticks longer, then jumps to the Coulomb band and slides."""
     from pneumatic_env.physics.effects import spool_play_current
-    from pneumatic_env.studies.virtual_rig import _stick_slip_play
+    from pneumatic_env.studies.rig_plants import _stick_slip_play
 
     rng = np.random.default_rng(3)
     current = np.cumsum(rng.normal(0.0, 0.01, 2000))
@@ -152,7 +154,7 @@ def test_laminar_leak_equalises_the_sealed_chambers():
 def test_rig_lugre_damping_falls_with_speed():
     """The rig's bristle damping (``_lugre_damping``): sigma1 at rest, e^-1 of it at v_d,
     even in v; the candidate's (the kernel's) is constant."""
-    from pneumatic_env.studies.virtual_rig import _lugre_damping
+    from pneumatic_env.studies.rig_plants import _lugre_damping
 
     assert _lugre_damping(316.0, 0.0, 0.05) == 316.0
     assert _lugre_damping(316.0, -0.05, 0.05) == pytest.approx(316.0 / math.e, rel=1e-12)
@@ -162,7 +164,7 @@ def test_rig_lugre_damping_falls_with_speed():
 def test_rig_wall_heat_exchange_conserves_the_gas_and_relaxes_to_the_wall():
     """``_wall_heat_exchange``: at constant volume the gas's mass (p / T) stays, and T
     relaxes to the wall's with the time constant m c_v / hA, hA scaled by the density."""
-    from pneumatic_env.studies.virtual_rig import _wall_heat_exchange
+    from pneumatic_env.studies.rig_plants import _wall_heat_exchange
 
     r, kappa, wall, volume, h = 287.0, 1.4, 293.15, 5e-5, 1e-4
     for p, t in ((6e5, 380.0), (2e5, 250.0)):
@@ -201,7 +203,7 @@ def test_rig_supply_line_droops_like_the_resistance_after_its_lag():
     """``_supply_line_step``: under a steady draw the line settles at the candidate's
     droop p_set - R draw (``supply_resistance_pa_s_per_kg``), but only after the line's
     time constant, where the candidate droops at once."""
-    from pneumatic_env.studies.virtual_rig import _supply_line_step
+    from pneumatic_env.studies.rig_plants import _supply_line_step
 
     p_set, resistance, tau, draw = 6.5e5, 1e7, 0.02, 5e-3
     steady = p_set - resistance * draw
@@ -219,7 +221,7 @@ def test_rig_muffler_fills_with_the_exhaust_and_vents_to_the_atmosphere():
     (``--effect exhaust_muffler``) its back-pressure slows the exhaust, so a charged
     chamber vented by a step stays above the plain rig's, and the truth names the
     candidate's vent area and the muffler's volume."""
-    from pneumatic_env.studies.virtual_rig import _muffler_step
+    from pneumatic_env.studies.rig_plants import _muffler_step
 
     rt, volume, h = 287.0 * 293.15, 1e-5, 1e-5
     p = _muffler_step(1.2e5, 2e-3, 5e-4, volume, rt, h)
@@ -354,3 +356,57 @@ def test_unknown_effect_is_a_clear_error():
         run_rig("leak")
     with pytest.raises(ValueError, match="strength = -1.0 is not allowed"):
         run_rig("leakage", strength=-1.0)
+
+
+@pytest.mark.slow
+def test_own_forms_differ_from_the_kernel_form_of_the_candidate():
+    """The rig's own forms (rig_forms) of the effects the kernel also has: an effect of the
+    same order as the candidate's form (0.5-2x its change of the recording), yet not that
+    form (they differ by more than 5 % of its change): no inverse crime."""
+    from pneumatic_env.studies.rig_forms import OWN_FORM_EFFECTS
+
+    setups = {"tube_volume": {"tube_length_m": 2.0}, "stribeck": {"piston": "spring"}}
+    for effect in OWN_FORM_EFFECTS:
+        kw = setups.get(effect, {})
+        base = run_rig("none", seed=3, duration_s=0.6, **kw)
+        own = run_rig(effect, seed=3, duration_s=0.6, **kw)
+        kernel = run_rig(effect, seed=3, duration_s=0.6, own_forms=False, **kw)
+        ch = "x" if "x" in own.channels else "p1"
+
+        def rms(a, b, ch=ch):
+            return float(np.sqrt(np.mean((a.channels[ch] - b.channels[ch]) ** 2)))
+
+        assert 0.5 < rms(own, base) / rms(kernel, base) < 2.0, effect
+        assert rms(own, kernel) > 0.05 * rms(kernel, base), effect
+        assert own.truth["plant"] == "kernel and the rig's own form"
+        assert kernel.truth["parameters"] == own.truth["parameters"]  # same nearest form
+
+
+def test_a_tube_volume_state_conserves_the_air():
+    """rig_forms._TubeVolumes: the exchange between a chamber and its tube's volume moves
+    mass from one to the other and relaxes both to one pressure."""
+    from types import SimpleNamespace
+
+    from pneumatic_env.params import load_parameters
+    from pneumatic_env.physics import layout as L
+    from pneumatic_env.studies.rig_forms import _TubeVolumes
+
+    true = load_parameters(tube_length_m=2.0)
+    form = _TubeVolumes(true, 1.0)
+    state = np.zeros((L.N_STATE, 1))
+    state[L.S_P1, 0], state[L.S_P2, 0] = 4e5, true["ambient_pressure_pa"]
+    sim = SimpleNamespace(state=state)
+    v1, v2 = form.volumes(state)
+    gas_rt = form.gas_rt
+
+    def mass():  # chamber at alpha = 1 (isothermal accounting as the form's)
+        return state[L.S_P1, 0] * v1 / gas_rt + form.tube_pa[0] * form.tube_volume / gas_rt
+
+    m0 = mass()
+    true_alpha = dict(true, alpha_in=1.0, alpha_out=1.0)
+    form.true = true_alpha
+    for k in range(200):
+        form.before_step(sim, k, 1e-4)
+    assert mass() == pytest.approx(m0, rel=1e-12)
+    assert state[L.S_P1, 0] == pytest.approx(form.tube_pa[0], rel=1e-6)
+    assert true["ambient_pressure_pa"] < state[L.S_P1, 0] < 4e5

@@ -18,7 +18,12 @@ parameter sets at once: a forward-difference Jacobian is one rollout with one co
 perturbed plant parameter; sensor-side parameters (:mod:`.candidates`) only re-filter
 the unperturbed simulation.
 
-Uncertainty: the Gauss-Newton covariance ``s^2 (J^T J)^-1`` at the optimum, with the
+A fit that frees the static friction on data with a moving rod picks its stick-event
+basin by a 1-D search (one batch rollout, :func:`_friction_search`) before the fit and
+around its optimum; every accepted point lowers the robust cost (``cost_history``).
+
+Uncertainty (:mod:`.results`): the Gauss-Newton covariance ``s^2 (J^T J)^-1`` at the
+optimum, with the
 residual variance inflated by ``(1 + rho) / (1 - rho)``, rho the pooled lag-1
 autocorrelation of the residuals (effective sample size ``N (1 - rho) / (1 + rho)``).
 A parameter is *not identified* when its Jacobian column is zero, when it lies in a
@@ -33,21 +38,29 @@ import math
 import os
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.stats import norm
 
+from pneumatic_env.ids import MODE_FIXED
 from pneumatic_env.params import ConfigError, parameter_array, save_parameters
-from pneumatic_env.physics.layout import PARAMETER_NAMES
 from pneumatic_env.recording import Recording
-from pneumatic_env.replay import PREDICTED_CHANNELS, recording_parameters, substeps_for
+from pneumatic_env.replay import PREDICTED_CHANNELS
 from pneumatic_env.simulator import BatchSimulator
 
+from . import progress
 from .candidates import SENSOR_NEUTRAL, apply_sensor_model
-from .checks import FITTED_CHANNELS, check_recordings, usable_masks
 from .config import FitParameter, IdentificationConfig, load_config
+from .datasets import (
+    _ROW,
+    Dataset,
+    base_fit_parameters,
+    channel_scale,
+    dataset_overrides,
+    prepare_datasets,
+)
+from .results import FitResult, _statistics, pooled_lag1
 
 __all__ = [
     "Calibration",
@@ -55,162 +68,23 @@ __all__ = [
     "FitProblem",
     "FitResult",
     "base_fit_parameters",
+    "pooled_lag1",
     "calibrate",
     "channel_nrmse",
+    "channel_scale",
     "dataset_overrides",
     "prepare_datasets",
     "run_fit",
+    "simulate_unique",
 ]
 
 log = logging.getLogger("pneumatic_env.identification")
-_ROW = {name: i for i, name in enumerate(PARAMETER_NAMES)}
-
-
-# --------------------------------------------------------------------------- datasets
-
-
-@dataclass
-class Dataset:
-    """One recording prepared for fitting."""
-
-    name: str
-    recording: Recording
-    values: dict[str, float]  # the parameter set before fitting (configs + params + rig)
-    channels: tuple[str, ...]  # channels that enter the residual
-    scales: dict[str, float]  # residual scale of each channel
-    usable: dict[str, np.ndarray]  # per channel: samples not clipped
-    dt_s: float
-    substeps: int  # RK4 substeps per sample for the recording's rod mode
-    initial: dict | None
-    moving: bool
-    rod_mode: str = "fixed"  # the sidecar's piston.mode
-    substeps_moving: int = 0  # substeps when the simulated rod moves (0: = substeps)
-
-    @property
-    def n_samples(self) -> int:
-        return self.recording.n_samples
-
-    def measured(self, channel: str) -> np.ndarray:
-        return self.recording.channels[channel]
-
-
-def channel_scale(channel: str, values: Mapping[str, float], config: IdentificationConfig) -> float:
-    """Residual scale of a channel (see ``channel_scales`` in the config)."""
-    span = values["supply_pressure_pa"] - values["ambient_pressure_pa"]
-    if channel in ("p1", "p2"):
-        return span
-    if channel == "f":
-        return span * math.pi * values["bore_diameter_m"] ** 2 / 4.0
-    if channel == "x":
-        return config.number("channel_scales", "x", positive=True) * values["stroke_m"]
-    if channel == "x_s":
-        return config.number("channel_scales", "x_s", positive=True) * values["hole_radius_m"]
-    if channel == "v":
-        return config.number("channel_scales", "v", positive=True)
-    raise ConfigError(f"channel {channel!r} has no residual scale; allowed: p1, p2, f, x, v, x_s")
-
-
-def prepare_datasets(
-    recordings: Sequence[Recording],
-    params=None,
-    config: IdentificationConfig | None = None,
-    check: bool = True,
-) -> tuple[list[Dataset], list]:
-    """Datasets for ``recordings`` and the data issues found (errors raise ``BadDataError``).
-
-    ``params`` is a parameter file or mapping layered under each recording's sidecar (see
-    :func:`pneumatic_env.replay.recording_parameters`).
-    """
-    config = config or load_config()
-    values = [recording_parameters(rec, params) for rec in recordings]
-    issues = check_recordings(recordings, values, config=config) if check else []
-    datasets = []
-    for k, (rec, vals) in enumerate(zip(recordings, values)):
-        name = rec.path.stem if rec.path is not None else f"recording{k}"
-        dropped = {
-            i.channel
-            for i in issues
-            if i.code == "constant" and i.recording in (rec.path.name if rec.path else "recording")
-        }
-        mode = rec.rig["piston"]["mode"]
-        max_substep = config.number(
-            "fit", "max_substep_s" if mode == "fixed" else "max_substep_moving_s", positive=True
-        )
-        moving_substep = config.number("fit", "max_substep_moving_s", positive=True)
-        initial = rec.rig.get("initial")
-        if mode == "fixed":  # the rod starts at the clamp, also when a candidate frees it
-            initial = {"x": vals["fixed_position_m"], **(initial or {})}
-        channels = tuple(
-            c
-            for c in FITTED_CHANNELS
-            if c in rec.channels
-            and c not in dropped
-            and c in PREDICTED_CHANNELS
-            and not (c == "x" and mode == "fixed")
-        )
-        datasets.append(
-            Dataset(
-                name=name,
-                recording=rec,
-                values=vals,
-                channels=channels,
-                scales={c: channel_scale(c, vals, config) for c in channels},
-                usable=usable_masks(rec, channels),
-                dt_s=rec.dt,
-                substeps=substeps_for(rec.dt, max_substep),
-                initial=initial,
-                moving=mode in ("free", "spring") and "x" in channels,
-                rod_mode=mode,
-                substeps_moving=substeps_for(rec.dt, moving_substep),
-            )
-        )
-    return datasets, issues
-
-
-def base_fit_parameters(
-    datasets: Sequence[Dataset],
-    names: Sequence[str] | None = None,
-    config: IdentificationConfig | None = None,
-) -> list[FitParameter]:
-    """The base parameters to fit: ``names``, else the config's default set for the data."""
-    config = config or load_config()
-    if names is None:
-        names = list(config.base_fit_names("fit_always"))
-        if any(ds.moving for ds in datasets):
-            names += config.base_fit_names("fit_when_moving")
-    out = []
-    for name in names:
-        if name not in config.base_parameters:
-            raise ConfigError(
-                f"cannot fit {name!r}: no entry under base_parameters in "
-                f"{config.path}; fittable: {', '.join(config.base_parameters)}"
-            )
-        out.append(config.base_parameters[name])
-    return out
+PREDICTED_CHANNELS_ORDER = tuple(PREDICTED_CHANNELS)
+#: The piston's friction parameters: they act only on a rod that moves.
+FRICTION_NAMES = ("static_friction_n", "dynamic_friction_n", "viscous_friction_n_s_per_m")
 
 
 # --------------------------------------------------------------------------- the problem
-
-
-def dataset_overrides(
-    ds: Dataset,
-    overrides: Mapping[str, float | str],
-    scopes: Mapping[str, Sequence[str]] | None = None,
-) -> dict[str, float]:
-    """The kernel-parameter ``overrides`` that apply to ``ds``, as numbers.
-
-    A name whose ``scopes`` entry (rod modes) does not include the recording's rod mode is
-    dropped; a text value names a kernel parameter whose value in ``ds``'s set is used.
-    """
-    scopes = scopes or {}
-    out = {}
-    for name, v in overrides.items():
-        if name not in _ROW:
-            continue
-        if name in scopes and ds.rod_mode not in scopes[name]:
-            continue
-        out[name] = float(ds.values[v]) if isinstance(v, str) else float(v)
-    return out
 
 
 def _simulate(
@@ -218,23 +92,59 @@ def _simulate(
     columns: Sequence[Mapping[str, float]],
     n_samples: int,
     scopes: Mapping[str, Sequence[str]] | None = None,
+    column_scopes: Sequence[Mapping[str, Sequence[str]]] | None = None,
 ) -> dict[str, np.ndarray]:
-    """True (plant) channels of ``ds`` for each column of overrides: ``(n_samples, m)``."""
+    """True (plant) channels of ``ds`` for each column of overrides: ``(n_samples, m)``.
+
+    ``column_scopes[j]`` (default: ``scopes`` for every column) scopes column j's values.
+    Columns whose rod moves and columns whose rod is clamped are simulated in separate
+    batches, each at its own substep. The work done is reported to :mod:`.progress`.
+    """
     m = len(columns)
     base = parameter_array([ds.values])
     arr = np.repeat(base, m, axis=1)
     for j, overrides in enumerate(columns):
-        for name, v in dataset_overrides(ds, overrides, scopes).items():
+        sc = scopes if column_scopes is None else column_scopes[j]
+        for name, v in dataset_overrides(ds, overrides, sc).items():
             arr[_ROW[name], j] = v
-    moving = bool(np.any(arr[_ROW["piston_mode"]] != 0))
-    substeps = ds.substeps_moving if moving and ds.substeps_moving else ds.substeps
-    sim = BatchSimulator(arr, ds.dt_s, substeps)
-    if ds.initial:
-        sim.reset(initial=ds.initial)
-    first = sim.outputs.copy()
-    currents = np.repeat(ds.recording.i_c[: n_samples - 1, None], m, axis=1)
-    rows = np.concatenate([first[None], sim.rollout(currents)], axis=0)
-    return {ch: rows[:, PREDICTED_CHANNELS[ch], :] for ch in ds.channels}
+    moving = arr[_ROW["piston_mode"]] != MODE_FIXED
+    out = np.empty((n_samples, len(PREDICTED_CHANNELS_ORDER), m))
+    for group in (np.flatnonzero(~moving), np.flatnonzero(moving)):
+        if group.size == 0:
+            continue
+        substeps = ds.substeps_moving if moving[group[0]] and ds.substeps_moving else ds.substeps
+        sim = BatchSimulator(np.ascontiguousarray(arr[:, group]), ds.dt_s, substeps)
+        if ds.initial:
+            sim.reset(initial=ds.initial)
+        first = sim.outputs.copy()
+        currents = np.repeat(ds.recording.i_c[: n_samples - 1, None], group.size, axis=1)
+        rows = np.concatenate([first[None], sim.rollout(currents)], axis=0)
+        out[:, :, group] = rows[:, [PREDICTED_CHANNELS[c] for c in PREDICTED_CHANNELS_ORDER], :]
+        progress.advance(n_samples * substeps * group.size)
+    return {ch: out[:, PREDICTED_CHANNELS_ORDER.index(ch), :] for ch in ds.channels}
+
+
+def simulate_unique(
+    ds: Dataset,
+    columns: Sequence[Mapping[str, float | str]],
+    n_samples: int,
+    column_scopes: Sequence[Mapping[str, Sequence[str]]],
+) -> dict[str, np.ndarray]:
+    """:func:`_simulate` of ``columns``, each plant that reaches ``ds`` simulated once: a
+    value scoped away from its rod mode, or the piston's friction on a clamped rod, does
+    not make a column differ."""
+    keys, unique = [], {}
+    for plant, scopes in zip(columns, column_scopes):
+        resolved = dataset_overrides(ds, plant, scopes)
+        if ds.rod_mode == "fixed" and resolved.get("piston_mode", MODE_FIXED) == MODE_FIXED:
+            resolved = {k: v for k, v in resolved.items() if k not in FRICTION_NAMES}
+        key = tuple(sorted(resolved.items()))
+        unique.setdefault(key, resolved)
+        keys.append(key)
+    order = list(unique)
+    sims = _simulate(ds, [unique[k] for k in order], n_samples)
+    idx = [order.index(k) for k in keys]
+    return {c: y[:, idx] for c, y in sims.items()}
 
 
 class FitProblem:
@@ -294,6 +204,7 @@ class FitProblem:
         self._cache: OrderedDict = OrderedDict()
         self._jac_cache: OrderedDict = OrderedDict()
         self.n_jacobians = 0
+        self.cost_history: list[float] = []  # robust cost at each Jacobian (accepted points)
         self.blocks = self._blocks()
 
     # -- parameter vectors ----------------------------------------------------------------
@@ -392,6 +303,34 @@ class FitProblem:
     def residual(self, u: np.ndarray) -> np.ndarray:
         return self._residual_of(self.predict(u))
 
+    def robust_cost(self, r: np.ndarray) -> float:
+        """The cost ``least_squares`` minimises: ``f^2 sum(sqrt(1 + (r/f)^2) - 1)`` for the
+        ``soft_l1`` loss (``0.5 sum r^2`` for ``linear``), ``f`` = ``fit.f_scale``."""
+        if str(self.config.fit("loss")) == "linear":
+            return 0.5 * float(r @ r)
+        f = self.config.number("fit", "f_scale", positive=True)
+        if str(self.config.fit("loss")) != "soft_l1":
+            raise ConfigError(
+                f"fit.loss = {self.config.fit('loss')!r} is not allowed: must be "
+                "'soft_l1' or 'linear'"
+            )
+        return float(f * f * np.sum(np.sqrt(1.0 + (r / f) ** 2) - 1.0))
+
+    def residual_columns(self, us: Sequence[np.ndarray]) -> np.ndarray:
+        """Residuals ``(n, m)`` of several optimiser vectors, one batch rollout per dataset.
+
+        Columns that give a dataset the same plant are simulated once (the piston's
+        friction does not act on a clamped rod).
+        """
+        splits = [self._split(self.values(u)) for u in us]
+        preds = []
+        for ds, n in zip(self.datasets, self.n_samples):
+            sims = simulate_unique(
+                ds, [plant for plant, _ in splits], n, [self.scopes] * len(splits)
+            )
+            preds.append(apply_sensor_model(sims, [se for _, se in splits], ds.dt_s))
+        return self._residual_of(preds)
+
     def jacobian(self, u: np.ndarray) -> np.ndarray:
         """Forward-difference Jacobian: one batch rollout per dataset for all plant columns."""
         key = np.asarray(u, float).tobytes()
@@ -440,6 +379,7 @@ class FitProblem:
         R = self._residual_of(col_preds)
         J[:] = (R - base_res[:, None]) / np.array(steps)[None, :]
         self.n_jacobians += 1
+        self.cost_history.append(self.robust_cost(base_res))
         log.info(
             "%s: Jacobian %d, cost %.6g, %s",
             self.label,
@@ -453,186 +393,14 @@ class FitProblem:
         return J
 
 
-# --------------------------------------------------------------------------- results
-
-
-@dataclass
-class FitResult:
-    """Outcome of one fit (values in physical units; ``ci`` at the config's level)."""
-
-    parameters: list[FitParameter]
-    values: dict[str, float]
-    fixed: dict[str, float]
-    std: dict[str, float]
-    ci: dict[str, tuple[float, float]]
-    identified: dict[str, bool]
-    plausible: dict[str, bool]
-    flags: dict[str, list[str]]
-    correlations: list[tuple[str, str, float]]
-    condition_number: float
-    cost: float
-    rss: float
-    n_residuals: int
-    rho1: float
-    n_eff: float
-    nfev: int
-    message: str
-    u: np.ndarray = field(repr=False, default=None)
-    scopes: dict[str, tuple[str, ...]] = field(default_factory=dict)
-
-    def plant_values(self) -> dict[str, float | str]:
-        """Fixed and fitted kernel parameters (overrides on the datasets' sets; a text value
-        names the dataset's parameter to use, see :func:`dataset_overrides`)."""
-        out = {k: v for k, v in self.fixed.items() if k in _ROW}
-        out.update((p.name, self.values[p.name]) for p in self.parameters if p.kind == "plant")
-        return out
-
-    def sensor_values(self) -> dict[str, float]:
-        out = {k: v for k, v in self.fixed.items() if k in SENSOR_NEUTRAL}
-        out.update((p.name, self.values[p.name]) for p in self.parameters if p.kind == "sensor")
-        return out
-
-    def all_values(self) -> dict[str, float | str]:
-        return {**self.plant_values(), **self.sensor_values()}
-
-    def dataset_values(self, ds: Dataset) -> dict[str, float]:
-        """The complete kernel parameter set of dataset ``ds`` with this fit applied."""
-        return {**ds.values, **dataset_overrides(ds, self.plant_values(), self.scopes)}
-
-    def file_values(self, datasets: Sequence[Dataset]) -> dict[str, float]:
-        """Kernel overrides for a parameter file: scoped values and text references are
-        resolved on the first dataset they apply to (left out if none)."""
-        out: dict[str, float] = {}
-        for ds in reversed(list(datasets)):
-            out.update(dataset_overrides(ds, self.plant_values(), self.scopes))
-        return out
-
-    def to_dict(self) -> dict:
-        """JSON-ready summary."""
-        return {
-            "parameters": {
-                p.name: {
-                    "value": self.values[p.name],
-                    "unit": p.unit,
-                    "kind": p.kind,
-                    "std": _finite(self.std[p.name]),
-                    "ci": [_finite(self.ci[p.name][0]), _finite(self.ci[p.name][1])],
-                    "identified": self.identified[p.name],
-                    "plausible": self.plausible[p.name],
-                    "flags": self.flags[p.name],
-                }
-                for p in self.parameters
-            },
-            "fixed": dict(self.fixed),
-            "scopes": {k: list(v) for k, v in self.scopes.items()},
-            "correlations": [[a, b, r] for a, b, r in self.correlations],
-            "condition_number": _finite(self.condition_number),
-            "cost": self.cost,
-            "rss": self.rss,
-            "n_residuals": self.n_residuals,
-            "lag1_autocorrelation": self.rho1,
-            "effective_samples": self.n_eff,
-            "nfev": self.nfev,
-            "message": self.message,
-        }
-
-
-def _finite(x: float):
-    return float(x) if math.isfinite(x) else None
-
-
-def pooled_lag1(r: np.ndarray, blocks) -> float:
-    """Pooled lag-1 autocorrelation of the residual over its contiguous blocks."""
-    num = den = 0.0
-    for _, _, a, b in blocks:
-        x = r[a:b]
-        if x.size > 1:
-            num += float(x[1:] @ x[:-1])
-            den += float(x @ x)
-    return num / den if den > 0 else 0.0
-
-
-def _statistics(problem: FitProblem, u: np.ndarray, r: np.ndarray, J: np.ndarray) -> dict:
-    cfg = problem.config
-    n, p = J.shape
-    s2 = float(r @ r) / max(n - p, 1)
-    rho = min(max(pooled_lag1(r, problem.blocks), 0.0), cfg.number("fit", "max_autocorrelation"))
-    inflation = (1.0 + rho) / (1.0 - rho)
-    norms = np.linalg.norm(J, axis=0)
-    tiny = norms <= 1e-12 * max(float(norms.max(initial=0.0)), 1e-300)
-    safe = np.where(tiny, 1.0, norms)
-    Jn = J / safe[None, :]
-    Jn[:, tiny] = 0.0
-    # Singular values and right singular vectors of Jn from the small normal matrix
-    # (a LAPACK SVD of the tall Jn is slow under thread oversubscription).
-    eig, V = np.linalg.eigh(Jn.T @ Jn)
-    order = np.argsort(eig)[::-1]
-    S = np.sqrt(np.clip(eig[order], 0.0, None))
-    Vt = V[:, order].T
-    smax = float(S[0]) if S.size else 0.0
-    ratio = cfg.number("fit", "singular_ratio", positive=True)
-    weight = cfg.number("fit", "singular_direction_weight", positive=True)
-    weak = [k for k in range(S.size) if S[k] < ratio * smax]
-    collinear: dict[int, set] = {j: set() for j in range(p)}
-    for k in weak:
-        members = [j for j in range(p) if abs(Vt[k, j]) > weight and not tiny[j]]
-        for j in members:
-            collinear[j].update(problem.free[i].name for i in members if i != j)
-    # (J^T J)^-1 from the SVD; an exactly singular direction gets a huge variance.
-    inv_s2 = np.full(S.shape, 1e30)
-    ok = S > 1e-14 * max(smax, 1e-300)
-    inv_s2[ok] = 1.0 / S[ok] ** 2
-    cov_n = (Vt.T * inv_s2[None, :]) @ Vt
-    cov_u = cov_n / np.outer(safe, safe) * s2 * inflation
-    std_u = np.sqrt(np.abs(np.diag(cov_u)))
-    std_u[tiny] = np.inf
-    level = cfg.number("fit", "confidence_level", positive=True)
-    z = float(norm.ppf(0.5 + 0.5 * level))
-    lo_b, hi_b = problem.bounds()
-    out = {"std": {}, "ci": {}, "identified": {}, "plausible": {}, "flags": {}}
-    for j, par in enumerate(problem.free):
-        value = par.from_u(u[j])
-        flags = []
-        if tiny[j]:
-            flags.append("no sensitivity: the data do not depend on it")
-        if collinear[j]:
-            flags.append("near-collinear with " + ", ".join(sorted(collinear[j])))
-        if math.isfinite(std_u[j]):
-            lo, hi = par.from_u(u[j] - z * std_u[j]), par.from_u(u[j] + z * std_u[j])
-            std = std_u[j] * (par.scale if not par.log else value * math.log(10.0))
-        else:
-            lo, hi, std = -math.inf, math.inf, math.inf
-        if (hi - lo) > (par.plausible_max - par.plausible_min):
-            flags.append("confidence interval wider than the plausible range")
-        if abs(u[j] - lo_b[j]) < 1e-9 or abs(u[j] - hi_b[j]) < 1e-9:
-            flags.append("at a bound of the fit")
-        out["std"][par.name] = float(std)
-        out["ci"][par.name] = (float(lo), float(hi))
-        out["identified"][par.name] = not (
-            tiny[j] or collinear[j] or (hi - lo) > (par.plausible_max - par.plausible_min)
-        )
-        out["plausible"][par.name] = par.plausible_min <= value <= par.plausible_max
-        out["flags"][par.name] = flags
-    corr_limit = cfg.number("fit", "correlation_warning", positive=True)
-    correlations = []
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov_u / np.outer(std_u, std_u)
-    for a in range(p):
-        for b in range(a + 1, p):
-            c = corr[a, b]
-            if math.isfinite(c) and abs(c) > corr_limit:
-                correlations.append((problem.free[a].name, problem.free[b].name, float(c)))
-    out["correlations"] = correlations
-    out["condition_number"] = float(smax / S[-1]) if S.size and S[-1] > 0 else math.inf
-    out["rho1"] = rho
-    out["n_eff"] = n / inflation
-    return out
-
-
-def _least_squares(problem: FitProblem, u0: np.ndarray, max_nfev: int):
-    """SciPy's robust least squares on ``problem`` from ``u0`` (settings under ``fit``)."""
+def _least_squares(
+    problem: FitProblem, u0: np.ndarray, max_nfev: int, tolerance: float | None = None
+):
+    """SciPy's robust least squares on ``problem`` from ``u0`` (settings under ``fit``);
+    ``tolerance`` is its ``ftol`` and ``xtol`` (default SciPy's 1e-8)."""
     cfg = problem.config
     lo, hi = problem.bounds()
+    tol = {} if tolerance is None else {"ftol": tolerance, "xtol": tolerance}
     return least_squares(
         problem.residual,
         u0,
@@ -644,27 +412,31 @@ def _least_squares(problem: FitProblem, u0: np.ndarray, max_nfev: int):
         f_scale=cfg.number("fit", "f_scale", positive=True),
         max_nfev=max_nfev,
         x_scale=1.0,
+        **tol,
     )
 
 
-def _friction_restarts(problem: FitProblem, u0: np.ndarray) -> list[np.ndarray]:
-    """Further starts of a fit that frees the piston's static friction: ``u0`` with the
-    static friction times each factor of ``fit.static_friction_restarts`` (within its
-    bounds). A sliding piston's free-run error jumps where the static friction decides
-    whether the rod sticks, so the error has one basin per sequence of stick events and
-    a local fit stays in the basin it starts in; the fit keeps the start whose optimum
-    has the lowest cost on the fitting data."""
+def _friction_search(problem: FitProblem, u: np.ndarray) -> tuple[np.ndarray, float]:
+    """A 1-D search of the static friction around ``u``: the robust cost at the static
+    friction times 1 and each factor of ``fit.static_friction_restarts`` (within its
+    bounds), all in one batch rollout per dataset; returns the best vector and its cost.
+
+    A sliding piston's free-run error is a staircase in the static friction (it decides
+    whether and when the rod sticks): the error has one basin per sequence of stick
+    events, and a gradient step cannot leave the basin it starts in. The search picks the
+    basin; the least-squares fit then converges inside it.
+    """
     names = [p.name for p in problem.free]
-    if "static_friction_n" not in names:
-        return []
     i = names.index("static_friction_n")
     p = problem.free[i]
-    starts = []
+    us = [u]
     for factor in problem.config.positive_numbers("fit", "static_friction_restarts"):
-        u = u0.copy()
-        u[i] = p.to_u(min(max(p.from_u(float(u0[i])) * factor, p.lower), p.upper))
-        starts.append(u)
-    return starts
+        v = u.copy()
+        v[i] = p.to_u(min(max(p.from_u(float(u[i])) * factor, p.lower), p.upper))
+        us.append(v)
+    costs = [problem.robust_cost(r) for r in problem.residual_columns(us).T]
+    best = int(np.argmin(costs))
+    return us[best], float(costs[best])
 
 
 def run_fit(
@@ -672,28 +444,52 @@ def run_fit(
     start: Mapping[str, float] | None = None,
     max_nfev: int | None = None,
     friction_restarts: bool = True,
+    tolerance: float | None = None,
 ) -> FitResult:
     """Least-squares fit of ``problem`` from the warm start; statistics at the optimum.
 
-    With ``friction_restarts`` a fit that frees the static friction also runs from the
-    starts of ``_friction_restarts`` and keeps the lowest cost.
+    With ``friction_restarts``, a fit that frees the static friction on data with a moving
+    rod brackets each least-squares fit by :func:`_friction_search` (before it, and after
+    it up to ``fit.friction_searches`` times: a better basin found is fitted again). Every
+    accepted point lowers the robust cost (``cost_history``); the number of Jacobians is
+    at most ``(1 + friction_searches) max_nfev``; ``message`` states why it stopped.
+    ``tolerance``: the relative change of cost and parameters below which it stops.
     """
     cfg = problem.config
     u0 = problem.initial_u(start)
     max_nfev = int(max_nfev or cfg.number("fit", "max_nfev", positive=True))
+    search = (
+        friction_restarts
+        and "static_friction_n" in {p.name for p in problem.free}
+        and any(ds.moving for ds in problem.datasets)
+    )
     if problem.free:
-        sol = _least_squares(problem, u0, max_nfev)
+        notes = []
+        if search:
+            u0, cost0 = _friction_search(problem, u0)
+            problem.cost_history.append(cost0)
+        sol = _least_squares(problem, u0, max_nfev, tolerance)
         nfev = int(sol.nfev)
-        for u_restart in _friction_restarts(problem, u0) if friction_restarts else []:
+        u, cost = sol.x, float(sol.cost)
+        message = str(sol.message)
+        searches = int(cfg.number("fit", "friction_searches", minimum=0)) if search else 0
+        for k in range(searches):
+            u_next, cost_next = _friction_search(problem, u)
+            if not cost_next < cost:
+                notes.append(f"friction search {k + 1}: no better stick-event basin")
+                break
+            problem.cost_history.append(cost_next)
             try:
-                other = _least_squares(problem, u_restart, max_nfev)
+                sol = _least_squares(problem, u_next, max_nfev, tolerance)
             except (ValueError, FloatingPointError) as exc:  # a start the kernel rejects
-                log.info("%s: a friction restart failed: %s", problem.label, exc)
-                continue
-            nfev += int(other.nfev)
-            if other.cost < sol.cost:
-                sol = other
-        u, message = sol.x, str(sol.message)
+                notes.append(f"friction search {k + 1}: refit failed ({exc})")
+                u, cost = u_next, cost_next
+                break
+            nfev += int(sol.nfev)
+            u, cost, message = sol.x, float(sol.cost), str(sol.message)
+            notes.append(f"friction search {k + 1}: a better basin, refitted")
+        if notes:
+            message = message + " (" + "; ".join(notes) + ")"
     else:
         u, nfev, message = u0, 1, "nothing to fit"
     r = problem.residual(u)
@@ -715,9 +511,10 @@ def run_fit(
             "n_eff": r.size * (1 - rho) / (1 + rho),
         }
     log.info(
-        "%s: done after %d evaluations (%s), cost %.6g",
+        "%s: done after %d evaluations, %d Jacobians (%s), cost %.6g",
         problem.label,
         nfev,
+        problem.n_jacobians,
         message,
         0.5 * float(r @ r),
     )
@@ -741,6 +538,8 @@ def run_fit(
         message=message,
         u=u,
         scopes=dict(problem.scopes),
+        cost_history=list(problem.cost_history),
+        n_jacobians=problem.n_jacobians,
     )
 
 

@@ -8,9 +8,11 @@ wrong. Here its warnings are classified and a few fit-specific checks are added:
 code               severity  what
 =================  ========  =============================================================
 ``units``          error     a channel or sidecar value looks like bar, kPa, gauge pressure,
-                             millimetres or degrees Celsius (the reader's warning)
-``clipped``        warning   a channel sits at its extreme for a long run: those samples are
-                             left out of the fit
+                             millimetres or degrees Celsius (the reader's warning; gauge
+                             data are told by negative values, samples held near 0 Pa or a
+                             median far below ambient, never by a sub-ambient dip alone)
+``clipped``        warning   a channel sits at its extreme for a long run that is not a
+                             chamber at supply or ambient pressure: left out of the fit
 ``constant``       warning   a channel never changes: it is left out of the fit
 ``no_output``      error     no usable output channel (e.g. only ``x`` with the rod clamped)
 ``no_position``    warning   the piston moves but ``x`` is not measured: friction not fitted
@@ -33,6 +35,7 @@ from pneumatic_env.recording import (
     OUTPUT_COLUMNS,
     Recording,
     RecordingWarning,
+    physical_limit,
     read_recording,
 )
 
@@ -118,14 +121,17 @@ def usable_masks(
     """Per channel, the samples a fit may use: all but the clipped runs at the extremes.
 
     A run is clipped with the reader's rule (``recording.CLIP_MIN_RUN`` equal samples at
-    the channel's minimum or maximum, not counting a leading run).
+    the channel's minimum or maximum, not counting a leading run), unless it is a
+    chamber at the supply or ambient pressure (``recording.physical_limit``: saturation,
+    which the model predicts and the fit keeps).
     """
     out = {}
     for ch in channels:
         y = rec.channels[ch]
-        clipped = _extreme_runs(y, float(y.min()), min_run) | _extreme_runs(
-            y, float(y.max()), min_run
-        )
+        clipped = np.zeros(len(y), dtype=bool)
+        for value in (float(y.min()), float(y.max())):
+            if physical_limit(ch, value, y, rec.rig, rec.channels) is None:
+                clipped |= _extreme_runs(y, value, min_run)
         out[ch] = ~clipped
     return out
 

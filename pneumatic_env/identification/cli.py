@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import sys
+from contextlib import nullcontext as _nothing
 
 from pneumatic_env.params import ConfigError
 from pneumatic_env.recording import RecordingError
@@ -57,10 +58,25 @@ def add_arguments(p) -> None:
     )
     p.add_argument(
         "--holdout",
-        choices=("auto", "time", "recordings"),
+        choices=("auto", "time", "recordings", "campaign"),
         default="auto",
         help="held-out data: the end of each recording (time), the last recording "
-        "(recordings), or recordings from three recordings on, else time (auto)",
+        "(recordings), per experiment type (campaign: the last recording of "
+        "each rod mode with two or more, the end of the others), or campaign "
+        "from three recordings on, else time (auto)",
+    )
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="screening only: rank every candidate in seconds (one Gauss-Newton "
+        "step each), refit nothing; shows which effects are worth a full run",
+    )
+    p.add_argument(
+        "--jobs",
+        type=int,
+        default=None,
+        metavar="N",
+        help="processes for the candidate refits (default: screening.jobs)",
     )
     p.add_argument(
         "--max-effects",
@@ -76,31 +92,42 @@ def add_arguments(p) -> None:
         help="identification settings (default: configs/identification.yaml)",
     )
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--quiet", action="store_true", help="no progress bar or log lines")
+    p.add_argument(
+        "--verbose", action="store_true", help="a log line per Jacobian as well as the progress bar"
+    )
 
 
 def run(args) -> int:
+    from . import progress
     from .config import load_config
     from .diagnose import diagnose
     from .report import write_report
 
+    bar = None
     if not args.quiet:
         logging.basicConfig(
             level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S"
         )
-        logging.getLogger("pneumatic_env.identification").setLevel(logging.INFO)
+        logger = logging.getLogger("pneumatic_env.identification")
+        bar = progress.Progress()
+        # with a bar, only warnings and the stages' outcome lines; without, every line
+        logger.setLevel(logging.INFO if args.verbose or bar._bar is None else logging.WARNING)
     try:
         config = load_config(args.config)
         recordings = [read_checked(path) for path in args.recordings]
-        diag = diagnose(
-            recordings,
-            params=args.params,
-            candidates=_names(args.candidates),
-            base_fit=_names(args.fit),
-            holdout=args.holdout,
-            config=config,
-            max_effects=args.max_effects,
-        )
+        with progress.tracking(bar) if bar is not None else _nothing():
+            diag = diagnose(
+                recordings,
+                params=args.params,
+                candidates=_names(args.candidates),
+                base_fit=_names(args.fit),
+                holdout=args.holdout,
+                config=config,
+                max_effects=args.max_effects,
+                quick=args.quick,
+                jobs=args.jobs,
+            )
     except BadDataError as exc:
         print(f"pneumatic-env identify: {exc}", file=sys.stderr)
         return 2
@@ -110,10 +137,26 @@ def run(args) -> int:
     for issue in diag.issues:
         print(f"pneumatic-env identify: {issue}", file=sys.stderr)
     data = write_report(diag, args.report, plots=not args.no_plots)
+    if args.quick:
+        ranking = data["screening"][0]["ranking"] if data["screening"] else []
+        th = data["thresholds"]
+        worth = [
+            f"{r['name']} (BIC {r['predicted_delta_ic']:.0f}, "
+            f"{100 * r['predicted_training_improvement']:.0f} %)"
+            for r in ranking
+            if (r["predicted_delta_ic"] or 0) <= -th["min_ic_drop"]
+            and (r["predicted_training_improvement"] or 0) >= th["min_predicted_improvement"]
+        ]
+        print(
+            f"{args.report}: screening only ({data['timings_s']['total']:.0f} s); worth a full "
+            f"fit (predicted BIC change, training error drop): {', '.join(worth) or 'none'}"
+        )
+        return 0
     selected = ", ".join(data["selected"]) or "none"
     print(
         f"{args.report}: selected effect(s): {selected}; mean held-out NRMSE "
-        f"{data['baseline_nrmse_mean']:.4g} -> {data['after_nrmse_mean']:.4g}"
+        f"{data['baseline_nrmse_mean']:.4g} -> {data['after_nrmse_mean']:.4g} "
+        f"({data['timings_s']['total']:.0f} s)"
     )
     if data["suggested_experiment"]:
         print(f"suggested experiment: {data['suggested_experiment']}")

@@ -61,7 +61,8 @@ def _plots(diag: Diagnosis, out_dir: Path) -> list[str]:
     split_t = None
     for k, ds in enumerate(diag.datasets):
         t = ds.recording.t
-        if diag.holdout.get("mode") == "time":
+        split_t = None
+        if diag.holdout.get("mode") == "time" or ds.name in diag.holdout.get("time_split", ()):
             split_t = t[int(round(diag.holdout["train_fraction"] * ds.n_samples))]
         before, after = diag.predictions["before"][k], diag.predictions["after"][k]
         n = len(ds.channels)
@@ -125,7 +126,13 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
     if data["issues"]:
         lines += ["## Data issues", ""] + [f"- {i}" for i in data["issues"]] + [""]
     lines += ["## Result", ""]
-    if data["selected"]:
+    if data["quick"]:
+        lines.append(
+            "Quick mode: the candidates were screened (one Gauss-Newton step each), "
+            "none refitted or selected; see the screening below for those worth a "
+            "full run."
+        )
+    elif data["selected"]:
         lines.append(
             "Selected effect(s): "
             + ", ".join(f"**{s}**" for s in data["selected"])
@@ -139,7 +146,7 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
     if data["suggested_experiment"]:
         lines.append(f"Suggested experiment: {data['suggested_experiment']}")
     unexplained = [c for c, r in data["after_residuals"].items() if not r["whiteness"]["white"]]
-    if unexplained:
+    if unexplained and not data["quick"]:
         lines.append(
             "The residual after the selected model is not white on "
             + ", ".join(unexplained)
@@ -162,6 +169,7 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
         lines.append(
             f"| {c} | {_fmt(data['baseline_nrmse'][c])} | {_fmt(data['after_nrmse'].get(c))} |"
         )
+    lines += _confidence_lines(data) + _per_recording_lines(data) + _screening_lines(data)
     th = data["thresholds"]
     lines += [
         "",
@@ -183,6 +191,8 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
             for n, p in c["parameters"].items()
         )
         score = "-" if c["score"] is None else f"{100 * c['score']:.1f} %"
+        if not c["refitted"]:
+            score += " (screening)"
         lines.append(
             f"| {c['round']} | {c['name']} | {score} | "
             f"{_fmt(c['delta_ic'], 3)} | {_fmt(c['heldout_nrmse_mean'])} | {params} | "
@@ -244,6 +254,82 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _pct(x) -> str:
+    return "-" if x is None else f"{100 * x:+.1f} %"
+
+
+def _confidence_lines(data: dict) -> list[str]:
+    """How sure the tool is of each selected effect."""
+    if not data["confidence"]:
+        return []
+    lines = [
+        "",
+        "## How sure",
+        "",
+        "| effect | held-out improvement (over the model before it) | runner-up | margin "
+        "over the runner-up | delta BIC | supported by (held out) | holds on every held-out "
+        "recording |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for c in data["confidence"]:
+        lines.append(
+            f"| {c['effect']} | {_pct(c['margin_over_none'])} | "
+            f"{c['runner_up'] or '-'} ({_pct(c['runner_up_improvement'])}"
+            f"{'' if c['runner_up_refitted'] in (True, None) else ', screened'}) | "
+            f"{_pct(c['margin_over_runner_up'])} | {_fmt(c['delta_ic'], 3)} | "
+            f"{', '.join(c['supported_by']) or '-'} | "
+            f"{'yes' if c['holds_on_every_heldout_recording'] else 'no'} |"
+        )
+    return lines
+
+
+def _per_recording_lines(data: dict) -> list[str]:
+    """Held-out NRMSE before and after, per recording and channel."""
+    rows = data["per_recording"]
+    if not rows:
+        return []
+    lines = [
+        "",
+        "## Held-out error per recording",
+        "",
+        "| recording | channel | before | after | change |",
+        "|---|---|---|---|---|",
+    ]
+    for name, r in rows.items():
+        for c, before in r["before"].items():
+            after = r["after"].get(c)
+            change = None if before in (None, 0) or after is None else (after - before) / before
+            lines.append(f"| {name} | {c} | {_fmt(before)} | {_fmt(after)} | {_pct(change)} |")
+    return lines
+
+
+def _screening_lines(data: dict) -> list[str]:
+    """The screening's ranking of each round (one Gauss-Newton step per candidate)."""
+    lines = []
+    for rnd in data["screening"]:
+        ranking = rnd["ranking"]
+        lines += [
+            "",
+            f"## Screening, round {rnd['round']}",
+            "",
+            "One Gauss-Newton step per candidate from the current model, ranked by "
+            "the linearised BIC change on the training rows (a ranking; refits "
+            "decide):",
+            "",
+            "| candidate | predicted BIC change (ranks) | predicted training | predicted "
+            "held out | per held-out recording |",
+            "|---|---|---|---|---|",
+        ]
+        for r in ranking:
+            per = ", ".join(f"{k} {_pct(v)}" for k, v in r["predicted_per_recording"].items())
+            lines.append(
+                f"| {r['name']} | {_fmt(r['predicted_delta_ic'], 3)} | "
+                f"{_pct(r['predicted_training_improvement'])} | "
+                f"{_pct(r['predicted_heldout_improvement'])} | {per} |"
+            )
+    return lines
 
 
 def _save_fit(diag: Diagnosis, fit, path: Path, notes: str) -> None:

@@ -1,0 +1,371 @@
+"""Learned controllers from the sensor observation alone, in numpy (no torch at run time).
+
+An actor exported by ``pneumatic-env train --algo ppo_fast`` (``agents/ppo.py``) is an
+``.npz`` with the MLP of :class:`pneumatic_env.agents.policy.NumpyPolicy`, the observation
+normaliser (``obs_mean``, ``obs_std``) and, in its ``meta``, everything needed to rebuild
+its input from the base observation ``[p1, p2, x, f, ref(k), preview...]``: the env
+options it was trained with (preview, normalisation, ``envs.features`` options), the
+residual configuration (``agents.residual``) if it corrects a classical controller, and
+the names of its input columns (``envs.features.observation_columns`` plus
+``base_current``, ``base_error``). :class:`LearnedController` keeps the feature
+histories, the error integral and the classical controller inside, so it runs through
+the :class:`~pneumatic_env.agents.base.Controller` interface like the classical ones.
+
+Shipped policies live in ``agents/policies/<name>-<variant>.npz`` (``<variant>`` as in the
+controller configs, e.g. ``numatics-2m``) and run by name:
+``pneumatic-env bench --controller <name> --variants <variant>``.
+
+    python -m pneumatic_env.agents.learned convert runs/res-c-s0/actor_best.npz OUT.npz
+        # an actor of the issue-19 prototype (format issue19-ppo-actor-v1) to this format
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from pneumatic_env.envs.features import (
+    FeatureConfig,
+    FeatureState,
+    normalize_base_observation,
+    observation_columns,
+)
+from pneumatic_env.envs.tasks import TASKS
+from pneumatic_env.ids import parse_env_id
+
+from .base import Controller, ControllerContext
+from .policy import NumpyPolicy
+from .residual import RESIDUAL_COLUMNS, ResidualConfig, ResidualCore, make_base_controller
+
+__all__ = [
+    "FORMAT",
+    "LearnedActor",
+    "LearnedController",
+    "is_learned",
+    "learned_spec",
+    "validate_actor",
+    "policy_dir",
+    "shipped_policies",
+    "shipped_policy_path",
+    "convert_prototype_actor",
+]
+
+FORMAT = "pneumatic_env-learned-v1"
+
+
+def is_learned(path: str | Path) -> bool:
+    """Whether ``path`` is an ``.npz`` of this format (else e.g. an SB3 export)."""
+    with np.load(path, allow_pickle=False) as data:
+        return "meta" in data and json.loads(str(data["meta"])).get("format") == FORMAT
+
+
+class LearnedActor(NumpyPolicy):
+    """The exported MLP with its observation normaliser: ``action(x)`` in [-1, 1] for input
+    rows ``x`` (the columns ``meta["inputs"]``), ``(x - mean) / std`` clipped first."""
+
+    def __init__(self, path: str | Path):
+        super().__init__(path)
+        if self.meta.get("format") != FORMAT:
+            raise ValueError(
+                f"{path}: format = {self.meta.get('format')!r} is not allowed: "
+                f"expected {FORMAT!r} (agents/ppo.py export)"
+            )
+        with np.load(self.path, allow_pickle=False) as data:
+            self.obs_mean, self.obs_std = data["obs_mean"], data["obs_std"]
+        self.clip_obs = float(self.meta["clip_obs"])
+        if len(self.meta["inputs"]) != self.obs_dim or self.obs_mean.shape != (self.obs_dim,):
+            raise ValueError(
+                f"{path}: {len(self.meta['inputs'])} input names and a normaliser "
+                f"of shape {self.obs_mean.shape} for {self.obs_dim} inputs"
+            )
+
+    def action(self, x) -> np.ndarray:
+        # C order: BLAS sums a product of a Fortran-ordered array in another order
+        x = np.clip(
+            (np.ascontiguousarray(x, dtype=np.float64) - self.obs_mean) / self.obs_std,
+            -self.clip_obs,
+            self.clip_obs,
+        )
+        return self.normalized_action(x)[:, 0]
+
+    @property
+    def feature_config(self) -> FeatureConfig:
+        opts = self.meta["env_options"]
+        return FeatureConfig(
+            **{k: opts[k] for k in FeatureConfig.__dataclass_fields__ if k in opts}
+        )
+
+    @property
+    def residual_config(self) -> ResidualConfig | None:
+        r = self.meta.get("residual")
+        return None if r is None else ResidualConfig(**r)
+
+
+class LearnedController(Controller):
+    """A :class:`LearnedActor` as a benchmark controller: base observation in, current out.
+
+    ``variant``: whose classical gains a residual actor corrects (the benchmark passes the
+    variant it runs). The controller's env must give ``preview_steps`` of the actor.
+    """
+
+    name = "learned"
+
+    def __init__(self, context: ControllerContext, actor: LearnedActor, variant: str):
+        super().__init__(context)
+        opts = actor.meta["env_options"]
+        if context.preview_steps != int(opts["preview_steps"]):
+            raise ValueError(
+                f"{actor.path}: trained with preview_steps = "
+                f"{opts['preview_steps']}, the env gives {context.preview_steps}"
+            )
+        self.actor, self.variant = actor, variant
+        self.name = actor.meta.get("name", actor.path.stem)
+        self.features_config = actor.feature_config
+        self.normalize = bool(opts["normalize_observation"])
+        rc = actor.residual_config
+        self.residual = (
+            None
+            if rc is None
+            else ResidualCore(make_base_controller(rc.base, context, variant), rc)
+        )
+        columns = observation_columns(context.preview_steps, self.features_config)
+        columns += list(RESIDUAL_COLUMNS) if rc is not None else []
+        missing = [c for c in actor.meta["inputs"] if c not in columns]
+        if missing:
+            raise ValueError(
+                f"{actor.path}: input column(s) {missing} are not built by its "
+                f"options (columns: {columns})"
+            )
+        self.index = np.array([columns.index(c) for c in actor.meta["inputs"]])
+        self.action_scale_a = float(actor.meta["action_scale_a"])
+        self.tracked = TASKS[parse_env_id(actor.meta["env_id"]).task].tracked  # "f" or "x"
+
+    def _allocate(self, n):
+        ctx = self.context
+        self.features = FeatureState(
+            self.features_config,
+            n,
+            ctx.preview_steps,
+            ctx.observation_scales,
+            ctx.dt_s,
+            self.tracked,
+        )
+        self.fresh = np.ones(n, dtype=bool)
+        self.last_current = np.zeros(n)
+        if self.residual is not None:
+            self.residual.reset()
+
+    def _reset_rows(self, rows):
+        self.fresh[rows] = True
+        if self.residual is not None:
+            self.residual.reset(rows)
+
+    def inputs(self, obs_si) -> np.ndarray:
+        """The env-layout observation this controller rebuilds (all columns, float32) for SI
+        rows ``obs_si``; updates the feature state (call once per step). ``act`` keeps the
+        last one in ``last_inputs``."""
+        parts = [
+            (
+                normalize_base_observation(obs_si, self.context.observation_scales)
+                if self.normalize
+                else obs_si
+            ).astype(np.float32)
+        ]
+        if self.fresh.all():
+            self.features.reset(np.arange(obs_si.shape[0]), obs_si)
+        else:
+            self.features.update(obs_si, self.last_current)
+            rows = np.flatnonzero(self.fresh)
+            self.features.reset(rows, obs_si[rows])
+        self.fresh[:] = False
+        parts.append(self.features.values)
+        if self.residual is not None:
+            parts.append(self.residual.observe(obs_si))
+        return np.concatenate(parts, axis=1)
+
+    def _act(self, obs):
+        self.last_inputs = self.inputs(obs)
+        a = self.actor.action(self.last_inputs[:, self.index])
+        if self.residual is not None:
+            u = self.residual.current(a)
+            self.residual.applied(u)
+        else:
+            i_max = self.context.i_max_a
+            u = np.clip(self.action_scale_a * a, -i_max, i_max)
+        self.last_current = u
+        return u
+
+
+def learned_spec(path: str | Path, variant: str, name: str | None = None):
+    """Bench controller spec (``agents.registry.ControllerSpec``) of an actor file."""
+    from .registry import ControllerSpec
+
+    actor = LearnedActor(path)
+    opts = actor.meta["env_options"]
+    label = name or actor.meta.get("name") or Path(path).stem
+    return ControllerSpec(
+        label,
+        {"preview_steps": int(opts["preview_steps"]), "normalize_observation": False},
+        lambda ctx: LearnedController(ctx, actor, variant),
+        str(path),
+    )
+
+
+def validate_actor(actor_path: str | Path, variant: str, validation: list, n_steps: int) -> dict:
+    """Mean RMS error (% of the scale) and chatter of an actor on ``validation`` references
+    (``[{"seed": s, "reference": spec in scale units}, ...]``) over ``n_steps``, through the
+    benchmark's closed loop (``agents.bench.closed_loop``); model selection in training."""
+    from .bench import closed_loop, make_env, task_metrics
+
+    spec = learned_spec(actor_path, variant)
+    env = make_env(variant, len(validation), n_steps, **spec.env_options)
+    ctrl = spec.build(ControllerContext.from_env(env))
+    tr = closed_loop(
+        env, ctrl, [v["reference"] for v in validation], [v["seed"] for v in validation], n_steps
+    )
+    scale = env.unwrapped.reference_scale
+    env.close()
+    ms = [
+        task_metrics(
+            tr["force_n"][:, i],
+            tr["reference_n"][:, i],
+            tr["current_a"][:, i],
+            tr["exhaust_kg"][:, i],
+            scale,
+        )
+        for i in range(len(validation))
+    ]
+    return {
+        "val_rms_pct": float(np.mean([m["rms_error_pct"] for m in ms])),
+        "val_chatter_a": float(np.mean([m["chatter_rms_a"] for m in ms])),
+    }
+
+
+# --------------------------------------------------------------------------- shipped policies
+
+
+def policy_dir() -> Path:
+    """``agents/policies``: the shipped actors."""
+    return Path(__file__).resolve().parent / "policies"
+
+
+def shipped_policies() -> dict[str, list[str]]:
+    """Shipped policy name -> the variant keys it has an actor for."""
+    out: dict[str, list[str]] = {}
+    for path in sorted(policy_dir().glob("*.npz")):
+        name, _, rest = path.stem.partition("-")
+        out.setdefault(name, []).append(rest)
+    return out
+
+
+def shipped_policy_path(name: str, variant: str) -> Path:
+    """``agents/policies/<name>-<variant>.npz``; a clear error if that variant has none."""
+    available = shipped_policies().get(name)
+    if available is None:
+        raise ValueError(
+            f"controller = {name!r} is not a shipped policy: use one of "
+            f"{sorted(shipped_policies())}"
+        )
+    key = variant.lower()
+    if key not in available:
+        raise ValueError(
+            f"controller = {name!r} has no actor for variant = {variant!r}: "
+            f"it has {available} (pass --variants)"
+        )
+    return policy_dir() / f"{name}-{key}.npz"
+
+
+# --------------------------------------------------------------------------- prototype actors
+
+
+# The prototype's input order (agents/rl_features.FeatureBuilder of the issue-19 worktree),
+# as columns of this package's env layout.
+def _prototype_inputs(k: int, m: int, h: int, residual: bool) -> list[str]:
+    cols = ["f", "p1", "p2", "ref+0"] + [f"rel_ref+{j}" for j in range(h + 1)]
+    for ch in ("f", "p1", "p2"):
+        cols += [f"d{ch}-{j}" for j in range(1, m + 1)]
+    cols += [f"u-{j}" for j in range(1, k + 1)] + ["e_int"]
+    return cols + (list(RESIDUAL_COLUMNS) if residual else [])
+
+
+def convert_prototype_actor(src: str | Path, dst: str | Path, name: str | None = None) -> Path:
+    """Rewrite an actor of the issue-19 prototype (``issue19-ppo-actor-v1``) in this format.
+
+    The weights and the normaliser are copied unchanged; the prototype's features map to
+    env columns one to one (its measured f, p1, p2 and r(k) are the normalised base
+    columns, its action history, measured differences x10, leaky integral x10 and
+    relative preview are the ``envs.features`` blocks), so the controller rebuilds the
+    same input. The prototype's correction ``corr_scale_a`` (A) becomes
+    ``correction_fraction = corr_scale_a / 2 A`` (the coil limit of both cylinders).
+    """
+    with np.load(src, allow_pickle=False) as data:
+        meta = json.loads(str(data["meta"]))
+        if meta.get("format") != "issue19-ppo-actor-v1":
+            raise ValueError(
+                f"{src}: format = {meta.get('format')!r} is not allowed: expected "
+                "'issue19-ppo-actor-v1'"
+            )
+        n = int(meta["n_layers"])
+        arrays = {f"{c}{i}": data[f"{c}{i}"] for i in range(n) for c in "wb"}
+        mean, std = data["obs_mean"], data["obs_std"]
+    if int(meta.get("repeat", 1)) != 1:
+        raise ValueError(
+            f"{src}: repeat = {meta['repeat']!r} is not allowed: action repeat "
+            "is not ported (1 only)"
+        )
+    f = meta["features"]
+    residual = bool(meta["residual"])
+    i_max = 2.0  # coil_current_max_a of both cylinders (configs/cylinders)
+    out = {
+        "format": FORMAT,
+        "algo": "ppo_fast",
+        "name": name or Path(src).parent.name,
+        "env_id": meta["env"],
+        "variant": meta["variant"],
+        "preview_steps": f["preview"],
+        "normalize_observation": True,
+        "output": "clip",
+        "clip_obs": meta["clip_obs"],
+        "action_scale_a": meta["action_scale_a"],
+        "activations": ["Tanh"] * (n - 1) + ["Identity"],
+        "env_options": {
+            "preview_steps": f["preview"],
+            "normalize_observation": True,
+            "action_history": f["k_actions"],
+            "measurement_history": f["m_hist"],
+            "tracking_error": True,
+            "error_integral_tau_s": f["tau_i"],
+            "error_integral_leaky": True,
+            "relative_preview": True,
+        },
+        "residual": None
+        if not residual
+        else {
+            "base": "sliding_mode",
+            "correction_fraction": meta["corr_scale_a"] / i_max,
+            "gate_floor": meta.get("gate_c0", 1.0),
+            "gate_scale": meta.get("gate_scale", 0.3),
+            "gate_steps": 20,
+            "consistent_predictor": bool(meta.get("consistent_predictor", False)),
+        },
+        "inputs": _prototype_inputs(f["k_actions"], f["m_hist"], f["preview"], residual),
+        "source": f"converted from the issue-19 prototype actor {src}",
+    }
+    out["obs_dim"] = len(out["inputs"])
+    if arrays["w0"].shape[1] != out["obs_dim"]:
+        raise ValueError(
+            f"{src}: the actor takes {arrays['w0'].shape[1]} inputs, the "
+            f"prototype layout has {out['obs_dim']}"
+        )
+    dst = Path(dst)
+    np.savez(dst, meta=np.array(json.dumps(out)), obs_mean=mean, obs_std=std, **arrays)
+    return dst
+
+
+if __name__ == "__main__":
+    if len(sys.argv) not in (4, 5) or sys.argv[1] != "convert":
+        sys.exit("usage: python -m pneumatic_env.agents.learned convert SRC.npz DST.npz [NAME]")
+    print(convert_prototype_actor(*sys.argv[2:]))

@@ -1,0 +1,652 @@
+"""``pneumatic-env train --algo ppo_fast``: lean PPO over the native vector env (CleanRL style).
+
+    pneumatic-env train --algo ppo_fast --env pneumatic_env/ForceTrack-Numatics-2m-v0 \\
+        [--config configs/agents/ppo_fast-numatics-2m.yaml] [--seed S] [--minutes M] \\
+        [--out DIR] [--resume]
+
+One file, in the spirit of CleanRL's ``ppo_continuous_action.py``: thousands of envs
+advanced in one jitted call (``gym.make_vec`` with the ``envs.features`` options), short
+rollouts, a few large minibatches, GAE, and a bootstrap on time-limit truncation (the
+vector env truncates and resets in the same step; V of ``info["final_obs"]`` is added to
+the last reward). Residual mode trains a correction on a classical controller through
+``agents.residual.ResidualVectorWrapper``; pure mode sets the current directly. The
+policy reads the columns ``policy_inputs`` of the observation (running mean/std
+normalised); rewards are scaled by a running std of the discounted return. The reward is
+the trainer's, computed from ``info`` to match the benchmark's RMS metric (config
+``reward``). Hyperparameters: ``configs/agents/ppo_fast-<variant>.yaml``.
+
+Written to ``--out``: ``actor.npz`` (final) and ``actor_best.npz`` (best validation), numpy
+actors for ``agents.learned`` (``pneumatic-env bench --controller DIR/actor.npz``);
+``progress.csv`` (one row per update: wall time, env steps, steps/s, shares of time,
+training RMS, validation RMS at evaluations), ``learning_curve.png``, ``train.json``
+(config, throughput next to the env-only rate, curve) and ``checkpoint.pt`` every
+``checkpoint_every`` updates (``--resume`` continues from it).
+"""
+
+from __future__ import annotations
+
+import csv
+import fnmatch
+import json
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+import torch.nn as nn
+
+from .config import ConfigError, agent_config_path, load_agent_config
+from .learned import FORMAT, validate_actor
+from .policy import _layers
+from .residual import RESIDUAL_COLUMNS, ResidualVectorWrapper, env_variant
+
+__all__ = [
+    "load_config",
+    "select_columns",
+    "make_training_env",
+    "Agent",
+    "export_actor",
+    "train",
+    "run_fast",
+]
+
+REFERENCES = "ppo_fast-references"  # configs/agents/ppo_fast-references.yaml
+REFERENCE_FILE_KEYS = ("training", "validation")
+
+
+# --------------------------------------------------------------------------- configuration
+
+
+def _merge(base: dict, top: dict) -> dict:
+    out = dict(base)
+    for key, value in top.items():
+        out[key] = (
+            _merge(out[key], value)
+            if isinstance(value, dict) and isinstance(out.get(key), dict)
+            else value
+        )
+    return out
+
+
+def _load_tree(config: str | Path, seen: tuple = ()) -> dict:
+    """A config file; ``extends: NAME`` takes NAME's config and overrides what this sets."""
+    path = agent_config_path(config)
+    if path in seen:
+        raise ConfigError(f"{path}: extends itself (through {[str(p) for p in seen]})")
+    cfg = load_agent_config(path)
+    parent = cfg.pop("extends", None)
+    return _merge(_load_tree(parent, seen + (path,)), cfg) if parent else cfg
+
+
+def load_config(config: str | Path | dict, overrides: dict | None = None) -> dict:
+    """The ppo_fast config (entries resolved, ``extends`` followed) with ``overrides``
+    {"section.key": value}."""
+    cfg = _load_tree(config) if not isinstance(config, dict) else json.loads(json.dumps(config))
+    if cfg.get("algo") != "ppo_fast":
+        raise ConfigError(
+            f"config {config if not isinstance(config, dict) else '<dict>'}: "
+            f"algo = {cfg.get('algo')!r}, expected 'ppo_fast'"
+        )
+    for key, value in (overrides or {}).items():
+        section, _, name = key.rpartition(".")
+        node = cfg
+        for part in filter(None, section.split(".")):
+            node = node.setdefault(part, {})
+        node[name] = value
+    if cfg.get("mode") not in ("residual", "pure"):
+        raise ConfigError(f"mode = {cfg.get('mode')!r} is not allowed: 'residual' or 'pure'")
+    for key in ("env_kwargs", "policy_inputs", "reward", "hyperparameters", "training"):
+        if key not in cfg:
+            raise ConfigError(f"ppo_fast config is missing {key!r}")
+    return cfg
+
+
+def references(cfg: dict) -> tuple[dict | None, list]:
+    """(training reference spec in scale units, or None for the task's default; the
+    validation references) of the config's ``reference`` file (``task``: the default
+    file's validation)."""
+    name = cfg.get("reference", REFERENCES)
+    data = load_agent_config(REFERENCES if name == "task" else name, raw=REFERENCE_FILE_KEYS)
+    return (None if name == "task" else data["training"]), data["validation"]
+
+
+def select_columns(columns: list[str], patterns: list[str]) -> list[str]:
+    """Columns matching each pattern in turn (``fnmatch``; ``rel_ref+*``), in column order."""
+    out = []
+    for pattern in patterns:
+        hits = [c for c in columns if fnmatch.fnmatchcase(c, pattern)]
+        if not hits:
+            raise ConfigError(
+                f"policy_inputs: {pattern!r} matches no observation column: allowed {columns}"
+            )
+        out += [c for c in hits if c not in out]
+    return out
+
+
+def make_training_env(cfg: dict, env_id: str, seed: int = 0) -> gym.vector.VectorEnv:
+    """The vector env of a config: features, training references, residual wrapper."""
+    from .bench import scale_spec
+
+    hp, tr = cfg["hyperparameters"], cfg["training"]
+    episode = int(tr["episode_steps"])
+    kwargs = dict(cfg["env_kwargs"])
+    ref, _ = references(cfg)
+    if ref is not None:
+        probe = gym.make_vec(env_id, num_envs=1, **kwargs)
+        kwargs["reference"] = scale_spec(ref, probe.unwrapped.reference_scale)
+        probe.close()
+    env = gym.make_vec(
+        env_id,
+        num_envs=int(hp["num_envs"]),
+        max_episode_steps=episode,
+        reference_steps=max(episode, 2000),
+        **kwargs,
+    )
+    if cfg["mode"] == "residual":
+        env = ResidualVectorWrapper(env, **cfg["residual"])
+    return env
+
+
+# --------------------------------------------------------------------------- networks
+
+
+class RunningMeanStd:
+    """Running mean and variance over batches (Chan et al.), as SB3's VecNormalize."""
+
+    def __init__(self, shape=()):
+        self.mean, self.var, self.count = np.zeros(shape), np.ones(shape), 1e-4
+
+    def update(self, x):
+        bm, bv, bc = x.mean(0), x.var(0), x.shape[0]
+        d, tot = bm - self.mean, self.count + bc
+        self.mean = self.mean + d * bc / tot
+        self.var = (self.var * self.count + bv * bc + d**2 * self.count * bc / tot) / tot
+        self.count = tot
+
+    def state(self):
+        return {"mean": self.mean, "var": self.var, "count": self.count}
+
+    def load(self, s):
+        self.mean, self.var, self.count = s["mean"], s["var"], s["count"]
+
+
+def mlp(n_in: int, hidden, n_out: int, out_gain: float) -> nn.Sequential:
+    layers, d = [], n_in
+    for h in hidden:
+        lin = nn.Linear(d, int(h))
+        nn.init.orthogonal_(lin.weight, np.sqrt(2))
+        nn.init.zeros_(lin.bias)
+        layers += [lin, nn.Tanh()]
+        d = int(h)
+    out = nn.Linear(d, n_out)
+    if out_gain > 0:
+        nn.init.orthogonal_(out.weight, out_gain)
+    else:  # zero output: a residual policy starts at the classical controller
+        nn.init.zeros_(out.weight)
+    nn.init.zeros_(out.bias)
+    return nn.Sequential(*layers, out)
+
+
+class Agent(nn.Module):
+    """Gaussian actor (state-independent log std) and critic, separate MLPs."""
+
+    def __init__(self, n_obs: int, hidden_pi, hidden_v, log_std_init: float, zero_init: bool):
+        super().__init__()
+        self.actor = mlp(n_obs, hidden_pi, 1, 0.0 if zero_init else 0.01)
+        self.critic = mlp(n_obs, hidden_v, 1, 1.0)
+        self.log_std = nn.Parameter(torch.full((1,), float(log_std_init)))
+
+    def value(self, x):
+        return self.critic(x).squeeze(-1)
+
+    def dist(self, x):
+        mu = self.actor(x)
+        return torch.distributions.Normal(mu, self.log_std.exp().expand_as(mu))
+
+
+def export_actor(
+    agent: Agent,
+    obs_rms: RunningMeanStd,
+    cfg: dict,
+    env_id: str,
+    inputs: list[str],
+    path: Path,
+    name: str,
+) -> Path:
+    """The deterministic actor as an ``agents.learned`` ``.npz`` (numpy only at run time)."""
+    from pneumatic_env.ids import parse_env_id
+
+    layers = _layers(list(agent.actor))
+    env_options = dict(cfg["env_kwargs"])
+    meta = {
+        "format": FORMAT,
+        "algo": "ppo_fast",
+        "name": name,
+        "env_id": env_id,
+        "variant": parse_env_id(env_id).variant,
+        "output": "clip",
+        "clip_obs": float(cfg["hyperparameters"]["clip_obs"]),
+        "activations": [a for _, _, a in layers],
+        "obs_dim": len(inputs),
+        "inputs": list(inputs),
+        "env_options": env_options,
+        "preview_steps": int(env_options["preview_steps"]),
+        "normalize_observation": bool(env_options["normalize_observation"]),
+        "residual": dict(cfg["residual"]) if cfg["mode"] == "residual" else None,
+        "action_scale_a": _action_scale(cfg),
+    }
+    arrays = {}
+    for i, (w, b, _) in enumerate(layers):
+        arrays[f"w{i}"], arrays[f"b{i}"] = w, b
+    np.savez(
+        path,
+        meta=np.array(json.dumps(meta)),
+        obs_mean=obs_rms.mean.astype(np.float64),
+        obs_std=np.sqrt(obs_rms.var + 1e-8),
+        **arrays,
+    )
+    return path
+
+
+def _action_scale(cfg: dict) -> float:
+    """Pure mode: amperes per unit action (default 1.3 A, just above full valve opening)."""
+    return float((cfg.get("pure") or {}).get("action_scale_a", 1.3))
+
+
+# --------------------------------------------------------------------------- training
+
+
+def _env_only_rate(env, n_steps: int = 30) -> float:
+    """Env steps/s of the bare vector env of ``env`` (same options), zero current."""
+    raw = env.unwrapped
+    raw.reset(seed=0)
+    action = np.zeros((raw.num_envs, 1))
+    raw.step(action)  # warm: the first call loads the jitted step
+    t0 = time.perf_counter()
+    for _ in range(n_steps):
+        raw.step(action)
+    return raw.num_envs * n_steps / (time.perf_counter() - t0)
+
+
+PROGRESS_COLUMNS = (
+    "update",
+    "wall_s",
+    "steps",
+    "steps_per_s",
+    "env_share",
+    "base_share",
+    "update_share",
+    "train_rms_pct",
+    "log_std",
+    "approx_kl",
+    "value_loss",
+    "val_rms_pct",
+    "val_chatter_a",
+)
+
+
+def train(
+    config,
+    env_id: str | None = None,
+    seed: int = 0,
+    out: str | Path = "runs/ppo_fast",
+    minutes: float | None = None,
+    total_steps: float | None = None,
+    resume: bool = False,
+    overrides: dict | None = None,
+    on_eval=None,
+    command: str = "",
+    log=print,
+) -> dict:
+    """Train with the ppo_fast config (path or dict); returns the ``train.json`` summary.
+
+    ``on_eval(record)`` is called after each validation (the tuner reports and prunes
+    there; an exception it raises ends the run after the checkpoint).
+    """
+    cfg = load_config(config, overrides)
+    env_id = env_id or cfg["env"]
+    hp, tr, rw = cfg["hyperparameters"], cfg["training"], cfg["reward"]
+    budget_s = 60.0 * float(minutes if minutes is not None else tr["minutes"])
+    total_steps = float(total_steps) if total_steps is not None else float("inf")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(int(tr["torch_threads"]))
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    residual = cfg["mode"] == "residual"
+    env = make_training_env(cfg, env_id, seed)
+    raw = env.unwrapped
+    columns = raw.observation_columns + (list(RESIDUAL_COLUMNS) if residual else [])
+    inputs = select_columns(columns, cfg["policy_inputs"])
+    index = np.array([columns.index(c) for c in inputs])
+    _, validation = references(cfg)
+    variant = env_variant(env)
+    N, T, D = int(hp["num_envs"]), int(hp["rollout_steps"]), len(inputs)
+    scale, i_max = raw.reference_scale, raw.coil_current_max_a
+    env_only = _env_only_rate(env)
+    agent = Agent(D, hp["hidden_pi"], hp["hidden_v"], hp["log_std_init"], zero_init=residual)
+    opt = torch.optim.Adam(agent.parameters(), lr=float(hp["learning_rate"]), eps=1e-5)
+    obs_rms, ret_rms = RunningMeanStd(D), RunningMeanStd()
+    state = {"steps": 0, "updates": 0, "wall_s": 0.0, "best": None, "curve": []}
+    ckpt = out / "checkpoint.pt"
+    if resume:
+        if not ckpt.is_file():
+            raise FileNotFoundError(f"--resume: no checkpoint at {ckpt}")
+        saved = torch.load(ckpt, weights_only=False)
+        agent.load_state_dict(saved["agent"])
+        opt.load_state_dict(saved["optimizer"])
+        obs_rms.load(saved["obs_rms"])
+        ret_rms.load(saved["ret_rms"])
+        state = saved["state"]
+        torch.set_rng_state(saved["torch_rng"])
+        rng = np.random.default_rng(seed + 7919 * state["updates"])
+    gamma, lam, clip_obs = float(hp["gamma"]), float(hp["gae_lambda"]), float(hp["clip_obs"])
+
+    def norm(x):
+        return np.clip(
+            (x - obs_rms.mean) / np.sqrt(obs_rms.var + 1e-8), -clip_obs, clip_obs
+        ).astype(np.float32)
+
+    episode = int(tr["episode_steps"])
+    options = {"start_step": rng.integers(0, episode, N)} if tr["stagger"] else None
+    obs, _ = env.reset(seed=seed * 100_000 + state["updates"], options=options)
+    feat = obs[:, index]
+    zeros = np.zeros(N)
+    if not resume:  # warm the normaliser on the classical (or zero-current) features
+        for _ in range(20):
+            obs_rms.update(feat)
+            obs, *_ = env.step(zeros[:, None])
+            feat = obs[:, index]
+    prev_u, ret_acc = np.zeros(N), np.zeros(N)
+    b_obs = np.zeros((T, N, D), np.float32)
+    b_act, b_logp, b_rew, b_done = (np.zeros((T, N), np.float32) for _ in range(4))
+    b_val = np.zeros((T + 1, N), np.float32)
+    e_unit, c_unit, u_unit = (
+        float(rw["error_unit_fraction"]) * scale,
+        float(rw["chatter_unit_a"]),
+        float(rw["effort_unit_a"]),
+    )
+    action_scale = _action_scale(cfg)
+    base = getattr(env, "residual", None)
+    t_env = t_upd = 0.0
+    base_t0 = base.base_time_s if base else 0.0
+    progress_path = out / "progress.csv"
+    new_file = not (resume and progress_path.is_file())
+    progress = open(progress_path, "a" if not new_file else "w", newline="", encoding="utf-8")
+    writer = csv.DictWriter(progress, fieldnames=PROGRESS_COLUMNS)
+    if new_file:
+        writer.writeheader()
+    t_start, wall0 = time.perf_counter(), state["wall_s"]
+    last_eval = wall0
+    eval_time = 0.0
+
+    def wall():
+        return wall0 + time.perf_counter() - t_start - eval_time
+
+    lr0, lr_end = float(hp["learning_rate"]), float(hp["learning_rate_final_fraction"])
+    try:
+        while state["steps"] < total_steps and wall() < budget_s:
+            frac = min(wall() / budget_s, 1.0)
+            for g in opt.param_groups:
+                g["lr"] = lr0 * (1.0 - (1.0 - lr_end) * frac)
+            sq_err = 0.0
+            for t in range(T):
+                obs_rms.update(feat)
+                x = norm(feat)
+                with torch.no_grad():
+                    xt = torch.from_numpy(x)
+                    d = agent.dist(xt)
+                    a = d.sample()
+                    logp, v = d.log_prob(a).sum(-1), agent.value(xt)
+                a_np = a.numpy()[:, 0].astype(np.float64)
+                a_clip = np.clip(a_np, -1.0, 1.0)
+                act = a_clip if residual else np.clip(action_scale * a_clip, -i_max, i_max)
+                t0 = time.perf_counter()
+                obs, _, _, trunc, info = env.step(act[:, None])
+                t_env += time.perf_counter() - t0
+                feat = obs[:, index]
+                e = info["tracking_error"] / e_unit
+                u = info["coil_current_a"]
+                rew = (
+                    -(e**2)
+                    - float(rw["l1_weight"]) * np.abs(e)
+                    - float(rw["chatter_weight"]) * ((u - prev_u) / c_unit) ** 2
+                    - float(rw["effort_weight"]) * (u / u_unit) ** 2
+                    - (float(rw["residual_weight"]) * a_clip**2 if residual else 0.0)
+                )
+                prev_u = np.where(trunc, 0.0, u)
+                sq_err += float(np.mean((info["tracking_error"] / scale) ** 2))
+                ret_acc = ret_acc * gamma + rew
+                ret_rms.update(ret_acc)
+                ret_acc[trunc] = 0.0
+                rs = rew / np.sqrt(ret_rms.var + 1e-8)
+                if trunc.any():  # bootstrap the truncated episodes from their final obs
+                    rows = np.flatnonzero(trunc)
+                    final = np.stack([info["final_obs"][r] for r in rows])[:, index]
+                    with torch.no_grad():
+                        rs[rows] += gamma * agent.value(torch.from_numpy(norm(final))).numpy()
+                b_obs[t], b_act[t], b_logp[t], b_val[t] = x, a_np, logp.numpy(), v.numpy()
+                b_rew[t], b_done[t] = rs, trunc
+            with torch.no_grad():
+                b_val[T] = agent.value(torch.from_numpy(norm(feat))).numpy()
+            tu = time.perf_counter()
+            # GAE; done[t]: transition t ended its episode (its bootstrap is in the reward)
+            adv = np.zeros((T, N), np.float32)
+            last = np.zeros(N, np.float32)
+            for t in reversed(range(T)):
+                nd = 1.0 - b_done[t]
+                delta = b_rew[t] + gamma * b_val[t + 1] * nd - b_val[t]
+                last = delta + gamma * lam * nd * last
+                adv[t] = last
+            B = T * N
+            fo = torch.from_numpy(b_obs.reshape(B, D))
+            fa = torch.from_numpy(b_act.reshape(B, 1))
+            flp, fadv = torch.from_numpy(b_logp.reshape(-1)), torch.from_numpy(adv.reshape(-1))
+            fret = torch.from_numpy((adv + b_val[:T]).reshape(-1))
+            n_mb = int(hp["minibatches"])
+            mb = B // n_mb
+            kls = []
+            for _ in range(int(hp["epochs"])):
+                perm = torch.randperm(B)
+                for s in range(0, mb * n_mb, mb):
+                    idx = perm[s : s + mb]
+                    d = agent.dist(fo[idx])
+                    lp = d.log_prob(fa[idx]).sum(-1)
+                    log_ratio = lp - flp[idx]
+                    ratio = log_ratio.exp()
+                    with torch.no_grad():
+                        kls.append(((ratio - 1) - log_ratio).mean().item())
+                    A = fadv[idx]
+                    A = (A - A.mean()) / (A.std() + 1e-8)
+                    clip = float(hp["clip_range"])
+                    pg = torch.max(-A * ratio, -A * ratio.clamp(1 - clip, 1 + clip)).mean()
+                    vl = 0.5 * ((agent.value(fo[idx]) - fret[idx]) ** 2).mean()
+                    loss = (
+                        pg
+                        + float(hp["vf_coef"]) * vl
+                        - float(hp["ent_coef"]) * d.entropy().sum(-1).mean()
+                    )
+                    opt.zero_grad()
+                    loss.backward()
+                    nn.utils.clip_grad_norm_(agent.parameters(), float(hp["max_grad_norm"]))
+                    opt.step()
+                    with torch.no_grad():
+                        agent.log_std.clamp_(min=float(hp["log_std_min"]))
+                if hp["target_kl"] and np.mean(kls[-n_mb:]) > float(hp["target_kl"]):
+                    break
+            t_upd += time.perf_counter() - tu
+            state["steps"] += B
+            state["updates"] += 1
+            w = wall()
+            span = max(w - wall0, 1e-9)
+            base_s = (base.base_time_s - base_t0) if base else 0.0
+            row = {
+                "update": state["updates"],
+                "wall_s": round(w, 3),
+                "steps": state["steps"],
+                "steps_per_s": round(state["steps"] / max(w, 1e-9)),
+                "env_share": round((t_env - base_s) / span, 4),
+                "base_share": round(base_s / span, 4),
+                "update_share": round(t_upd / span, 4),
+                "train_rms_pct": round(100 * np.sqrt(sq_err / T), 4),
+                "log_std": round(agent.log_std.item(), 4),
+                "approx_kl": round(np.mean(kls), 5),
+                "value_loss": round(vl.item(), 5),
+                "val_rms_pct": "",
+                "val_chatter_a": "",
+            }
+            done = w >= budget_s or state["steps"] >= total_steps
+            if w - last_eval >= float(tr["eval_every_s"]) or done:
+                te = time.perf_counter()
+                path = export_actor(
+                    agent, obs_rms, cfg, env_id, inputs, out / "actor_tmp.npz", out.name
+                )
+                val = validate_actor(path, variant, validation, int(tr["validation_steps"]))
+                row.update({k: round(v, 5) for k, v in val.items()})
+                record = {
+                    "wall_s": w,
+                    "steps": state["steps"],
+                    **val,
+                    "train_rms_pct": row["train_rms_pct"],
+                }
+                state["curve"].append(record)
+                log(
+                    f"  eval at {w:.0f} s, {state['steps'] / 1e6:.2f}M steps: "
+                    f"val RMS {val['val_rms_pct']:.3f} %",
+                    flush=True,
+                )
+                if state["best"] is None or val["val_rms_pct"] < state["best"]["val_rms_pct"]:
+                    state["best"] = record
+                    path.replace(out / "actor_best.npz")
+                eval_time += time.perf_counter() - te
+                last_eval = wall()
+            writer.writerow(row)
+            if row["val_rms_pct"] != "" and on_eval is not None:
+                progress.flush()
+                on_eval(state["curve"][-1])
+            if state["updates"] % 10 == 0:
+                progress.flush()
+                log(
+                    f"upd {state['updates']} {state['steps'] / 1e6:.1f}M steps "
+                    f"{state['steps'] / max(w, 1e-9):.0f} steps/s (env alone {env_only:.0f}) "
+                    f"train RMS {100 * np.sqrt(sq_err / T):.2f} % log_std "
+                    f"{agent.log_std.item():.2f}",
+                    flush=True,
+                )
+            if state["updates"] % int(tr["checkpoint_every"]) == 0:
+                _checkpoint(ckpt, agent, opt, obs_rms, ret_rms, state, w)
+    finally:
+        progress.close()
+        state["wall_s"] = wall()
+        _checkpoint(ckpt, agent, opt, obs_rms, ret_rms, state, state["wall_s"])
+        (out / "actor_tmp.npz").unlink(missing_ok=True)
+    export_actor(agent, obs_rms, cfg, env_id, inputs, out / "actor.npz", out.name)
+    w = state["wall_s"]
+    span = max(w - wall0, 1e-9)
+    base_s = (base.base_time_s - base_t0) if base else 0.0
+    summary = {
+        "algo": "ppo_fast",
+        "env_id": env_id,
+        "seed": seed,
+        "command": command,
+        "config": cfg,
+        "steps": state["steps"],
+        "updates": state["updates"],
+        "wall_s": w,
+        "steps_per_s": state["steps"] / max(w, 1e-9),
+        "env_only_steps_per_s": env_only,
+        "env_share": (t_env - base_s) / span,
+        "base_share": base_s / span,
+        "update_share": t_upd / span,
+        "inputs": inputs,
+        "curve": state["curve"],
+        "best": state["best"],
+    }
+    (out / "train.json").write_text(json.dumps(summary, indent=2, default=_plain), encoding="utf-8")
+    _learning_curve(out, f"ppo_fast on {env_id} (seed {seed})")
+    env.close()
+    return summary
+
+
+def _plain(x):
+    return x.item() if hasattr(x, "item") else str(x)
+
+
+def _checkpoint(path, agent, opt, obs_rms, ret_rms, state, wall_s):
+    state = {**state, "wall_s": wall_s}
+    torch.save(
+        {
+            "agent": agent.state_dict(),
+            "optimizer": opt.state_dict(),
+            "obs_rms": obs_rms.state(),
+            "ret_rms": ret_rms.state(),
+            "state": state,
+            "torch_rng": torch.get_rng_state(),
+        },
+        path,
+    )
+
+
+def _learning_curve(out: Path, title: str) -> Path | None:
+    rows = list(csv.DictReader(open(out / "progress.csv", newline="", encoding="utf-8")))
+    if not rows:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4), sharey=True)
+    val = [r for r in rows if r["val_rms_pct"] != ""]
+    for ax, key, label in ((axes[0], "wall_s", "wall time (s)"), (axes[1], "steps", "env steps")):
+        ax.plot(
+            [float(r[key]) for r in rows],
+            [float(r["train_rms_pct"]) for r in rows],
+            lw=0.8,
+            label="training RMS (stochastic)",
+        )
+        ax.plot(
+            [float(r[key]) for r in val],
+            [float(r["val_rms_pct"]) for r in val],
+            marker="o",
+            label="validation RMS",
+        )
+        ax.set_xlabel(label)
+    axes[0].set_ylabel("RMS error (% of scale)")
+    axes[0].legend(fontsize=8)
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    png = out / "learning_curve.png"
+    fig.savefig(png, dpi=90)
+    plt.close(fig)
+    return png
+
+
+def run_fast(args) -> int:
+    """The ``pneumatic-env train --algo ppo_fast`` command (arguments of agents.train)."""
+    import shlex
+    import sys
+
+    from pneumatic_env.ids import parse_env_id
+
+    variant = parse_env_id(args.env).variant.lower()
+    config = args.config or agent_config_path(f"ppo_fast-{variant}")
+    if not Path(config).is_file():
+        raise SystemExit(
+            f"no config {config}: write configs/agents/ppo_fast-{variant}.yaml or pass --config"
+        )
+    out = args.out or f"runs/ppo_fast-{variant}-s{args.seed}"
+    command = "pneumatic-env " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    s = train(
+        config, args.env, args.seed, out, args.minutes, args.timesteps, args.resume, command=command
+    )
+    best = s["best"] or {}
+    print(
+        f"{s['steps']} steps in {s['wall_s']:.0f} s: {s['steps_per_s']:.0f} env steps/s "
+        f"(env alone {s['env_only_steps_per_s']:.0f} steps/s; shares: env "
+        f"{100 * s['env_share']:.0f} %, classical base {100 * s['base_share']:.0f} %, "
+        f"updates {100 * s['update_share']:.0f} %); best validation RMS "
+        f"{best.get('val_rms_pct', float('nan')):.3f} %; wrote {out}"
+    )
+    return 0

@@ -1,0 +1,325 @@
+"""Scoring of candidate effects: refit on the training data, score on the held-out data.
+
+A candidate's parameters are refitted together with the current model's (:func:`score`);
+its score is the relative drop of the mean held-out NRMSE, per held-out recording too,
+and the change of an information criterion (BIC with the effective sample size of the
+autocorrelated residual). :func:`score_many` runs independent refits in parallel
+processes (the numba-compiled kernel is inherited by ``fork``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import multiprocessing
+import sys
+from collections.abc import Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import progress
+from .calibrate import FitProblem, FitResult, run_fit
+from .candidates import Candidate
+from .config import FitParameter, IdentificationConfig
+from .holdout import Holdout
+
+__all__ = [
+    "CandidateScore",
+    "conflicts",
+    "improvement_is_the_basin",
+    "mean_nrmse",
+    "score",
+    "score_many",
+]
+
+log = logging.getLogger("pneumatic_env.identification")
+
+
+def mean_nrmse(d: Mapping[str, float]) -> float:
+    """Mean over channels (finite values only)."""
+    vals = [v for v in d.values() if v is not None and math.isfinite(v)]
+    return float(np.mean(vals)) if vals else math.nan
+
+
+def unique(params: Sequence[FitParameter]) -> list[FitParameter]:
+    """``params`` without repeated names (first occurrence kept)."""
+    seen: set[str] = set()
+    return [p for p in params if not (p.name in seen or seen.add(p.name))]
+
+
+@dataclass
+class CandidateScore:
+    """A candidate refitted on the training data and scored on the held-out data."""
+
+    candidate: Candidate
+    round: int
+    fit: FitResult | None
+    heldout_nrmse: dict[str, float]
+    heldout_mean: float
+    relative_improvement: float
+    delta_ic: float
+    plausible: bool
+    identified: bool
+    accepted: bool
+    reasons: list[str] = field(default_factory=list)
+    per_recording: dict[str, float] = field(default_factory=dict)  # held-out improvement
+    screening: dict | None = None  # the screening's prediction (see .screening)
+    refitted: bool = True  # False: screened out, the score is the screening's prediction
+
+    @property
+    def name(self) -> str:
+        return self.candidate.name
+
+    def to_dict(self) -> dict:
+        params = {}
+        for p in self.candidate.parameters:
+            if self.fit is None:
+                continue
+            lo, hi = self.fit.ci[p.name]
+            params[p.name] = {
+                "value": self.fit.values[p.name],
+                "unit": p.unit,
+                "ci": [_num(lo), _num(hi)],
+                "neutral": None if p.neutral is None else _num(p.neutral),
+                "identified": self.fit.identified[p.name],
+                "plausible": self.fit.plausible[p.name],
+                "flags": self.fit.flags[p.name],
+            }
+        return {
+            "name": self.name,
+            "kind": self.candidate.kind,
+            "description": self.candidate.description,
+            "round": self.round,
+            "parameters": params,
+            "refitted_base": (
+                {
+                    p.name: self.fit.values[p.name]
+                    for p in self.fit.parameters
+                    if p.name not in params
+                }
+                if self.fit
+                else {}
+            ),
+            "heldout_nrmse": self.heldout_nrmse,
+            "heldout_nrmse_mean": self.heldout_mean,
+            "score": self.relative_improvement,
+            "relative_improvement": self.relative_improvement,
+            "delta_ic": self.delta_ic,
+            "plausible": self.plausible,
+            "identified": self.identified,
+            "accepted": self.accepted,
+            "reasons": self.reasons,
+            "refitted": self.refitted,
+            "heldout_improvement_per_recording": dict(self.per_recording),
+            "screening": self.screening,
+        }
+
+
+def _num(x: float):
+    return float(x) if math.isfinite(x) else None
+
+
+def _ic(rss: float, n: int, n_eff: float, k: int) -> float:
+    """BIC with the effective sample size: ``N_eff ln(RSS/N) + k ln(N_eff)``."""
+    return n_eff * math.log(max(rss, 1e-300) / n) + k * math.log(max(n_eff, 2.0))
+
+
+def conflicts(cand: Candidate, selected: Sequence[Candidate]) -> bool:
+    """Whether ``cand`` fixes a parameter a selected effect fits, or fits one it fixes (e.g.
+    the transmission line holds the tube's air, so it excludes a tube storage volume), or
+    both fit the same parameter (LuGre friction has the Stribeck curve already)."""
+    return any(
+        set(cand.set) & set(other.parameter_names)
+        or set(other.set) & set(cand.parameter_names)
+        or set(cand.parameter_names) & set(other.parameter_names)
+        for other in selected
+    )
+
+
+def improvement_is_the_basin(
+    score: CandidateScore,
+    current: FitResult,
+    min_rel: float,
+    split: Holdout,
+    cfg: IdentificationConfig,
+) -> bool:
+    """True (and ``score`` refused) when the current model at the candidate's fitted values,
+    the candidate's effect switched off, is within ``min_rel`` of the candidate's held-out
+    error: then the improvement came from where the candidate's refit moved the base
+    parameters (for a sliding piston, which stick events it makes), not from the effect."""
+    values = score.fit.all_values()
+    fixed = {**current.fixed, **{p.name: values[p.name] for p in current.parameters}}
+    problem = FitProblem(
+        split.train,
+        [],
+        fixed=fixed,
+        n_samples=split.train_n,
+        config=cfg,
+        label=f"the fit with {score.name}, the effect off",
+        scopes=current.scopes,
+    )
+    try:
+        off = run_fit(problem)
+    except (ValueError, FloatingPointError):
+        return False
+    off_mean = mean_nrmse(split.heldout_nrmse(off)[0])
+    rel = (off_mean - score.heldout_mean) / off_mean if off_mean > 0 else 0.0
+    if rel >= min_rel:
+        return False
+    score.accepted = False
+    score.reasons.append(
+        f"with {score.name} switched off at its fitted values the held-out NRMSE is "
+        f"{off_mean:.4g} (with it {score.heldout_mean:.4g}, {100 * rel:.1f} % better < "
+        f"{100 * min_rel:.0f} %): the improvement is where the refit moved the base "
+        "parameters, not the effect"
+    )
+    return True
+
+
+def score(
+    cand: Candidate,
+    rnd: int,
+    current: FitResult,
+    current_mean: float,
+    refit: Sequence[FitParameter],
+    selected: Sequence[Candidate],
+    split: Holdout,
+    n_res: int,
+    n_eff: float,
+    min_rel: float,
+    min_ic: float,
+    nfev: int,
+    cfg: IdentificationConfig,
+    current_per: Mapping[str, float] | None = None,
+    warm: Mapping[str, float] | None = None,
+) -> CandidateScore:
+    """Refit ``cand`` on top of ``current`` (training data) and score it held out.
+
+    ``current_per``: the current model's mean held-out NRMSE per held-out recording; the
+    score's ``per_recording`` is the candidate's relative improvement on each. ``warm``:
+    starting values of the effect's parameters (e.g. the screening's step) instead of
+    the config's warm start."""
+    free = unique(
+        list(refit)
+        + [p for c in selected for p in (*c.refit_base, *c.parameters)]
+        + list(cand.refit_base)
+        + list(cand.parameters)
+    )
+    fixed = {k: v for k, v in current.all_values().items() if k not in {p.name for p in free}}
+    fixed.update(cand.set)
+    start = {p.name: current.all_values()[p.name] for p in free if p.name in current.all_values()}
+    start.update({k: v for k, v in (warm or {}).items() if math.isfinite(v)})
+    problem = FitProblem(
+        split.train,
+        free,
+        fixed=fixed,
+        n_samples=split.train_n,
+        config=cfg,
+        label=f"{cand.name} (round {rnd})",
+        scopes={**current.scopes, **cand.scopes()},
+    )
+    # parameters the candidate adds to the current model (its own and the base parameters
+    # it makes observable that the current model did not fit)
+    current_free = {p.name for p in current.parameters}
+    n_extra = len(cand.parameters) + sum(p.name not in current_free for p in cand.refit_base)
+    try:
+        # a candidate that changes the piston's friction law moves the static friction's
+        # stick-event basins: it gets the restarts the base calibration had; the others
+        # start from the calibrated base's basin
+        fit = run_fit(
+            problem,
+            start=start,
+            max_nfev=nfev,
+            friction_restarts=cand.requires_motion,
+            tolerance=cfg.number("fit", "diagnosis_tolerance", positive=True),
+        )
+    except (ValueError, FloatingPointError) as exc:  # e.g. a parameter set the kernel rejects
+        return CandidateScore(
+            cand,
+            rnd,
+            None,
+            {},
+            math.inf,
+            -math.inf,
+            math.inf,
+            False,
+            False,
+            False,
+            [f"fit failed: {exc}"],
+        )
+    nrmse, preds = split.heldout_nrmse(fit)
+    mean = mean_nrmse(nrmse)
+    per = {}
+    for name, ch in split.per_recording(preds).items():
+        ref = (current_per or {}).get(name, math.nan)
+        per[name] = (ref - mean_nrmse(ch)) / ref if ref > 0 else math.nan
+    rel = (current_mean - mean) / current_mean if current_mean > 0 else 0.0
+    # BIC(candidate) - BIC(current): N_eff ln(RSS_c / RSS_m) + (extra parameters) ln(N_eff)
+    delta_ic = _ic(fit.rss, n_res, n_eff, n_extra) - _ic(current.rss, n_res, n_eff, 0)
+    plausible = all(fit.plausible[p.name] for p in cand.parameters)
+    identified = True
+    reasons = []
+    for p in cand.parameters:
+        lo, hi = fit.ci[p.name]
+        if not fit.identified[p.name]:
+            identified = False
+            reasons.append(f"{p.name} not identified ({'; '.join(fit.flags[p.name])})")
+        elif p.neutral is not None and lo <= p.neutral <= hi:
+            identified = False
+            reasons.append(
+                f"{p.name}: its confidence interval [{lo:.3g}, {hi:.3g}] contains the "
+                f"neutral value {p.neutral:g} (effect off)"
+            )
+        if not fit.plausible[p.name]:
+            reasons.append(
+                f"{p.name} = {fit.values[p.name]:.4g} {p.unit} is outside the plausible "
+                f"range [{p.plausible_min:g}, {p.plausible_max:g}]"
+            )
+    if rel < min_rel:
+        reasons.append(f"held-out improvement {100 * rel:.1f} % < {100 * min_rel:.0f} %")
+    if delta_ic > -min_ic:
+        reasons.append(f"BIC change {delta_ic:.1f} > -{min_ic:g}")
+    accepted = rel >= min_rel and delta_ic <= -min_ic and plausible and identified
+    return CandidateScore(
+        cand,
+        rnd,
+        fit,
+        nrmse,
+        mean,
+        rel,
+        delta_ic,
+        plausible,
+        identified,
+        accepted,
+        reasons,
+        per_recording=per,
+    )
+
+
+def _score_job(args: tuple) -> CandidateScore:
+    """:func:`score` in a worker process (its progress is the parent's to show)."""
+    progress._ACTIVE.clear()
+    return score(*args)
+
+
+def score_many(
+    jobs_args: Sequence[tuple], jobs: int, work_each: float = 0.0
+) -> list[CandidateScore]:
+    """:func:`score` of every argument tuple, in up to ``jobs`` processes (``fork``: the
+    children inherit the compiled kernel) when there are two or more; in order.
+    ``work_each`` is reported to :mod:`.progress` as each one finishes."""
+    jobs_args = list(jobs_args)
+    if jobs <= 1 or len(jobs_args) < 2 or sys.platform == "win32":
+        out = []
+        for args in jobs_args:
+            out.append(score(*args))
+        return out
+    ctx = multiprocessing.get_context("fork")
+    out = []
+    with ProcessPoolExecutor(max_workers=min(jobs, len(jobs_args)), mp_context=ctx) as pool:
+        for result in pool.map(_score_job, jobs_args):
+            progress.advance(work_each)
+            out.append(result)
+    return out

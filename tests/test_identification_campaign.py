@@ -1,0 +1,280 @@
+"""Identification on a campaign of experiments (issue 20): screening, the moving-rod base
+fit, the campaign hold-out, progress, and the report's confidence fields.
+
+All recordings come from the virtual rig (synthetic): campaigns of three 1 s experiments
+(clamped steps, clamped multisine, spring), few candidates. The claims and their
+thresholds were fixed before the data were generated (comments say why).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from pneumatic_env.identification import progress
+from pneumatic_env.identification.calibrate import Dataset, calibrate
+from pneumatic_env.identification.candidates import candidate_table
+from pneumatic_env.identification.checks import read_checked
+from pneumatic_env.identification.config import load_config
+from pneumatic_env.identification.diagnose import _second_effect_support, diagnose
+from pneumatic_env.identification.holdout import Holdout
+from pneumatic_env.identification.report import write_report
+from pneumatic_env.identification.scoring import CandidateScore
+from pneumatic_env.studies.rig_campaign import CAMPAIGNS, Experiment, make_campaign
+
+SEEDS = (1, 2, 3)
+# a plant effect, its closest rivals (a leak elsewhere) and two sensor effects
+CANDIDATES = [
+    "leakage",
+    "rod_seal_leak",
+    "valve_null_leak",
+    "pressure_sensor_offset",
+    "pressure_sensor_lag",
+]
+
+
+@pytest.fixture(scope="module")
+def campaign_dir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("campaigns")
+
+
+def _campaign(root: Path, effect: str, seed: int, campaign="small") -> list[Path]:
+    out = root / f"{effect}_{seed}"
+    paths = sorted(out.glob("*.csv"))
+    if not paths:
+        paths = make_campaign(out, effect=effect, seed=seed, campaign=campaign)
+    return paths
+
+
+# --------------------------------------------------------------------------- screening
+
+
+@pytest.mark.slow
+def test_screening_ranks_the_true_effect_first_on_every_seed(campaign_dir):
+    """Quick mode (screening only) on a small leak campaign: the leak is ranked first on
+    each of three rig seeds, with a predicted BIC drop and training-error drop that pass
+    the acceptance thresholds (10 and 10 %): a ranking that a refit can confirm. (The
+    first version ranked by the predicted held-out error and failed this on seed 2: -140 %
+    held out for the leak, whose refit is right; see screening.py.)"""
+    cfg = load_config()
+    for seed in SEEDS:
+        recs = [read_checked(p) for p in _campaign(campaign_dir, "leakage", seed)]
+        diag = diagnose(recs, candidates=CANDIDATES, quick=True)
+        ranking = diag.screening[0]["ranking"]
+        assert ranking[0]["name"] == "leakage", (seed, ranking[:3])
+        assert ranking[0]["predicted_delta_ic"] <= -cfg.diagnosis("min_ic_drop"), seed
+        assert ranking[0]["predicted_training_improvement"] >= cfg.diagnosis(
+            "min_relative_improvement"
+        ), seed
+        assert diag.selected == [] and diag.quick
+        assert all(not s.refitted for s in diag.scores)
+
+
+# --------------------------------------------------------------------------- base fit
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 2])
+def test_moving_rod_base_fit_converges_monotonically(campaign_dir, seed):
+    """Spring and free rods (stick-slip friction): every accepted point of the base fit
+    lowers the robust cost, the number of Jacobians is bounded, the fit states why it
+    stopped, and it ends far below its start (the stick-event staircase does not stall
+    it: at least a 5x lower cost, fixed before the run from the clamped fits' 10-100x)."""
+    campaign = (
+        Experiment("spring", "spring", "prbs", 1.0),
+        Experiment("free", "free", "multisine", 1.0),
+    )
+    paths = make_campaign(
+        campaign_dir / f"moving_{seed}", seed=seed, campaign=campaign, overwrite=True
+    )
+    cfg = load_config()
+    cal = calibrate([read_checked(p) for p in paths])
+    res = cal.result
+    history = np.array(res.cost_history)
+    assert history.size >= 2
+    assert np.all(np.diff(history) <= 1e-12 * history[:-1]), history
+    bound = (1 + cfg.number("fit", "friction_searches")) * cfg.number("fit", "max_nfev") + 1
+    assert res.n_jacobians <= bound
+    assert res.message and res.message != "nothing to fit"
+    assert history[-1] < history[0] / 5.0
+    assert {"static_friction_n", "dynamic_friction_n"} <= set(res.values)
+
+
+# --------------------------------------------------------------------------- hold-out
+
+
+def _fake(name: str, mode: str, n: int = 1000) -> Dataset:
+    return Dataset(
+        name=name,
+        recording=SimpleNamespace(n_samples=n),
+        values={},
+        channels=("p1",),
+        scales={"p1": 1.0},
+        usable={"p1": np.ones(n, bool)},
+        dt_s=1e-3,
+        substeps=10,
+        initial=None,
+        moving=mode != "fixed",
+        rod_mode=mode,
+    )
+
+
+def test_campaign_holdout_scores_every_experiment_type():
+    """Of each rod mode with two or more recordings the last is held out whole; a mode
+    with one recording is split in time; every mode is scored on held-out data."""
+    cfg = load_config()
+    ds = [
+        _fake("c1", "fixed"),
+        _fake("c2", "fixed"),
+        _fake("c3", "fixed"),
+        _fake("s1", "spring"),
+        _fake("f1", "free"),
+    ]
+    split = Holdout(ds, "auto", cfg)
+    assert split.info["mode"] == "campaign"
+    assert split.info["held_out"] == ["c3"]
+    assert split.info["time_split"] == ["s1", "f1"]
+    assert [d.name for d in split.train] == ["c1", "c2", "s1", "f1"]
+    assert split.train_n == [1000, 1000, 600, 600]
+    assert {d.rod_mode for d in split.held} == {"fixed", "spring", "free"}
+    masks = dict(zip([d.name for d in split.held], split.held_masks))
+    assert masks["c3"]["p1"].all()
+    assert not masks["s1"]["p1"][:600].any() and masks["s1"]["p1"][600:].all()
+    # two recordings: a time split keeps both in the fit
+    assert Holdout(ds[:2], "auto", cfg).info["mode"] == "time"
+    with pytest.raises(ValueError, match=r"holdout = 'loo' is not allowed: must be one of"):
+        Holdout(ds, "loo", cfg)
+
+
+def _score(per: dict) -> CandidateScore:
+    cand = candidate_table()["rod_seal_leak"]
+    return CandidateScore(
+        cand, 2, None, {}, 0.1, 0.15, -20.0, True, True, True, [], per_recording=per
+    )
+
+
+@pytest.mark.parametrize(
+    "per, accepted, reason",
+    [
+        ({"c3": 0.25, "s1": 0.02}, True, None),
+        ({"c3": 0.06, "s1": 0.05}, False, "no held-out recording is 10 % better"),
+        ({"c3": 0.30, "s1": -0.04}, False, "held-out recording(s) worse with it: s1 -4.0 %"),
+    ],
+)
+def test_a_second_effect_needs_support_on_data_the_first_did_not_explain(per, accepted, reason):
+    sc = _score(per)
+    _second_effect_support(sc, 0.10)
+    assert sc.accepted is accepted
+    if reason:
+        assert any(reason in r for r in sc.reasons), sc.reasons
+
+
+# --------------------------------------------------------------------------- progress
+
+
+def test_progress_log_lines_state_the_stage_fraction_and_time_left(caplog):
+    bar = progress.Progress(bar=False, interval_s=0.0)
+    with caplog.at_level(logging.INFO, logger="pneumatic_env.identification"):
+        with progress.tracking(bar):
+            progress.stage("base fit", 100.0)
+            progress.advance(25.0)
+            progress.advance(25.0)
+    assert bar.fraction == pytest.approx(0.5)
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines[0] == "progress: base fit: 0 % done, time left unknown"
+    assert lines[-1].startswith("progress: base fit: 50 % done, about ")
+    assert lines[-1].endswith(" left")
+    progress.advance(10.0)  # no active progress: nothing happens
+    assert bar.done == 50.0
+
+
+def test_data_larger_than_expected_get_a_notice_with_the_time_and_what_is_done():
+    from pneumatic_env.identification.diagnose import _size_issue
+
+    cfg = load_config()
+    long = [_fake(f"r{k}", "fixed", 10000) for k in range(3)]  # 30 s
+    issue = _size_issue(long, cfg, 1e-6, 1.2e8)
+    assert (issue.severity, issue.code) == ("warning", "size")
+    assert "30.0 s of data, more than the 15 s" in issue.message
+    assert "about 2 min" in issue.message and "--quick" in issue.message
+    assert _size_issue(long[:1], cfg, 1e-6, 1.2e8) is None
+
+
+# --------------------------------------------------------------------------- report
+
+
+@pytest.fixture(scope="module")
+def leak_campaign_diagnosis(campaign_dir):
+    recs = [read_checked(p) for p in _campaign(campaign_dir, "leakage", 1)]
+    return diagnose(
+        recs, candidates=["leakage", "rod_seal_leak", "pressure_sensor_offset"], max_effects=2
+    )
+
+
+@pytest.mark.slow
+def test_report_states_how_sure_and_the_error_per_recording(leak_campaign_diagnosis, tmp_path):
+    diag = leak_campaign_diagnosis
+    assert diag.selected == ["leakage"]
+    data = write_report(diag, tmp_path / "rep", plots=False)
+    (conf,) = data["confidence"]
+    assert conf["effect"] == "leakage" and conf["round"] == 1
+    assert conf["margin_over_none"] >= 0.10
+    assert conf["runner_up"] in ("rod_seal_leak", "pressure_sensor_offset")
+    assert conf["margin_over_runner_up"] == pytest.approx(
+        conf["heldout_improvement"] - conf["runner_up_improvement"]
+    )
+    assert conf["holds_on_every_heldout_recording"] is all(
+        v > 0 for v in conf["heldout_improvement_per_recording"].values()
+    )
+    held = set(diag.holdout["held_out"]) | set(diag.holdout["time_split"])
+    assert set(conf["heldout_improvement_per_recording"]) == held
+    assert set(conf["supported_by"]) <= held
+    for row in data["per_recording"].values():
+        assert set(row["before"]) == set(row["after"])
+        assert set(row["before"]) in ({"p1", "p2", "f"}, {"p1", "p2", "x"})
+        assert math.isfinite(row["before_mean"]) and math.isfinite(row["after_mean"])
+    saved = json.loads((tmp_path / "rep" / "diagnosis.json").read_text())
+    assert saved["confidence"][0]["effect"] == "leakage"
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "## How sure" in md and "## Held-out error per recording" in md
+    assert "## Screening, round 1" in md
+
+
+def test_campaigns_are_named_experiments():
+    assert sum(e.duration_s for e in CAMPAIGNS["standard"]) == pytest.approx(13.0)
+    assert [e.piston for e in CAMPAIGNS["standard"]].count("fixed") == 3
+    with pytest.raises(ValueError, match="campaign = 'huge' is not known; allowed: standard"):
+        make_campaign("unused", campaign="huge")
+
+
+@pytest.mark.slow
+def test_identify_quick_names_the_effects_worth_a_full_fit(campaign_dir, tmp_path, capsys):
+    from pneumatic_env.cli import main
+
+    paths = _campaign(campaign_dir, "leakage", 1)
+    status = main(
+        [
+            "identify",
+            *map(str, paths),
+            "--report",
+            str(tmp_path / "q"),
+            "--quick",
+            "--no-plots",
+            "--quiet",
+            "--candidates",
+            ",".join(CANDIDATES),
+        ]
+    )
+    assert status == 0
+    out = capsys.readouterr().out
+    assert "screening only" in out and "worth a full fit" in out
+    worth = out.split("worth a full fit", 1)[1]
+    assert worth.index("leakage") < worth.index("%")  # the leak is named first
+    data = json.loads((tmp_path / "q" / "diagnosis.json").read_text())
+    assert data["quick"] and data["selected"] == [] and data["confidence"] == []
