@@ -218,8 +218,11 @@ def run_suite(
     suite: Suite | None = None,
     config: str | None = None,
     progress: Callable[[str], None] | None = None,
+    env_options: dict | None = None,
 ):
-    """Run every task on every variant; returns (rows for the CSV, traces per variant)."""
+    """Run every task on every variant; returns (rows for the CSV, traces per variant).
+
+    ``env_options``: more env keyword arguments (e.g. ``plant`` for a perturbed plant)."""
     suite = suite or load_suite()
     variants = list(variants or suite.variants)
     rows, traces = [], {}
@@ -229,7 +232,8 @@ def run_suite(
     for variant in variants:
         parse_variant(variant, suite.task)
         cspec = resolve_controller(controller, variant, config, suite.preview_steps)
-        env = make_env(variant, len(suite.tasks), n_steps, suite.task, **cspec.env_options)
+        options = {**cspec.env_options, **(env_options or {})}
+        env = make_env(variant, len(suite.tasks), n_steps, suite.task, **options)
         dt, scale = env.unwrapped.control_dt_s, env.unwrapped.reference_scale
         ctrl = cspec.build(ControllerContext.from_env(env))
         if progress:

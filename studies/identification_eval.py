@@ -99,6 +99,14 @@ def evaluate_campaign(job: dict) -> dict:
 
     t0 = time.time()
     name = f"{job['label'].replace(' ', '_').replace('(', '').replace(')', '')}_seed{job['seed']}"
+    # a rig already diagnosed with the same job (an interrupted evaluation run again) is
+    # read back, not redone
+    saved = Path(job["workdir"]) / name / "result.json"
+    key = {k: job[k] for k in ("effect", "label", "strength", "seed", "campaign", "candidates")}
+    if saved.is_file():
+        previous = json.loads(saved.read_text(encoding="utf-8"))
+        if previous.get("job") == key:
+            return previous["result"]
     paths = make_campaign(
         Path(job["workdir"]) / name,
         effect=job["effect"],
@@ -113,7 +121,7 @@ def evaluate_campaign(job: dict) -> dict:
         [read_checked(p) for p in paths], candidates=job["candidates"], jobs=job["jobs"]
     )
     data = diag.to_json()
-    return {
+    result = {
         **{k: job[k] for k in ("effect", "label", "strength", "seed")},
         "selected": data["selected"],
         "winner": data["winner"],
@@ -128,6 +136,8 @@ def evaluate_campaign(job: dict) -> dict:
         "seconds": time.time() - t1,
         "timings_s": data["timings_s"],
     }
+    saved.write_text(json.dumps({"job": key, "result": result}, indent=1) + "\n", encoding="utf-8")
+    return result
 
 
 def summarise_campaigns(results: list[dict]) -> dict:

@@ -3,29 +3,25 @@
 A user with a rig does not make one long recording: they run a few experiments of 2-3 s
 each, with the rod clamped on the load cell (steps, multisines, pulse trains), against a
 spring, and free, and pass them all to ``pneumatic-env identify``. :func:`make_campaign`
-records such a campaign (synthetic data) from one virtual rig (one ``seed``: the same
-perturbed parameters and the same effect in every experiment), each experiment with its
-own excitation and noise draws (``run_rig(experiment=k)``).
+records such a campaign (synthetic data) from one virtual rig (one ``seed``: the same perturbed
+parameters and the same effect in every experiment), each experiment with its own
+excitation and noise draws (``run_rig(experiment=k)``).
 
 An effect the rig can only make with the rod clamped (the segmented line of
 ``tube_waves``, the load cell's compliance) is left out of the moving-rod experiments,
 and a friction effect (``stribeck``, ``lugre``) shows only where the rod moves; the
 truth file of each experiment states what it had.
-
-    python -m pneumatic_env.studies.rig_campaign OUT_DIR [--effect leakage] [--seed 1]
-        [--campaign standard] [--strength 1]
 """
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Sequence
 from pathlib import Path
 from typing import NamedTuple
 
 from .virtual_rig import LINE_EFFECTS, MOVING_EFFECTS, make_recording
 
-__all__ = ["CAMPAIGNS", "Experiment", "make_campaign", "main"]
+__all__ = ["CAMPAIGNS", "Experiment", "make_campaign"]
 
 
 class Experiment(NamedTuple):
@@ -113,28 +109,3 @@ def make_campaign(
             )
         )
     return paths
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m pneumatic_env.studies.rig_campaign")
-    p.add_argument("out_dir", type=Path)
-    p.add_argument("--effect", default="none", help="the rig's extra effect (virtual_rig)")
-    p.add_argument("--strength", type=float, default=1.0)
-    p.add_argument("--seed", type=int, default=1, help="the rig: perturbation and noise")
-    p.add_argument("--campaign", default="standard", choices=sorted(CAMPAIGNS))
-    args = p.parse_args(argv)
-    paths = make_campaign(
-        args.out_dir,
-        effect=args.effect,
-        strength=args.strength,
-        seed=args.seed,
-        campaign=args.campaign,
-        overwrite=True,
-    )
-    for path in paths:
-        print(path)
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -138,8 +138,9 @@ class _TaskProperties:
 
     @property
     def base_params(self) -> Mapping[str, float]:
-        """The model parameters (``load_parameters`` names, SI units), read-only; with
-        ``domain_randomization`` the centre values."""
+        """The model parameters (``load_parameters`` names, SI units), read-only: what a
+        controller may know (the ``plant`` option and ``domain_randomization`` change the
+        simulated plant, not these)."""
         return MappingProxyType(self.core.base_params)
 
     @property
@@ -292,7 +293,11 @@ class PneumaticTrackingEnv(_TaskProperties, gym.Env[NDArray[np.float32], NDArray
       ``error_integral_tau_s`` (0.2), ``error_integral_leaky`` (True),
       ``relative_preview`` (False): the observation features above.
     * ``domain_randomization``: ``{name: (low, high)}`` or ``{name: relative_half_width}``,
-      uniform per episode.
+      uniform per episode (around the plant's values).
+    * ``plant``: ``{name: value}``, a model mismatch: the simulated plant takes these
+      parameters while the task, the reference scale, the observation scales and
+      ``base_params`` (what a controller may know) keep the model's; for robustness
+      studies (``agents/robustness.py``).
     * ``sensor_noise``: ``{channel: std}`` for p1, p2, x, f (SI); ``sensor_lag_s`` (0): a
       first-order sensor lag.
     * ``control_dt_s``, ``substeps``: control period and RK4 substeps (configs/numerics.yaml).

@@ -137,6 +137,9 @@ class EnvOptions:
     effort_weight: float = 0.0
     chatter_weight: float = 0.0
     domain_randomization: dict | None = None
+    # parameters of the simulated plant that differ from the model the task, the
+    # observation scales and base_params are built from (model mismatch)
+    plant: dict | None = None
     sensor_noise: dict | None = None  # channel -> standard deviation (SI)
     sensor_lag_s: float = 0.0
     control_dt_s: float | None = None
@@ -231,9 +234,14 @@ class TaskCore:
         )
         self.base_params = base
         self.cylinder = cylinder
-        self._randomization = self._check_randomization(self.options.domain_randomization, base)
+        self.plant_params = self._plant(self.options.plant, cylinder, base)
+        self._randomization = self._check_randomization(
+            self.options.domain_randomization, self.plant_params
+        )
         self.n_envs = n_envs
-        self.sim = BatchSimulator(P.parameter_array([base] * n_envs), control_dt, substeps)
+        self.sim = BatchSimulator(
+            P.parameter_array([self.plant_params] * n_envs), control_dt, substeps
+        )
         self.dt = control_dt
         self.scale = scale_of(task, base)
         self.force_scale = force_scale(base)
@@ -313,6 +321,17 @@ class TaskCore:
 
     # -- parameters ----------------------------------------------------------------------
     @staticmethod
+    def _plant(spec, cylinder: str, base: dict) -> dict:
+        """``base`` with the ``plant`` option's parameters (``{name: value}``) replaced."""
+        if spec is None:
+            return base
+        if not isinstance(spec, Mapping):
+            raise ValueError(
+                f"plant = {spec!r} is not allowed: must be None or a dict {{parameter: value}}"
+            )
+        return P.load_parameters(cylinder, params=base, **spec)
+
+    @staticmethod
     def _check_randomization(spec, base):
         """{name: (low, high)} absolute or {name: r} for +-r relative, uniform per episode."""
         if not spec:
@@ -389,7 +408,7 @@ class TaskCore:
                 drawn = {
                     n: rngs[env].uniform(lo, hi) for n, (lo, hi) in self._randomization.items()
                 }
-                columns.append(P.load_parameters(self.cylinder, params=self.base_params, **drawn))
+                columns.append(P.load_parameters(self.cylinder, params=self.plant_params, **drawn))
             self.sim.set_params(envs, P.parameter_array(columns))
         self.sim.reset(envs)
         own = envs
