@@ -178,6 +178,24 @@ def test_a_second_effect_needs_support_on_data_the_first_did_not_explain(per, ac
 # --------------------------------------------------------------------------- progress
 
 
+def test_many_heldout_recordings_judge_by_their_median_improvement():
+    """Three or more held-out recordings: the median of their improvements (one badly
+    extrapolated recording neither vetoes nor carries an effect); fewer: the pooled one.
+    Recordings without a value (NaN) do not count."""
+    from pneumatic_env.identification.scoring import heldout_improvement
+
+    cfg = load_config()
+    n = int(cfg.diagnosis("median_from_recordings"))
+    assert n == 3
+    veto = {"clamped": 0.31, "spring": 0.39, "free": -0.46}
+    assert heldout_improvement(veto, -0.06, cfg)[0] == pytest.approx(0.31)
+    carry = {"clamped": 0.01, "spring": -0.02, "free": 0.9}
+    assert heldout_improvement(carry, 0.3, cfg)[0] == pytest.approx(0.01)
+    two = {"clamped": 0.31, "free": -0.46, "spring": math.nan}
+    rel, how = heldout_improvement(two, -0.06, cfg)
+    assert rel == -0.06 and how.startswith("pooled")
+
+
 def test_progress_log_lines_state_the_stage_fraction_and_time_left(caplog):
     bar = progress.Progress(bar=False, interval_s=0.0)
     with caplog.at_level(logging.INFO, logger="pneumatic_env.identification"):

@@ -218,6 +218,7 @@ def diagnose(
     thresholds = {
         "min_relative_improvement": min_rel,
         "min_ic_drop": min_ic,
+        "median_from_recordings": int(cfg.diagnosis("median_from_recordings")),
         "max_effects": max_effects,
         "refit_top": top_k,
         "min_predicted_improvement": min_pred,
