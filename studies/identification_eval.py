@@ -203,6 +203,11 @@ def campaign_markdown(summary: dict, results: list[dict], args, elapsed_s: float
     return "\n".join(lines)
 
 
+def _write_json(path: Path, summary: dict, results: list, candidates: list, elapsed: float):
+    data = {"summary": summary, "results": results, "candidates": candidates, "elapsed_s": elapsed}
+    path.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+
+
 def _run_all(function, jobs: list[dict], processes: int, ray_address: str | None):
     """Results of ``function`` over ``jobs`` as they finish: local processes, or Ray tasks
     on the cluster at ``ray_address`` (Ray is imported only then: the ``distributed``
@@ -460,19 +465,7 @@ def main(argv: list[str] | None = None) -> int:
             )
     elapsed = time.time() - t0
     summary = summarise(results, candidates)
-    (args.out / "evaluation.json").write_text(
-        json.dumps(
-            {
-                "summary": summary,
-                "results": results,
-                "candidates": candidates,
-                "elapsed_s": elapsed,
-            },
-            indent=2,
-        )
-        + "\n",
-        encoding="utf-8",
-    )
+    _write_json(args.out / "evaluation.json", summary, results, candidates, elapsed)
     block = markdown(summary, results, args, elapsed)
     print(block)
     if args.docs is not None:
@@ -525,19 +518,7 @@ def _main_campaign(args, candidates: list[str]) -> int:
         )
     elapsed = time.time() - t0
     summary = summarise_campaigns(results)
-    (args.out / "evaluation_campaign.json").write_text(
-        json.dumps(
-            {
-                "summary": summary,
-                "results": results,
-                "candidates": candidates,
-                "elapsed_s": elapsed,
-            },
-            indent=2,
-        )
-        + "\n",
-        encoding="utf-8",
-    )
+    _write_json(args.out / "evaluation_campaign.json", summary, results, candidates, elapsed)
     block = campaign_markdown(summary, results, args, elapsed)
     print(block)
     if args.docs is not None:

@@ -14,6 +14,47 @@ import pytest
 from pneumatic_env.params import load_numerics, load_parameters, parameter_array
 from pneumatic_env.simulator import BatchSimulator
 
+#: PID gains of the agents' tests (hand-set, not the benchmark's tuned ones)
+PID_TEST_GAINS = dict(
+    kp_a_per_n=0.008,
+    ki_a_per_n_s=0.1,
+    kd_a_s_per_n=1e-5,
+    derivative_filter_s=0.002,
+    rate_feedforward_a_s_per_n=0.0,
+    reference_lead_s=0.005,
+    antiwindup_tracking_s=0.02,
+    deadband_ramp_a=0.01,
+    deadband_compensation=True,
+)
+
+# Gymnasium's checker recommends a normalised action space and finite observation bounds;
+# the action is a coil current in A and sensor noise makes the observation unbounded.
+KNOWN_CHECKER_WARNINGS = (
+    "Box observation space minimum value is -infinity",
+    "Box observation space maximum value is infinity",
+    "we recommend using a symmetric and normalized space",
+)
+
+
+def assert_check_env_passes(env) -> None:
+    """Gymnasium's ``check_env`` on ``env.unwrapped`` warns of nothing but the known."""
+    import gc
+    import warnings
+
+    from gymnasium.utils.env_checker import check_env
+
+    gc.collect()  # another test's garbage (e.g. an unclosed file) must not warn in here
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped)
+    unexpected = [
+        str(w.message)
+        for w in caught
+        if not any(k in str(w.message) for k in KNOWN_CHECKER_WARNINGS)
+    ]
+    assert not unexpected
+
+
 NO_VALUE = object()  # ``assert_error_names``: the message names no offending value
 
 

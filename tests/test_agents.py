@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import pneumatic_env
+from conftest import PID_TEST_GAINS
 from pneumatic_env.agents.base import ControllerContext, ZeroController, valve_currents
 from pneumatic_env.agents.bench import closed_loop, make_env, resolve_controller
 from pneumatic_env.agents.config import ConfigError, load_agent_config
@@ -26,17 +27,7 @@ ID_05 = pneumatic_env.env_id("ForceTrack", "Numatics", "0.5")
 
 
 def _pid(ctx, **over):
-    gains = dict(
-        kp_a_per_n=0.008,
-        ki_a_per_n_s=0.1,
-        kd_a_s_per_n=1e-5,
-        derivative_filter_s=0.002,
-        rate_feedforward_a_s_per_n=0.0,
-        reference_lead_s=0.005,
-        antiwindup_tracking_s=0.02,
-        deadband_ramp_a=0.01,
-        deadband_compensation=True,
-    )
+    gains = dict(PID_TEST_GAINS)
     gains.update(over)
     return PIDController(ctx, **gains)
 

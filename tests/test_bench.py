@@ -11,6 +11,7 @@ import pytest
 import yaml
 from scipy import signal
 
+from conftest import PID_TEST_GAINS
 from pneumatic_env.agents.base import ControllerContext
 from pneumatic_env.agents.bench import (
     CSV_COLUMNS,
@@ -209,17 +210,7 @@ def test_vector_runner_reproduces_the_single_env():
         {"kind": "random_step", "amplitude": 0.5, "hold_min_s": 0.05, "hold_max_s": 0.1},
     ]
     seeds, n = [17, 18], 150
-    gains = dict(
-        kp_a_per_n=0.008,
-        ki_a_per_n_s=0.1,
-        kd_a_s_per_n=1e-5,
-        derivative_filter_s=0.002,
-        rate_feedforward_a_s_per_n=0.0,
-        reference_lead_s=0.005,
-        antiwindup_tracking_s=0.02,
-        deadband_ramp_a=0.01,
-        deadband_compensation=True,
-    )
+    gains = dict(PID_TEST_GAINS)
     venv = make_env("Airpel-0.5m", 2, n, preview_steps=20)
     tr = closed_loop(venv, PIDController(ControllerContext.from_env(venv), **gains), refs, seeds, n)
     scale = venv.unwrapped.reference_scale

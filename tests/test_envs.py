@@ -7,16 +7,14 @@ seeding, action and keyword validation, parameter overrides, rendering, reward b
 
 from __future__ import annotations
 
-import gc
 import warnings
 
 import gymnasium as gym
 import numpy as np
 import pytest
-from gymnasium.utils.env_checker import check_env
 
 import pneumatic_env
-from conftest import areas
+from conftest import areas, assert_check_env_passes
 from pneumatic_env.params import ConfigError, load_parameters, save_parameters
 from pneumatic_env.physics import layout as L
 
@@ -33,13 +31,6 @@ RANDOMIZED = dict(
     sensor_noise={"p1": 1000.0, "p2": 1000.0, "x": 1e-4, "f": 0.5},
     sensor_lag_s=2e-3,
 )
-# Gymnasium's checker recommends a normalised action space and finite observation bounds;
-# the action is a coil current in A and sensor noise makes the observation unbounded.
-KNOWN_CHECKER_WARNINGS = (
-    "Box observation space minimum value is -infinity",
-    "Box observation space maximum value is infinity",
-    "we recommend using a symmetric and normalized space",
-)
 
 
 def _actions(n_steps, shape, seed=0, low=-2.5, high=2.5):
@@ -55,16 +46,7 @@ def _actions(n_steps, shape, seed=0, low=-2.5, high=2.5):
 @pytest.mark.parametrize("env_id", pneumatic_env.registered_ids())
 def test_check_env_passes(env_id):
     env = gym.make(env_id)
-    gc.collect()  # another test's garbage (e.g. an unclosed file) must not warn in here
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        check_env(env.unwrapped)
-    unexpected = [
-        str(w.message)
-        for w in caught
-        if not any(k in str(w.message) for k in KNOWN_CHECKER_WARNINGS)
-    ]
-    assert not unexpected
+    assert_check_env_passes(env)
     env.close()
 
 

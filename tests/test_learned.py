@@ -7,14 +7,12 @@ import csv
 import json
 import subprocess
 import sys
-import warnings
 
 import gymnasium as gym
 import numpy as np
 import pytest
-from gymnasium.utils.env_checker import check_env
 
-from conftest import assert_error_names
+from conftest import assert_check_env_passes, assert_error_names
 from pneumatic_env.agents.base import ControllerContext
 from pneumatic_env.agents.registry import resolve_controller
 from pneumatic_env.envs.features import FeatureConfig, FeatureState, normalize_base_observation
@@ -23,12 +21,6 @@ from pneumatic_env.envs.observation import observation_dim
 ID = "pneumatic_env/ForceTrack-Numatics-2m-v0"
 FEATURES = dict(action_history=3, measurement_history=2, tracking_error=True, relative_preview=True)
 PREVIEW = 20
-# the unbounded Box's warnings, as in test_envs
-KNOWN_CHECKER_WARNINGS = (
-    "Box observation space minimum value is -infinity",
-    "Box observation space maximum value is infinity",
-    "we recommend using a symmetric and normalized space",
-)
 
 
 def _actions(n_steps, n_envs, seed=0):
@@ -82,15 +74,7 @@ def test_feature_options_leave_the_base_layout_alone_and_default_is_off():
 
 def test_check_env_with_features():
     env = gym.make(ID, preview_steps=4, **FEATURES)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        check_env(env.unwrapped)
-    unexpected = [
-        str(w.message)
-        for w in caught
-        if not any(k in str(w.message) for k in KNOWN_CHECKER_WARNINGS)
-    ]
-    assert not unexpected
+    assert_check_env_passes(env)
 
 
 @pytest.mark.parametrize(
