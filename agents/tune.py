@@ -24,6 +24,7 @@ stopping rule; results and the restore point in ``<out>/ray``. Ray is the option
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 from pathlib import Path
 
@@ -187,6 +188,11 @@ def run_local(
     return study
 
 
+def _define_space(trial, search_space: dict) -> None:
+    """Ray's OptunaSearch define-by-run space: the trial's suggestions (:func:`suggest`)."""
+    suggest(trial, search_space)
+
+
 def run_ray(
     spec: dict,
     env_id: str,
@@ -229,11 +235,9 @@ def run_ray(
             report,
         )
 
-    def space(trial):
-        suggest(trial, spec["search_space"])
-
     searcher = OptunaSearch(
-        space=space,
+        # define-by-run; Ray pickles the searcher, so no local function here
+        space=functools.partial(_define_space, search_space=spec["search_space"]),
         metric=METRIC,
         mode="min",
         sampler=optuna.samplers.TPESampler(
