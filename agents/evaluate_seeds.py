@@ -12,7 +12,8 @@ and so does the baseline once (deterministic). Per variant, with ``agents.stats`
 * the interquartile mean over seeds of the mean RMS error (% of the force scale), with a
   95 % bootstrap interval;
 * the paired ratio to the baseline (per seed, the mean over tasks of RMS / baseline RMS)
-  with its interval; "beats" needs the whole interval below 1;
+  with its interval; "beats" needs the whole interval below 1 and at least
+  ``MIN_SEEDS_FOR_A_CLAIM`` (3) seeds;
 * the probability of improvement P(seed's RMS < baseline's RMS), averaged over tasks;
 * the ratio on ``sine_10hz``, ``sine_20hz`` and ``chirp`` (issue 19's fast tasks);
 * the worst task's chatter and air ratios (mean over seeds / baseline).
@@ -44,6 +45,8 @@ __all__ = [
 ]
 
 FAST_TASKS = ("sine_10hz", "sine_20hz", "chirp")
+#: fewest seeds for a "beats" verdict (issue 19 asks for 5, or 10 on the headline rows)
+MIN_SEEDS_FOR_A_CLAIM = 3
 
 
 def actor_paths(runs: Sequence[str | Path], actor: str = "actor.npz") -> list[Path]:
@@ -81,7 +84,9 @@ def summarize_variant(
         "probability_of_improvement": stats.improvement_estimate(rms, base, reps).as_dict(),
         "per_seed_mean_rms_pct": rms.mean(axis=1).tolist(),
     }
-    out["beats"] = bool(out["paired_ratio"]["high"] < 1.0)
+    # a bootstrap interval over fewer seeds than MIN_SEEDS_FOR_A_CLAIM says nothing
+    enough = len(seed_rows) >= MIN_SEEDS_FOR_A_CLAIM
+    out["beats"] = bool(out["paired_ratio"]["high"] < 1.0) if enough else None
     out["task_ratios"] = {
         t: stats.paired_ratio_estimate(
             rms[:, [tasks.index(t)]], base[:, [tasks.index(t)]], reps
@@ -162,7 +167,9 @@ def seeds_markdown(result: dict) -> str:
                 *[_ci(s["task_ratios"][t], 3) if t in s["task_ratios"] else "" for t in FAST_TASKS],
                 f"{s['worst_chatter_ratio']['ratio']:.2f} ({s['worst_chatter_ratio']['task']})",
                 f"{s['worst_air_ratio']['ratio']:.2f} ({s['worst_air_ratio']['task']})",
-                "yes" if s["beats"] else "no",
+                {True: "yes", False: "no", None: f"- (< {MIN_SEEDS_FOR_A_CLAIM} seeds)"}[
+                    s["beats"]
+                ],
             ]
         )
     return (
