@@ -174,7 +174,8 @@ def campaign_markdown(summary: dict, results: list[dict], args, elapsed_s: float
         + (f" --effects {','.join(args.effects)}" if args.effects else "")
         + (f" --candidates {args.candidates}" if args.candidates else "")
         + f"` ({summary['n_rigs']} rigs, each a campaign `{args.campaign}`; "
-        f"{elapsed_s / 60:.1f} min with {args.jobs} processes). All data are synthetic "
+        f"{sum(r['record_seconds'] + r['seconds'] for r in results) / 60:.1f} min of "
+        f"recording and diagnosis, {args.jobs} processes per rig). All data are synthetic "
         "(virtual rig).",
         "",
         f"- Right first effect (`none` for clean rigs and for "
