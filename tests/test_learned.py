@@ -424,17 +424,24 @@ def test_pure_mode_trains_and_runs_as_a_controller(tmp_path):
     assert np.all(np.abs(tr["current_a"]) <= 1.3)  # action_scale_a
 
 
-def test_shipped_policy_reproduces_its_documented_numbers():
+@pytest.mark.parametrize("variant", ["Numatics-2m", "Airpel-2m"])
+def test_shipped_policy_beats_the_sliding_mode_where_the_delay_hurts(variant):
+    """The shipped residual on a 2 m variant: a lower mean RMS error than the sliding mode
+    it corrects, and at least 20 % lower on the 10 and 20 Hz sines and the chirp (issue
+    19's target 1; the thresholds are the issue's)."""
     from pneumatic_env.agents.bench import run_suite
 
-    rows, _ = run_suite("ppo_residual", ["Numatics-2m"])
-    rms = {r["task"]: r["rms_error_pct"] for r in rows}
-    # the issue-19 prototype's res-c-s0 actor_best: 4.19 % mean, 3.40 / 5.88 / 2.54 %
-    assert round(np.mean(list(rms.values())), 2) == 4.19
-    assert [round(rms[t], 2) for t in ("sine_10hz", "sine_20hz", "chirp")] == [3.40, 5.88, 2.54]
+    learned = {r["task"]: r["rms_error_pct"] for r in run_suite("ppo_residual", [variant])[0]}
+    base = {r["task"]: r["rms_error_pct"] for r in run_suite("sliding_mode", [variant])[0]}
+    assert np.mean(list(learned.values())) < np.mean(list(base.values()))
+    for task in ("sine_10hz", "sine_20hz", "chirp"):
+        assert learned[task] <= 0.8 * base[task], task
+
+
+def test_a_variant_without_a_shipped_actor_is_named():
     with pytest.raises(ValueError) as err:
-        resolve_controller("ppo_residual", "Airpel-0.5m")
-    assert_error_names(err, "controller", "ppo_residual", ["Airpel-0.5m", "numatics-2m"])
+        resolve_controller("ppo_residual", "Numatics-1m")
+    assert_error_names(err, "controller", "ppo_residual", ["Numatics-1m", "numatics-2m"])
 
 
 def test_bench_list_prints_every_accepted_name():
