@@ -39,7 +39,7 @@ def read_curve(run: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _band(xs: list[np.ndarray], ys: list[np.ndarray], n: int = 60):
-    grid = np.linspace(0.0, min(x[-1] for x in xs), n)
+    grid = np.linspace(max(x[0] for x in xs), min(x[-1] for x in xs), n)  # where all have data
     stacked = np.array([np.interp(grid, x, y) for x, y in zip(xs, ys)])
     return grid, np.median(stacked, axis=0), stacked.min(axis=0), stacked.max(axis=0)
 
