@@ -227,7 +227,9 @@ def _run_all(function, jobs: list[dict], processes: int, ray_address: str | None
         yield from pool.map(function, jobs)
 
 
-def _jobs(args, candidates: list[str]) -> list[dict]:
+def _truths(args, candidates: list[str]) -> list[str]:
+    """The rig effects to evaluate: every one with a candidate, ``none`` and those outside
+    the catalog, or the ``--effects`` among them."""
     from .virtual_rig import RIG_EFFECTS
 
     truths = ["none"] + [e for e in RIG_EFFECTS if e in candidates] + list(OUT_OF_CATALOG)
@@ -239,6 +241,11 @@ def _jobs(args, candidates: list[str]) -> list[dict]:
                 f"{', '.join(truths)}"
             )
         truths = [e for e in truths if e in args.effects]
+    return truths
+
+
+def _jobs(args, candidates: list[str]) -> list[dict]:
+    truths = _truths(args, candidates)
     jobs = []
     common = {"duration_s": args.duration, "candidates": candidates, "workdir": str(args.out)}
     for effect in truths:
@@ -475,17 +482,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main_campaign(args, candidates: list[str]) -> int:
-    from .virtual_rig import RIG_EFFECTS
-
-    truths = ["none"] + [e for e in RIG_EFFECTS if e in candidates] + list(OUT_OF_CATALOG)
-    if args.effects is not None:
-        unknown = sorted(set(args.effects) - set(truths))
-        if unknown:
-            raise SystemExit(
-                f"--effects names {', '.join(unknown)}, not allowed: must be among "
-                f"{', '.join(truths)}"
-            )
-        truths = [e for e in truths if e in args.effects]
+    truths = _truths(args, candidates)
     # on Ray every task is one rig diagnosed in one process; locally the rigs run one at a
     # time and each diagnosis uses --jobs processes for its refits
     local = args.ray_address is None
