@@ -82,6 +82,7 @@ class CandidateScore:
     accepted: bool
     reasons: list[str] = field(default_factory=list)
     per_recording: dict[str, float] = field(default_factory=dict)  # held-out improvement
+    per_recording_nrmse: dict[str, float] = field(default_factory=dict)  # held-out NRMSE
     screening: dict | None = None  # the screening's prediction (see .screening)
     refitted: bool = True  # False: screened out, the score is the screening's prediction
 
@@ -184,11 +185,11 @@ def improvement_is_the_basin(
     off_nrmse, off_preds = split.heldout_nrmse(off)
     off_mean = mean_nrmse(off_nrmse)
     pooled = (off_mean - score.heldout_mean) / off_mean if off_mean > 0 else 0.0
-    with_effect = split.per_recording(split.heldout_nrmse(score.fit)[1])
+    with_effect = score.per_recording_nrmse  # from score(): no second simulation
     per = {}
     for name, channels in split.per_recording(off_preds).items():
         ref = mean_nrmse(channels)
-        per[name] = (ref - mean_nrmse(with_effect[name])) / ref if ref > 0 else math.nan
+        per[name] = (ref - with_effect.get(name, math.nan)) / ref if ref > 0 else math.nan
     rel, how = heldout_improvement(per, pooled, cfg)
     if rel >= min_rel:
         return False
@@ -275,10 +276,11 @@ def score(
         )
     nrmse, preds = split.heldout_nrmse(fit)
     mean = mean_nrmse(nrmse)
-    per = {}
+    per, per_nrmse = {}, {}
     for name, ch in split.per_recording(preds).items():
         ref = (current_per or {}).get(name, math.nan)
-        per[name] = (ref - mean_nrmse(ch)) / ref if ref > 0 else math.nan
+        per_nrmse[name] = mean_nrmse(ch)
+        per[name] = (ref - per_nrmse[name]) / ref if ref > 0 else math.nan
     pooled = (current_mean - mean) / current_mean if current_mean > 0 else 0.0
     rel, how = heldout_improvement(per, pooled, cfg)
     # BIC(candidate) - BIC(current): N_eff ln(RSS_c / RSS_m) + (extra parameters) ln(N_eff)
@@ -320,6 +322,7 @@ def score(
         accepted,
         reasons,
         per_recording=per,
+        per_recording_nrmse=per_nrmse,
     )
 
 
