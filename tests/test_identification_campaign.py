@@ -196,6 +196,34 @@ def test_many_heldout_recordings_judge_by_their_median_improvement():
     assert rel == -0.06 and how.startswith("pooled")
 
 
+def test_an_effect_is_judged_on_the_heldout_recordings_it_acts_on():
+    """A friction law is judged where the rod moves, a load cell's compliance where it is
+    clamped, a leak everywhere (Holdout.acted_on); the median is then taken over those
+    recordings only, so a clamped recording that cannot show a friction law does not
+    dilute it (the Stribeck rig of issue 20's evaluation: 0.1 %, 9 % and 70 % on the
+    clamped, spring and free recordings)."""
+    from pneumatic_env.identification.scoring import heldout_improvement
+
+    cfg = load_config()
+    table = candidate_table(cfg)
+    held = [
+        SimpleNamespace(name="clamped", rod_mode="fixed", moving=False),
+        SimpleNamespace(name="spring", rod_mode="spring", moving=True),
+        SimpleNamespace(name="free", rod_mode="free", moving=True),
+    ]
+    split = SimpleNamespace(held=held)
+    assert Holdout.acted_on(split, table["stribeck"]) == {"spring", "free"}
+    assert Holdout.acted_on(split, table["load_cell_compliance"]) == {"clamped"}
+    assert Holdout.acted_on(split, table["leakage"]) == {"clamped", "spring", "free"}
+    per = {"clamped": 0.001, "spring": 0.09, "free": 0.70}
+    rel, how = heldout_improvement(per, 0.49, cfg, {"spring", "free"})
+    assert rel == pytest.approx(0.395) and "2 of 3" in how
+    assert heldout_improvement(per, 0.49, cfg, {"clamped"})[0] == pytest.approx(0.001)
+    # acting on all of them, or on none that was held out: the plain median
+    assert heldout_improvement(per, 0.49, cfg, {"clamped", "spring", "free"})[0] == 0.09
+    assert heldout_improvement(per, 0.49, cfg, {"elsewhere"})[0] == 0.09
+
+
 def test_progress_log_lines_state_the_stage_fraction_and_time_left(caplog):
     bar = progress.Progress(bar=False, interval_s=0.0)
     with caplog.at_level(logging.INFO, logger="pneumatic_env.identification"):

@@ -416,6 +416,28 @@ def _least_squares(
     )
 
 
+def _basin_search(
+    problem: FitProblem, u: np.ndarray, names: Sequence[str]
+) -> tuple[np.ndarray, float]:
+    """A 1-D search of each parameter in ``names`` (one at a time, the others at ``u``):
+    the robust cost at the parameter times 1 and each factor of
+    ``fit.friction_law_search`` (within its bounds), all in one batch rollout per dataset;
+    returns the best vector and its cost. A friction law's parameters (a Stribeck
+    velocity) decide stick events as the static friction does (:func:`_friction_search`)."""
+    free = [p.name for p in problem.free]
+    us = [u]
+    for name in names:
+        i = free.index(name)
+        p = problem.free[i]
+        for factor in problem.config.positive_numbers("fit", "friction_law_search"):
+            v = u.copy()
+            v[i] = p.to_u(min(max(p.from_u(float(u[i])) * factor, p.lower), p.upper))
+            us.append(v)
+    costs = [problem.robust_cost(r) for r in problem.residual_columns(us).T]
+    best = int(np.argmin(costs))
+    return us[best], float(costs[best])
+
+
 def _friction_search(problem: FitProblem, u: np.ndarray) -> tuple[np.ndarray, float]:
     """A 1-D search of the static friction around ``u``: the robust cost at the static
     friction times 1 and each factor of ``fit.static_friction_restarts`` (within its
@@ -445,6 +467,7 @@ def run_fit(
     max_nfev: int | None = None,
     friction_restarts: bool = True,
     tolerance: float | None = None,
+    basin_search: Sequence[str] = (),
 ) -> FitResult:
     """Least-squares fit of ``problem`` from the warm start; statistics at the optimum.
 
@@ -454,6 +477,8 @@ def run_fit(
     accepted point lowers the robust cost (``cost_history``); the number of Jacobians is
     at most ``(1 + friction_searches) max_nfev``; ``message`` states why it stopped.
     ``tolerance``: the relative change of cost and parameters below which it stops.
+    ``basin_search``: free parameters of a friction law searched (:func:`_basin_search`)
+    before the first least-squares fit, on data with a moving rod.
     """
     cfg = problem.config
     u0 = problem.initial_u(start)
@@ -467,6 +492,9 @@ def run_fit(
         notes = []
         if search:
             u0, cost0 = _friction_search(problem, u0)
+            problem.cost_history.append(cost0)
+        if basin_search and any(ds.moving for ds in problem.datasets):
+            u0, cost0 = _basin_search(problem, u0, basin_search)
             problem.cost_history.append(cost0)
         sol = _least_squares(problem, u0, max_nfev, tolerance)
         nfev = int(sol.nfev)

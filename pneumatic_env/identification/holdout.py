@@ -20,6 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from .calibrate import Dataset, FitProblem, FitResult, channel_nrmse
+from .candidates import Candidate
 from .config import IdentificationConfig
 
 __all__ = ["HOLDOUT_MODES", "Holdout", "index_of"]
@@ -109,6 +110,17 @@ class Holdout:
     def heldout_nrmse(self, fit: FitResult) -> tuple[dict, list]:
         preds = self.predict(fit)
         return channel_nrmse(self.held, preds, self.held_masks), preds
+
+    def acted_on(self, cand: Candidate) -> set[str]:
+        """The held-out recordings ``cand`` can change: those whose rod mode is among its
+        ``rod_modes`` (e.g. a load cell's compliance: clamped rods), those with a moving
+        rod for an effect that ``requires_motion`` (a friction law), else all."""
+        return {
+            ds.name
+            for ds in self.held
+            if (not cand.rod_modes or ds.rod_mode in cand.rod_modes)
+            and (not cand.requires_motion or ds.moving)
+        }
 
     def per_recording(self, preds: Sequence[dict]) -> dict[str, dict[str, float]]:
         """Held-out NRMSE per held-out recording and channel, from ``predict``'s output."""

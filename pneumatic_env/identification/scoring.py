@@ -45,18 +45,32 @@ def mean_nrmse(d: Mapping[str, float]) -> float:
 
 
 def heldout_improvement(
-    per_recording: Mapping[str, float], pooled: float, cfg: IdentificationConfig
+    per_recording: Mapping[str, float],
+    pooled: float,
+    cfg: IdentificationConfig,
+    acted_on: set[str] | None = None,
 ) -> tuple[float, str]:
     """The held-out improvement a candidate is judged by, and how it was taken.
 
     With at least ``diagnosis.median_from_recordings`` held-out recordings: the median of
-    the per-recording relative improvements, so that one experiment whose held-out part a
-    refit extrapolates badly (a free rod's stick-slip end) cannot veto an effect the other
-    experiments show, nor carry one alone. With fewer: the pooled improvement (mean NRMSE
+    the per-recording relative improvements over the recordings the effect acts on
+    (``acted_on``, :meth:`.Holdout.acted_on`: a friction law is judged where the rod
+    moves, a load cell's compliance where it is clamped), so that one experiment whose
+    held-out part a refit extrapolates badly (a free rod's stick-slip end) cannot veto an
+    effect the other experiments show, nor carry one alone, and an experiment that cannot
+    show the effect does not dilute it. With fewer: the pooled improvement (mean NRMSE
     over every held-out sample)."""
-    values = [v for v in per_recording.values() if math.isfinite(v)]
+    values = {k: v for k, v in per_recording.items() if math.isfinite(v)}
     if len(values) >= int(cfg.diagnosis("median_from_recordings")):
-        return float(np.median(values)), f"median of {len(values)} held-out recordings"
+        if acted_on is not None and 0 < len(acted_on & set(values)) < len(values):
+            mine = [values[k] for k in sorted(acted_on & set(values))]
+            return (
+                float(np.median(mine)),
+                f"median of the {len(mine)} of {len(values)} held-out recordings it acts on",
+            )
+        return float(np.median(list(values.values()))), (
+            f"median of {len(values)} held-out recordings"
+        )
     return pooled, "pooled held-out"
 
 
@@ -190,7 +204,7 @@ def improvement_is_the_basin(
     for name, channels in split.per_recording(off_preds).items():
         ref = mean_nrmse(channels)
         per[name] = (ref - with_effect.get(name, math.nan)) / ref if ref > 0 else math.nan
-    rel, how = heldout_improvement(per, pooled, cfg)
+    rel, how = heldout_improvement(per, pooled, cfg, split.acted_on(score.candidate))
     if rel >= min_rel:
         return False
     score.accepted = False
@@ -259,6 +273,7 @@ def score(
             max_nfev=nfev,
             friction_restarts=cand.requires_motion,
             tolerance=cfg.number("fit", "diagnosis_tolerance", positive=True),
+            basin_search=cand.parameter_names if cand.requires_motion else (),
         )
     except (ValueError, FloatingPointError) as exc:  # e.g. a parameter set the kernel rejects
         return CandidateScore(
@@ -282,7 +297,7 @@ def score(
         per_nrmse[name] = mean_nrmse(ch)
         per[name] = (ref - per_nrmse[name]) / ref if ref > 0 else math.nan
     pooled = (current_mean - mean) / current_mean if current_mean > 0 else 0.0
-    rel, how = heldout_improvement(per, pooled, cfg)
+    rel, how = heldout_improvement(per, pooled, cfg, split.acted_on(cand))
     # BIC(candidate) - BIC(current): N_eff ln(RSS_c / RSS_m) + (extra parameters) ln(N_eff)
     delta_ic = _ic(fit.rss, n_res, n_eff, n_extra) - _ic(current.rss, n_res, n_eff, 0)
     plausible = all(fit.plausible[p.name] for p in cand.parameters)
