@@ -178,7 +178,8 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
         f"Accepted when the held-out NRMSE falls by at least "
         f"{100 * th['min_relative_improvement']:.0f} % (pooled over the held-out samples; "
         f"with {th.get('median_from_recordings', 3)} or more held-out recordings, the median "
-        "of the recordings' improvements), the autocorrelation-corrected BIC "
+        "of the improvements on the recordings the effect acts on), the "
+        "autocorrelation-corrected BIC "
         f"falls by at least {th['min_ic_drop']:g}, and the effect's parameters are plausible "
         "and identified (confidence interval narrower than the plausible range, excluding "
         "the neutral value).",
