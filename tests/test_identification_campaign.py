@@ -224,6 +224,33 @@ def test_an_effect_is_judged_on_the_heldout_recordings_it_acts_on():
     assert heldout_improvement(per, 0.49, cfg, {"elsewhere"})[0] == 0.09
 
 
+def test_a_clamped_only_effect_keeps_the_moving_recordings_friction():
+    """The load cell's compliance sets the piston's sliding friction to 0 on clamped rods
+    (pre-sliding); a campaign's spring and free recordings keep the calibrated friction.
+    Before the scoped keys the set value was dropped there and the sidecar's nominal
+    friction came back (issue 20: the cell's screening predicted the free rod 154 % worse
+    and it was never refitted)."""
+    from pneumatic_env.identification.datasets import dataset_overrides
+
+    cell = candidate_table(load_config())["load_cell_compliance"]
+    scoped = cell.scoped_set()
+    assert set(scoped) == {f"{k}@fixed" for k in cell.set}
+    model = {"static_friction_n": 4.3, "spring_stiffness_n_per_m": 5e5, **scoped}
+    values = {"static_friction_n": 3.5, "fixed_position_m": 0.01, "spring_stiffness_n_per_m": 0}
+    rods = {
+        mode: SimpleNamespace(rod_mode=mode, values=values) for mode in ("fixed", "spring", "free")
+    }
+    scopes = cell.scopes()
+    clamped = dataset_overrides(rods["fixed"], model, scopes)
+    assert clamped["static_friction_n"] == 0.0 and clamped["dynamic_friction_n"] == 0.0
+    assert clamped["spring_rest_position_m"] == 0.01  # the recording's clamp position
+    assert clamped["spring_stiffness_n_per_m"] == 5e5
+    for mode in ("spring", "free"):
+        moving = dataset_overrides(rods[mode], model, scopes)
+        assert moving["static_friction_n"] == 4.3, mode
+        assert "spring_stiffness_n_per_m" not in moving and "piston_mode" not in moving
+
+
 def test_progress_log_lines_state_the_stage_fraction_and_time_left(caplog):
     bar = progress.Progress(bar=False, interval_s=0.0)
     with caplog.at_level(logging.INFO, logger="pneumatic_env.identification"):

@@ -58,6 +58,7 @@ from .datasets import (
     base_fit_parameters,
     channel_scale,
     dataset_overrides,
+    kernel_name,
     prepare_datasets,
 )
 from .results import FitResult, _statistics, pooled_lag1
@@ -177,11 +178,10 @@ class FitProblem:
             if p.kind == "plant" and p.name not in _ROW:
                 raise ConfigError(f"{p.name!r} is not a kernel parameter")
         self.fixed = dict(fixed or {})
-        for name, v in self.fixed.items():
+        for key, v in self.fixed.items():
+            name = kernel_name(key)
             if name not in _ROW and name not in SENSOR_NEUTRAL:
-                raise ConfigError(
-                    f"fixed value {name!r} is neither a kernel nor a sensor parameter"
-                )
+                raise ConfigError(f"fixed value {key!r} is neither a kernel nor a sensor parameter")
             if isinstance(v, str) and (name not in _ROW or v not in _ROW):
                 raise ConfigError(
                     f"fixed value {name!r} = {v!r} is not allowed: a text value "
@@ -236,7 +236,7 @@ class FitProblem:
         return np.array(lo, dtype=float), np.array(hi, dtype=float)
 
     def _split(self, values: Mapping[str, float]) -> tuple[dict, dict]:
-        plant = {k: v for k, v in self.fixed.items() if k in _ROW}
+        plant = {k: v for k, v in self.fixed.items() if kernel_name(k) in _ROW}
         sensor = {k: v for k, v in self.fixed.items() if k in SENSOR_NEUTRAL}
         for p in self.free:
             (plant if p.kind == "plant" else sensor)[p.name] = values[p.name]

@@ -103,10 +103,19 @@ class Candidate:
         return all(n in PARAMETER_NAMES for n in names)
 
     def scopes(self) -> dict[str, tuple[str, ...]]:
-        """Kernel parameter -> the rod modes of the recordings it applies to (empty: all)."""
+        """Effect parameter -> the rod modes of the recordings it applies to (empty: all)."""
         if not self.rod_modes:
             return {}
-        return dict.fromkeys((*self.parameter_names, *self.set), self.rod_modes)
+        return dict.fromkeys(self.parameter_names, self.rod_modes)
+
+    def scoped_set(self) -> dict[str, float | str]:
+        """``set`` as override keys: with ``rod_modes``, each a scoped key ``name@modes``
+        (:func:`.datasets.kernel_name`), so a base parameter it sets (the piston's
+        friction) keeps its own value on the other recordings."""
+        if not self.rod_modes:
+            return dict(self.set)
+        suffix = "@" + "|".join(self.rod_modes)
+        return {k + suffix: v for k, v in self.set.items()}
 
     def neutral(self) -> dict[str, float]:
         """Parameter values that switch the effect off."""

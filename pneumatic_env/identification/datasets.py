@@ -28,6 +28,12 @@ __all__ = [
 _ROW = {name: i for i, name in enumerate(PARAMETER_NAMES)}
 
 
+def kernel_name(key: str) -> str:
+    """The kernel parameter of an override key: ``name`` or a scoped ``name@mode|mode``
+    (a value that applies only to recordings whose rod is in one of those modes)."""
+    return key.partition("@")[0]
+
+
 @dataclass
 class Dataset:
     """One recording prepared for fitting."""
@@ -156,14 +162,23 @@ def dataset_overrides(
     """The kernel-parameter ``overrides`` that apply to ``ds``, as numbers.
 
     A name whose ``scopes`` entry (rod modes) does not include the recording's rod mode is
-    dropped; a text value names a kernel parameter whose value in ``ds``'s set is used.
+    dropped; a scoped key ``name@mode|mode`` (:func:`kernel_name`) applies only to
+    recordings in those modes and there overrides ``name``'s plain value, which the other
+    recordings keep (a load cell's zero sliding friction on clamped rods, the calibrated
+    friction on moving ones); a text value names a kernel parameter whose value in
+    ``ds``'s set is used.
     """
     scopes = scopes or {}
-    out = {}
-    for name, v in overrides.items():
+    out, scoped = {}, {}
+    for key, v in overrides.items():
+        name, _, modes = key.partition("@")
         if name not in _ROW:
             continue
-        if name in scopes and ds.rod_mode not in scopes[name]:
-            continue
-        out[name] = float(ds.values[v]) if isinstance(v, str) else float(v)
+        value = float(ds.values[v]) if isinstance(v, str) else float(v)
+        if modes:
+            if ds.rod_mode in modes.split("|"):
+                scoped[name] = value
+        elif not (name in scopes and ds.rod_mode not in scopes[name]):
+            out[name] = value
+    out.update(scoped)
     return out

@@ -13,7 +13,7 @@ from scipy.stats import norm
 
 from .candidates import SENSOR_NEUTRAL
 from .config import FitParameter
-from .datasets import _ROW, Dataset, dataset_overrides
+from .datasets import _ROW, Dataset, dataset_overrides, kernel_name
 
 if TYPE_CHECKING:
     from .calibrate import FitProblem
@@ -50,7 +50,7 @@ class FitResult:
     def plant_values(self) -> dict[str, float | str]:
         """Fixed and fitted kernel parameters (overrides on the datasets' sets; a text value
         names the dataset's parameter to use, see :func:`dataset_overrides`)."""
-        out = {k: v for k, v in self.fixed.items() if k in _ROW}
+        out = {k: v for k, v in self.fixed.items() if kernel_name(k) in _ROW}
         out.update((p.name, self.values[p.name]) for p in self.parameters if p.kind == "plant")
         return out
 
@@ -68,10 +68,16 @@ class FitResult:
 
     def file_values(self, datasets: Sequence[Dataset]) -> dict[str, float]:
         """Kernel overrides for a parameter file: scoped values and text references are
-        resolved on the first dataset they apply to (left out if none)."""
+        resolved on the first dataset they apply to (left out if none); a plain value wins
+        over a scoped key of the same parameter (``name@modes``)."""
+        values = self.plant_values()
+        plain = {k: v for k, v in values.items() if kernel_name(k) == k}
         out: dict[str, float] = {}
         for ds in reversed(list(datasets)):
-            out.update(dataset_overrides(ds, self.plant_values(), self.scopes))
+            out.update(dataset_overrides(ds, plain, self.scopes))
+        for ds in datasets:
+            for k, v in dataset_overrides(ds, values, self.scopes).items():
+                out.setdefault(k, v)
         return out
 
     def to_dict(self) -> dict:

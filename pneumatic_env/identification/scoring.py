@@ -247,7 +247,7 @@ def score(
         + list(cand.parameters)
     )
     fixed = {k: v for k, v in current.all_values().items() if k not in {p.name for p in free}}
-    fixed.update(cand.set)
+    fixed.update(cand.scoped_set())
     start = {p.name: current.all_values()[p.name] for p in free if p.name in current.all_values()}
     start.update({k: v for k, v in (warm or {}).items() if math.isfinite(v)})
     problem = FitProblem(

@@ -239,6 +239,7 @@ def screen_candidates(
     # parameter); the points are the warm start and, where every parameter has a neutral
     # value it can be differentiated at (finite, not fitted in log10), the neutral point
     # (the score test: the current model with the effect off)
+    log_starts = config.positive_numbers("screening", "log_start_factors")
     specs = []
     for cand in candidates:
         extra = [p for p in cand.refit_base if p.name not in names]
@@ -253,13 +254,12 @@ def screen_candidates(
         ):
             starts.append({**starts[0], **{p.name: p.neutral for p in cand.parameters}})
         logs = [p for p in cand.parameters if p.log]
-        for decades in (-1.0, 1.0) if logs else ():  # one decade either side in log10
+        for factor in log_starts if logs else ():
             starts.append(
                 {
                     **starts[0],
                     **{
-                        p.name: min(max(starts[0][p.name] * 10**decades, p.lower), p.upper)
-                        for p in logs
+                        p.name: min(max(starts[0][p.name] * factor, p.lower), p.upper) for p in logs
                     },
                 }
             )
@@ -275,7 +275,7 @@ def screen_candidates(
             variants = [dict(start)] + [{**start, p.name: v} for p, v in zip(params, perturbed)]
             for var in variants:
                 if cand.kind == "plant":
-                    plant_cols.append({**plant_now, **cand.set, **var})
+                    plant_cols.append({**plant_now, **cand.scoped_set(), **var})
                     plant_scopes.append({**current.scopes, **cand.scopes()})
                     sensor_cols.append(dict(sensor_now))
                     owner.append(("plant", len(plant_cols) - 1))
