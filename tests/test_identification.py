@@ -404,7 +404,7 @@ def test_scoped_and_per_recording_overrides():
         )
 
     cand = candidate_table()["load_cell_compliance"]
-    overrides = {**cand.set, "spring_stiffness_n_per_m": 1e6, "supply_pressure_pa": 6e5}
+    overrides = {**cand.scoped_set(), "spring_stiffness_n_per_m": 1e6, "supply_pressure_pa": 6e5}
     clamped = dataset_overrides(ds("fixed", {"fixed_position_m": 0.01}), overrides, cand.scopes())
     assert clamped["spring_rest_position_m"] == 0.01 and clamped["piston_mode"] == 2
     spring = dataset_overrides(ds("spring", {"fixed_position_m": 0.0}), overrides, cand.scopes())
