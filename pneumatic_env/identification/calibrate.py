@@ -416,26 +416,34 @@ def _least_squares(
     )
 
 
-def _basin_search(
-    problem: FitProblem, u: np.ndarray, names: Sequence[str]
+def _coordinate_search(
+    problem: FitProblem, u: np.ndarray, names: Sequence[str], factors: Sequence[float]
 ) -> tuple[np.ndarray, float]:
-    """A 1-D search of each parameter in ``names`` (one at a time, the others at ``u``):
-    the robust cost at the parameter times 1 and each factor of
-    ``fit.friction_law_search`` (within its bounds), all in one batch rollout per dataset;
-    returns the best vector and its cost. A friction law's parameters (a Stribeck
-    velocity) decide stick events as the static friction does (:func:`_friction_search`)."""
+    """The robust cost at ``u`` and at each parameter in ``names`` times each factor (one
+    parameter at a time, the others at ``u``, within its bounds), all in one batch rollout
+    per dataset; returns the best vector and its cost."""
     free = [p.name for p in problem.free]
     us = [u]
     for name in names:
         i = free.index(name)
         p = problem.free[i]
-        for factor in problem.config.positive_numbers("fit", "friction_law_search"):
+        for factor in factors:
             v = u.copy()
             v[i] = p.to_u(min(max(p.from_u(float(u[i])) * factor, p.lower), p.upper))
             us.append(v)
     costs = [problem.robust_cost(r) for r in problem.residual_columns(us).T]
     best = int(np.argmin(costs))
     return us[best], float(costs[best])
+
+
+def _basin_search(
+    problem: FitProblem, u: np.ndarray, names: Sequence[str]
+) -> tuple[np.ndarray, float]:
+    """A 1-D search of each parameter in ``names`` by the factors of
+    ``fit.friction_law_search``: a friction law's parameters (a Stribeck velocity) decide
+    stick events as the static friction does (:func:`_friction_search`)."""
+    factors = problem.config.positive_numbers("fit", "friction_law_search")
+    return _coordinate_search(problem, u, names, factors)
 
 
 def _friction_search(problem: FitProblem, u: np.ndarray) -> tuple[np.ndarray, float]:
@@ -448,17 +456,8 @@ def _friction_search(problem: FitProblem, u: np.ndarray) -> tuple[np.ndarray, fl
     events, and a gradient step cannot leave the basin it starts in. The search picks the
     basin; the least-squares fit then converges inside it.
     """
-    names = [p.name for p in problem.free]
-    i = names.index("static_friction_n")
-    p = problem.free[i]
-    us = [u]
-    for factor in problem.config.positive_numbers("fit", "static_friction_restarts"):
-        v = u.copy()
-        v[i] = p.to_u(min(max(p.from_u(float(u[i])) * factor, p.lower), p.upper))
-        us.append(v)
-    costs = [problem.robust_cost(r) for r in problem.residual_columns(us).T]
-    best = int(np.argmin(costs))
-    return us[best], float(costs[best])
+    factors = problem.config.positive_numbers("fit", "static_friction_restarts")
+    return _coordinate_search(problem, u, ["static_friction_n"], factors)
 
 
 def run_fit(
