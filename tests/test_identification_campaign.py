@@ -206,10 +206,11 @@ def test_an_effect_is_judged_on_the_heldout_recordings_it_acts_on():
 
     cfg = load_config()
     table = candidate_table(cfg)
+    channels = ("p1", "p2", "f", "x")
     held = [
-        SimpleNamespace(name="clamped", rod_mode="fixed", moving=False),
-        SimpleNamespace(name="spring", rod_mode="spring", moving=True),
-        SimpleNamespace(name="free", rod_mode="free", moving=True),
+        SimpleNamespace(name="clamped", rod_mode="fixed", moving=False, channels=channels),
+        SimpleNamespace(name="spring", rod_mode="spring", moving=True, channels=channels),
+        SimpleNamespace(name="free", rod_mode="free", moving=True, channels=channels),
     ]
     split = SimpleNamespace(held=held)
     assert Holdout.acted_on(split, table["stribeck"]) == {"spring", "free"}

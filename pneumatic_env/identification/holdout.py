@@ -20,7 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from .calibrate import Dataset, FitProblem, FitResult, channel_nrmse
-from .candidates import Candidate
+from .candidates import Candidate, applicable
 from .config import IdentificationConfig
 
 __all__ = ["HOLDOUT_MODES", "Holdout", "index_of"]
@@ -112,14 +112,13 @@ class Holdout:
         return channel_nrmse(self.held, preds, self.held_masks), preds
 
     def acted_on(self, cand: Candidate) -> set[str]:
-        """The held-out recordings ``cand`` can change: those whose rod mode is among its
-        ``rod_modes`` (e.g. a load cell's compliance: clamped rods), those with a moving
-        rod for an effect that ``requires_motion`` (a friction law), else all."""
+        """The held-out recordings that could show ``cand`` on their own
+        (:func:`.candidates.applicable`: a load cell's compliance on clamped rods, a
+        friction law where the rod moves, else all)."""
         return {
             ds.name
             for ds in self.held
-            if (not cand.rod_modes or ds.rod_mode in cand.rod_modes)
-            and (not cand.requires_motion or ds.moving)
+            if applicable(cand, ds.channels, ds.moving, [ds.rod_mode]) is None
         }
 
     def per_recording(self, preds: Sequence[dict]) -> dict[str, dict[str, float]]:
