@@ -309,6 +309,9 @@ def test_report_states_how_sure_and_the_error_per_recording(leak_campaign_diagno
     held = set(diag.holdout["held_out"]) | set(diag.holdout["time_split"])
     assert set(conf["heldout_improvement_per_recording"]) == held
     assert set(conf["supported_by"]) <= held
+    # a leak acts on every recording, so "where it acts" is every held-out recording
+    assert conf["acts_on"] == sorted(held)
+    assert conf["holds_where_it_acts"] is conf["holds_on_every_heldout_recording"]
     for row in data["per_recording"].values():
         assert set(row["before"]) == set(row["after"])
         assert set(row["before"]) in ({"p1", "p2", "f"}, {"p1", "p2", "x"})

@@ -39,7 +39,6 @@ from pneumatic_env.recording import Recording
 from . import progress
 from .calibrate import (
     Dataset,
-    FitProblem,
     FitResult,
     base_fit_parameters,
     prepare_datasets,
@@ -54,6 +53,7 @@ from .candidates import (
 )
 from .config import IdentificationConfig, load_config
 from .holdout import Holdout
+from .problem import FitProblem
 from .residuals import PHASES, dead_band_current, phase_masks, residual_analysis
 from .scoring import (
     CandidateScore,
@@ -374,7 +374,7 @@ def diagnose(
             break
         best = accepted[0]
         selected.append(best.candidate)
-        confidence.append(_confidence(best, round_scores, min_rel))
+        confidence.append(_confidence(best, round_scores, min_rel, split.acted_on(best.candidate)))
         # Re-converge base + selected effects with the full budget, so the next round
         # compares against a converged model (not against a refit stopped by its budget).
         free = unique(
@@ -509,10 +509,14 @@ def _second_effect_support(sc: CandidateScore, min_rel: float) -> None:
 
 
 def _confidence(
-    best: CandidateScore, round_scores: Sequence[CandidateScore], min_rel: float
+    best: CandidateScore,
+    round_scores: Sequence[CandidateScore],
+    min_rel: float,
+    acts_on: set[str],
 ) -> dict:
     """How sure the selection is of ``best``: its margin over the round's runner-up and
-    over no effect, and which held-out recordings support it."""
+    over no effect, which held-out recordings support it, and whether it holds on every
+    one of them and on every one it can act on (``acts_on``, :meth:`.Holdout.acted_on`)."""
     others = sorted(
         (s for s in round_scores if s is not best),
         key=lambda s: (not s.refitted, -s.relative_improvement),
@@ -534,4 +538,7 @@ def _confidence(
         "heldout_improvement_per_recording": per,
         "supported_by": [k for k, v in per.items() if v >= min_rel],
         "holds_on_every_heldout_recording": bool(per) and all(v > 0 for v in per.values()),
+        "acts_on": sorted(acts_on & set(per)),
+        "holds_where_it_acts": bool(acts_on & set(per))
+        and all(per[k] > 0 for k in acts_on & set(per)),
     }

@@ -263,6 +263,17 @@ def _pct(x) -> str:
     return "-" if x is None else f"{100 * x:+.1f} %"
 
 
+def _holds(c: dict) -> str:
+    """'yes', or 'no' and whether it holds on the held-out recordings it can act on."""
+    if c["holds_on_every_heldout_recording"]:
+        return "yes"
+    acts_on = c.get("acts_on", [])
+    if not acts_on or len(acts_on) == len(c["heldout_improvement_per_recording"]):
+        return "no"
+    where = "yes" if c.get("holds_where_it_acts") else "no"
+    return f"no; {where} on the {len(acts_on)} it acts on ({', '.join(acts_on)})"
+
+
 def _confidence_lines(data: dict) -> list[str]:
     """How sure the tool is of each selected effect."""
     if not data["confidence"]:
@@ -283,7 +294,7 @@ def _confidence_lines(data: dict) -> list[str]:
             f"{'' if c['runner_up_refitted'] in (True, None) else ', screened'}) | "
             f"{_pct(c['margin_over_runner_up'])} | {_fmt(c['delta_ic'], 3)} | "
             f"{', '.join(c['supported_by']) or '-'} | "
-            f"{'yes' if c['holds_on_every_heldout_recording'] else 'no'} |"
+            f"{_holds(c)} |"
         )
     return lines
 
