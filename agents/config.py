@@ -22,7 +22,7 @@ from typing import Any
 
 import yaml
 
-from pneumatic_env.params import ConfigError, config_dir, read_yaml  # YAML 1.2 floats, cached
+from pneumatic_env.config_files import ConfigError, config_dir, read_yaml  # YAML 1.2 floats, cached
 
 __all__ = [
     "ConfigError",

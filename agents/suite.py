@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pneumatic_env import ids
-from pneumatic_env.params import ConfigError, config_dir, read_yaml
+from pneumatic_env.config_files import ConfigError, config_dir, read_yaml
 from pneumatic_env.references import make_reference
 
 __all__ = [

@@ -28,7 +28,7 @@ import functools
 import json
 from pathlib import Path
 
-from pneumatic_env.params import read_yaml
+from pneumatic_env.config_files import read_yaml
 
 from .config import ConfigError, agent_config_path, load_agent_config, write_agent_config
 

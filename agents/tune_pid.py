@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pneumatic_env.params import load_numerics, read_yaml
+from pneumatic_env.config_files import read_yaml
+from pneumatic_env.params import load_numerics
 
 from .base import ControllerContext
 from .bench import closed_loop, load_suite, make_env, parse_variant

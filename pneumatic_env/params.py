@@ -28,12 +28,9 @@ from __future__ import annotations
 
 import difflib
 import functools
-import importlib.resources
 import math
-import numbers
 import os
-import re
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -41,7 +38,17 @@ from typing import Any
 import numpy as np
 import yaml
 
+from pneumatic_env.config_files import (
+    CONFIG_DIR_ENV,
+    ConfigError,
+    _cylinder_path,
+    _stamp,
+    config_dir,
+    read_yaml,
+    resolve_cylinder,
+)
 from pneumatic_env.ids import CYLINDERS, DEFAULT_CYLINDER
+from pneumatic_env.param_rules import _check_relations, _is_number, _show
 from pneumatic_env.physics.layout import (
     CYLINDER_PARAMETERS,
     DISCRETE_PARAMETERS,
@@ -66,7 +73,6 @@ __all__ = [
     "save_parameters",
 ]
 
-CONFIG_DIR_ENV = "PNEUMATIC_ENV_CONFIG_DIR"
 
 # CYLINDERS (canonical names, the file stems under configs/cylinders/, and their short
 # aliases) and DEFAULT_CYLINDER: pneumatic_env.ids
@@ -93,51 +99,6 @@ _PARAMS_ENTRY_KEYS = {"value", "unit", "source", "uncertainty"}
 _LEVEL_BASE, _LEVEL_CYLINDER, _LEVEL_PARAMS, _LEVEL_OVERRIDE = range(4)
 
 
-class ConfigError(ValueError):
-    """A parameter file or value is malformed or not allowed."""
-
-
-# --------------------------------------------------------------------------- YAML reading
-
-
-class _Loader(yaml.SafeLoader):
-    """SafeLoader that also reads YAML 1.2 floats such as ``1e-3`` and ``6.5e5``."""
-
-
-_Loader.yaml_implicit_resolvers = {
-    key: list(resolvers) for key, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
-}
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
-    list("-+0123456789"),
-)
-
-
-@functools.lru_cache(maxsize=64)
-def _parse_yaml_cached(path: str, mtime_ns: int, size: int) -> Any:
-    try:
-        with open(path, encoding="utf-8") as fh:
-            return yaml.load(fh, Loader=_Loader)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: invalid YAML: {exc}") from None
-
-
-def _stamp(path: Path) -> tuple[str, int, int]:
-    try:
-        st = os.stat(path)
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
-    return str(path), st.st_mtime_ns, st.st_size
-
-
-def read_yaml(path: Path) -> Any:
-    """Parsed content of a YAML file (YAML 1.2 floats), cached until the file changes.
-
-    Do not mutate the result."""
-    return _parse_yaml_cached(*_stamp(path))
-
-
 # --------------------------------------------------------------------------- specs
 
 
@@ -155,19 +116,6 @@ class _Spec:
     integer: bool
     file: str
     level: int
-
-
-def _is_number(x: Any) -> bool:
-    return isinstance(x, numbers.Real) and not isinstance(x, (bool, np.bool_))
-
-
-def _show(x: Any) -> str:
-    """A value as error messages print it: -3.0, 20, 'abc', nan, inf."""
-    if isinstance(x, numbers.Integral) and not isinstance(x, (bool, np.bool_)):
-        return str(int(x))
-    if _is_number(x):
-        return repr(float(x))
-    return repr(x)
 
 
 def _suggest(
@@ -384,194 +332,6 @@ def _schema(cylinder: str | os.PathLike = DEFAULT_CYLINDER) -> _Schema:
     cyl = _cylinder_path(cylinder, cfg)
     stamps = tuple(_stamp(p) for p in [cfg / f for f in BASE_FILES] + [cyl])
     return _build_schema(str(cfg), str(cyl), stamps)
-
-
-# --------------------------------------------------------------------------- locations
-
-
-def config_dir() -> Path:
-    """The directory of the YAML configs.
-
-    ``$PNEUMATIC_ENV_CONFIG_DIR`` if set; else ``configs/`` at the repository root (a
-    source checkout); else the copy shipped inside the package (``pneumatic_env/configs``).
-    """
-    env = os.environ.get(CONFIG_DIR_ENV)
-    if env:
-        path = Path(env).expanduser()
-        if not path.is_dir():
-            raise ConfigError(f"{CONFIG_DIR_ENV}={env!r} is not a directory")
-        return path.resolve()
-    repo = Path(__file__).resolve().parent.parent / "configs"
-    if (repo / "air.yaml").is_file():
-        return repo
-    packaged = None
-    try:
-        packaged = Path(str(importlib.resources.files("pneumatic_env") / "configs"))
-    except (ModuleNotFoundError, TypeError, ValueError):
-        pass
-    if packaged is not None and packaged.is_dir():
-        return packaged
-    raise ConfigError(
-        f"no configs directory found (looked in {repo} and in the installed "
-        f"package); set {CONFIG_DIR_ENV}"
-    )
-
-
-def _known_cylinders(cfg: Path) -> dict[str, str]:
-    """Lower-case name or alias -> canonical name (CYLINDERS plus any other file stems)."""
-    known = {}
-    for canonical, aliases in CYLINDERS.items():
-        known[canonical.lower()] = canonical
-        for alias in aliases:
-            known[alias.lower()] = canonical
-    cyl_dir = cfg / "cylinders"
-    if cyl_dir.is_dir():
-        for path in sorted(cyl_dir.glob("*.yaml")):
-            known.setdefault(path.stem.lower(), path.stem)
-    return known
-
-
-def _describe_cylinders(cfg: Path) -> str:
-    known = _known_cylinders(cfg)
-    parts = []
-    for canonical in dict.fromkeys(known.values()):
-        aliases = CYLINDERS.get(canonical, ())
-        alias_text = "".join(f" (alias {a!r})" for a in aliases)
-        parts.append(f"{canonical!r}{alias_text}")
-    return ", ".join(parts)
-
-
-def resolve_cylinder(cylinder: str) -> str:
-    """Canonical name of a cylinder given its name or alias (case-insensitive)."""
-    key = str(cylinder).strip().lower()
-    for canonical, aliases in CYLINDERS.items():
-        if key == canonical.lower() or key in aliases:
-            return canonical
-    cfg = config_dir()
-    found = _known_cylinders(cfg).get(key)
-    if found is None:
-        raise ConfigError(
-            f"unknown cylinder {cylinder!r}; known cylinders: {_describe_cylinders(cfg)}"
-        )
-    return found
-
-
-def _cylinder_path(cylinder: str | os.PathLike, cfg: Path) -> Path:
-    if isinstance(cylinder, os.PathLike) or str(cylinder).lower().endswith((".yaml", ".yml")):
-        path = Path(cylinder).expanduser()
-        if not path.is_file():
-            raise ConfigError(f"cylinder file {str(path)!r} does not exist")
-        return path.resolve()
-    if not isinstance(cylinder, str):
-        raise ConfigError(f"cylinder must be a name or a path, got {cylinder!r}")
-    canonical = resolve_cylinder(cylinder)
-    return cfg / "cylinders" / f"{canonical}.yaml"
-
-
-# --------------------------------------------------------------------------- cross-field rules
-
-
-def _p_cr(k: float) -> float:
-    return (2.0 / (k + 1.0)) ** (k / (k - 1.0))
-
-
-def _f(x: float) -> str:
-    return repr(float(x))
-
-
-# (a, b, holds(values), complaint about a, complaint about b): a violated rule is reported
-# on whichever of a and b comes from the more specific source (a on a tie).
-# (the lambdas bind their loop variables as defaults, hence Callable[..., ...])
-_Rule = tuple[str, str, Callable[..., bool], Callable[..., str], Callable[..., str]]
-_RULES: list[_Rule] = [
-    (
-        "supply_pressure_pa",
-        "ambient_pressure_pa",
-        lambda v: v["supply_pressure_pa"] > v["ambient_pressure_pa"],
-        lambda v: f"greater than ambient_pressure_pa = {_f(v['ambient_pressure_pa'])} Pa",
-        lambda v: f"less than supply_pressure_pa = {_f(v['supply_pressure_pa'])} Pa",
-    ),
-    (
-        "rod_diameter_m",
-        "bore_diameter_m",
-        lambda v: v["rod_diameter_m"] < v["bore_diameter_m"],
-        lambda v: f"less than bore_diameter_m = {_f(v['bore_diameter_m'])} m",
-        lambda v: f"greater than rod_diameter_m = {_f(v['rod_diameter_m'])} m",
-    ),
-]
-for _pos in ("fixed_position_m", "spring_rest_position_m"):
-    _RULES.append(
-        (
-            _pos,
-            "stroke_m",
-            lambda v, p=_pos: abs(v[p]) <= v["stroke_m"] / 2.0,
-            lambda v: f"within +-stroke_m/2 = {_f(v['stroke_m'] / 2.0)} m",
-            lambda v, p=_pos: f"at least 2 |{p}| = {_f(2.0 * abs(v[p]))} m",
-        )
-    )
-for _alpha in ("alpha_in", "alpha_out", "alpha_motion"):
-    _RULES.append(
-        (
-            _alpha,
-            "heat_capacity_ratio",
-            lambda v, a=_alpha: v[a] <= v["heat_capacity_ratio"],
-            lambda v: f"at most heat_capacity_ratio = {_f(v['heat_capacity_ratio'])}",
-            lambda v, a=_alpha: f"at least {a} = {_f(v[a])}",
-        )
-    )
-_RULES.append(
-    (
-        "flow_linear_ratio",
-        "heat_capacity_ratio",
-        lambda v: _p_cr(v["heat_capacity_ratio"]) < v["flow_linear_ratio"] < 1.0,
-        lambda v: (
-            f"in (P_cr, 1) = ({_f(_p_cr(v['heat_capacity_ratio']))}, 1.0), P_cr the "
-            f"critical pressure ratio for heat_capacity_ratio = "
-            f"{_f(v['heat_capacity_ratio'])}"
-        ),
-        lambda v: (
-            f"such that the critical pressure ratio P_cr (here "
-            f"{_f(_p_cr(v['heat_capacity_ratio']))}) is below flow_linear_ratio = "
-            f"{_f(v['flow_linear_ratio'])}"
-        ),
-    )
-)
-# The transmission line replaces the paper's tube coupling and holds the tube's air itself;
-# the supply droop's own root solve is not nested in the line's valve-end solve.
-for _other, _off, _why in (
-    ("tube_coupling", 0.0, "command (0): the transmission line couples valve and chamber"),
-    ("tube_volume_fraction", 0.0, "0: the transmission line holds the tube's air itself"),
-    (
-        "supply_resistance_pa_s_per_kg",
-        0.0,
-        "0: the supply droop is not implemented with the transmission line",
-    ),
-    (
-        "exhaust_vent_area_m2",
-        0.0,
-        "0: the exhaust back-pressure is not implemented with the transmission line",
-    ),
-):
-    _RULES.append(
-        (
-            _other,
-            "tube_waves",
-            lambda v, o=_other, off=_off: v["tube_waves"] == 0.0 or v[o] == off,
-            lambda v, why=_why: f"{why} (tube_waves = 1)",
-            lambda v, o=_other: f"0 (off) while {o} = {_show(v[o])}",
-        )
-    )
-del _pos, _alpha, _other, _off, _why
-
-
-def _check_relations(values: dict, origin: dict, level: dict) -> None:
-    for a, b, holds, about_a, about_b in _RULES:
-        if holds(values):
-            continue
-        name, why = (a, about_a) if level[a] >= level[b] else (b, about_b)
-        raise ConfigError(
-            f"{origin[name]} {name!r} = {_show(values[name])} is not allowed: must be {why(values)}"
-        )
 
 
 # --------------------------------------------------------------------------- public API

@@ -9,6 +9,7 @@ import yaml
 
 from conftest import assert_error_names
 from pneumatic_env import params as P
+from pneumatic_env.config_files import read_yaml
 from pneumatic_env.params import (
     CYLINDER_PARAMETERS,
     CYLINDERS,
@@ -27,8 +28,7 @@ AIRPEL = "airpel-E16D3.0N"
 
 
 def _raw(path):
-    with open(path, encoding="utf-8") as fh:
-        return yaml.load(fh, Loader=P._Loader)
+    return read_yaml(path)
 
 
 def _copy_configs(tmp_path, monkeypatch):

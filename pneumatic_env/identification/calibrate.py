@@ -13,10 +13,8 @@ of a kernel parameter, resolved per recording (:func:`dataset_overrides`; a cand
 ``rod_modes`` and ``set``, see :mod:`.candidates`). A parameter set whose rod moves is
 simulated with the moving-piston substep even when the recording's rod was clamped.
 
-One :class:`~pneumatic_env.simulator.BatchSimulator` rollout per recording evaluates many
-parameter sets at once: a forward-difference Jacobian is one rollout with one column per
-perturbed plant parameter; sensor-side parameters (:mod:`.candidates`) only re-filter
-the unperturbed simulation.
+The residual and its Jacobian are :class:`.problem.FitProblem`'s (batched rollouts);
+this module minimises it (:func:`run_fit`) and wraps the base calibration.
 
 A fit that frees the static friction on data with a moving rod picks its stick-event
 basin by a 1-D search (one batch rollout, :func:`_friction_search`) before the fit and
@@ -36,31 +34,24 @@ from __future__ import annotations
 import logging
 import math
 import os
-from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
 
-from pneumatic_env.ids import MODE_FIXED
-from pneumatic_env.params import ConfigError, parameter_array, save_parameters
+from pneumatic_env.params import save_parameters
 from pneumatic_env.recording import Recording
-from pneumatic_env.replay import PREDICTED_CHANNELS
-from pneumatic_env.simulator import BatchSimulator
 
-from . import progress
-from .candidates import SENSOR_NEUTRAL, apply_sensor_model
-from .config import FitParameter, IdentificationConfig, load_config
+from .config import IdentificationConfig, load_config
 from .datasets import (
-    _ROW,
     Dataset,
     base_fit_parameters,
     channel_scale,
     dataset_overrides,
-    kernel_name,
     prepare_datasets,
 )
+from .problem import FitProblem, simulate_unique
 from .results import FitResult, _statistics, pooled_lag1
 
 __all__ = [
@@ -80,317 +71,6 @@ __all__ = [
 ]
 
 log = logging.getLogger("pneumatic_env.identification")
-PREDICTED_CHANNELS_ORDER = tuple(PREDICTED_CHANNELS)
-#: The piston's friction parameters: they act only on a rod that moves.
-FRICTION_NAMES = ("static_friction_n", "dynamic_friction_n", "viscous_friction_n_s_per_m")
-
-
-# --------------------------------------------------------------------------- the problem
-
-
-def _simulate(
-    ds: Dataset,
-    columns: Sequence[Mapping[str, float]],
-    n_samples: int,
-    scopes: Mapping[str, Sequence[str]] | None = None,
-    column_scopes: Sequence[Mapping[str, Sequence[str]]] | None = None,
-) -> dict[str, np.ndarray]:
-    """True (plant) channels of ``ds`` for each column of overrides: ``(n_samples, m)``.
-
-    ``column_scopes[j]`` (default: ``scopes`` for every column) scopes column j's values.
-    Columns whose rod moves and columns whose rod is clamped are simulated in separate
-    batches, each at its own substep. The work done is reported to :mod:`.progress`.
-    """
-    m = len(columns)
-    base = parameter_array([ds.values])
-    arr = np.repeat(base, m, axis=1)
-    for j, overrides in enumerate(columns):
-        sc = scopes if column_scopes is None else column_scopes[j]
-        for name, v in dataset_overrides(ds, overrides, sc).items():
-            arr[_ROW[name], j] = v
-    moving = arr[_ROW["piston_mode"]] != MODE_FIXED
-    out = np.empty((n_samples, len(PREDICTED_CHANNELS_ORDER), m))
-    for group in (np.flatnonzero(~moving), np.flatnonzero(moving)):
-        if group.size == 0:
-            continue
-        substeps = ds.substeps_moving if moving[group[0]] and ds.substeps_moving else ds.substeps
-        sim = BatchSimulator(np.ascontiguousarray(arr[:, group]), ds.dt_s, substeps)
-        if ds.initial:
-            sim.reset(initial=ds.initial)
-        first = sim.outputs.copy()
-        currents = np.repeat(ds.recording.i_c[: n_samples - 1, None], group.size, axis=1)
-        rows = np.concatenate([first[None], sim.rollout(currents)], axis=0)
-        out[:, :, group] = rows[:, [PREDICTED_CHANNELS[c] for c in PREDICTED_CHANNELS_ORDER], :]
-        progress.advance(n_samples * substeps * group.size)
-    return {ch: out[:, PREDICTED_CHANNELS_ORDER.index(ch), :] for ch in ds.channels}
-
-
-def simulate_unique(
-    ds: Dataset,
-    columns: Sequence[Mapping[str, float | str]],
-    n_samples: int,
-    column_scopes: Sequence[Mapping[str, Sequence[str]]],
-) -> dict[str, np.ndarray]:
-    """:func:`_simulate` of ``columns``, each plant that reaches ``ds`` simulated once: a
-    value scoped away from its rod mode, or the piston's friction on a clamped rod, does
-    not make a column differ."""
-    keys, unique = [], {}
-    for plant, scopes in zip(columns, column_scopes):
-        resolved = dataset_overrides(ds, plant, scopes)
-        if ds.rod_mode == "fixed" and resolved.get("piston_mode", MODE_FIXED) == MODE_FIXED:
-            resolved = {k: v for k, v in resolved.items() if k not in FRICTION_NAMES}
-        key = tuple(sorted(resolved.items()))
-        unique.setdefault(key, resolved)
-        keys.append(key)
-    order = list(unique)
-    sims = _simulate(ds, [unique[k] for k in order], n_samples)
-    idx = [order.index(k) for k in keys]
-    return {c: y[:, idx] for c, y in sims.items()}
-
-
-class FitProblem:
-    """Residuals and Jacobian of a set of datasets for some free parameters.
-
-    ``fixed`` holds values (plant or sensor) applied to every dataset (a plant value may
-    be a kernel parameter's name, resolved per dataset); ``scopes`` limits plant names to
-    datasets of some rod modes (:func:`dataset_overrides`); ``n_samples[k]`` is how much
-    of dataset k is simulated and ``masks[k][ch]`` which samples count.
-    """
-
-    def __init__(
-        self,
-        datasets: Sequence[Dataset],
-        free: Sequence[FitParameter],
-        fixed: Mapping[str, float | str] | None = None,
-        n_samples: Sequence[int] | None = None,
-        masks: Sequence[Mapping[str, np.ndarray]] | None = None,
-        config: IdentificationConfig | None = None,
-        label: str = "fit",
-        scopes: Mapping[str, Sequence[str]] | None = None,
-    ):
-        self.config = config or load_config()
-        self.datasets = list(datasets)
-        self.free = list(free)
-        names = [p.name for p in self.free]
-        if len(set(names)) != len(names):
-            raise ValueError(f"free parameters repeat a name: {names}")
-        for p in self.free:
-            if p.kind == "plant" and p.name not in _ROW:
-                raise ConfigError(f"{p.name!r} is not a kernel parameter")
-        self.fixed = dict(fixed or {})
-        for key, v in self.fixed.items():
-            name = kernel_name(key)
-            if name not in _ROW and name not in SENSOR_NEUTRAL:
-                raise ConfigError(f"fixed value {key!r} is neither a kernel nor a sensor parameter")
-            if isinstance(v, str) and (name not in _ROW or v not in _ROW):
-                raise ConfigError(
-                    f"fixed value {name!r} = {v!r} is not allowed: a text value "
-                    "must name a kernel parameter, for a kernel parameter"
-                )
-        self.scopes = {k: tuple(v) for k, v in (scopes or {}).items()}
-        for name in self.scopes:
-            if name not in _ROW:
-                raise ConfigError(f"scoped value {name!r} is not a kernel parameter")
-        self.n_samples = (
-            list(n_samples) if n_samples is not None else [ds.n_samples for ds in self.datasets]
-        )
-        if masks is None:
-            masks = [{c: np.ones(ds.n_samples, bool) for c in ds.channels} for ds in self.datasets]
-        self.masks = []
-        for ds, n, mask in zip(self.datasets, self.n_samples, masks):
-            self.masks.append({c: (mask[c] & ds.usable[c])[:n] for c in ds.channels})
-        self.label = label
-        self.fd_step = float(self.config.number("fit", "fd_relative_step", positive=True))
-        self._cache: OrderedDict = OrderedDict()
-        self._jac_cache: OrderedDict = OrderedDict()
-        self.n_jacobians = 0
-        self.cost_history: list[float] = []  # robust cost at each Jacobian (accepted points)
-        self.blocks = self._blocks()
-
-    # -- parameter vectors ----------------------------------------------------------------
-    def values(self, u: np.ndarray) -> dict[str, float]:
-        """Free parameter values (physical units) of the optimiser vector ``u``."""
-        return {p.name: p.from_u(float(x)) for p, x in zip(self.free, u)}
-
-    def initial_u(self, start: Mapping[str, float] | None = None) -> np.ndarray:
-        """Warm start: ``start``, else the parameter's ``initial``, else the data's value."""
-        start = dict(start or {})
-        u = []
-        for p in self.free:
-            if p.name in start:
-                v = start[p.name]
-            elif p.name in self.fixed:
-                v = self.fixed[p.name]
-            elif p.initial is not None:
-                v = p.initial
-            elif p.kind == "plant":
-                v = self.datasets[0].values[p.name]
-            else:
-                v = SENSOR_NEUTRAL[p.name]
-            v = min(max(v, p.lower), p.upper)
-            u.append(p.to_u(v))
-        return np.array(u, dtype=float)
-
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        lo, hi = zip(*(p.bounds_u for p in self.free)) if self.free else ((), ())
-        return np.array(lo, dtype=float), np.array(hi, dtype=float)
-
-    def _split(self, values: Mapping[str, float]) -> tuple[dict, dict]:
-        plant = {k: v for k, v in self.fixed.items() if kernel_name(k) in _ROW}
-        sensor = {k: v for k, v in self.fixed.items() if k in SENSOR_NEUTRAL}
-        for p in self.free:
-            (plant if p.kind == "plant" else sensor)[p.name] = values[p.name]
-        return plant, sensor
-
-    # -- simulation -----------------------------------------------------------------------
-    def _plant(self, u: np.ndarray) -> list[dict[str, np.ndarray]]:
-        key = np.asarray(u, float).tobytes()
-        if key in self._cache:
-            return self._cache[key]
-        plant, _ = self._split(self.values(u))
-        out = [
-            _simulate(ds, [plant], n, self.scopes) for ds, n in zip(self.datasets, self.n_samples)
-        ]
-        self._cache[key] = out
-        while len(self._cache) > 4:
-            self._cache.popitem(last=False)
-        return out
-
-    def predict(
-        self, u: np.ndarray, n_samples: Sequence[int] | None = None
-    ) -> list[dict[str, np.ndarray]]:
-        """Recorded-channel predictions ``(n,)`` per dataset (plant then sensor model).
-
-        ``n_samples`` other than the problem's simulates that many samples (e.g. a whole
-        recording after fitting on its start).
-        """
-        plant, sensor = self._split(self.values(u))
-        if n_samples is None:
-            sims = self._plant(u)
-        else:
-            sims = [
-                _simulate(ds, [plant], n, self.scopes) for ds, n in zip(self.datasets, n_samples)
-            ]
-        return [
-            {c: y[:, 0] for c, y in apply_sensor_model(sim, [sensor], ds.dt_s).items()}
-            for ds, sim in zip(self.datasets, sims)
-        ]
-
-    def _blocks(self) -> list[tuple[int, str, int, int]]:
-        blocks, start = [], 0
-        for k, (ds, mask) in enumerate(zip(self.datasets, self.masks)):
-            for c in ds.channels:
-                stop = start + int(mask[c].sum())
-                blocks.append((k, c, start, stop))
-                start = stop
-        return blocks
-
-    def _residual_of(self, preds: Sequence[Mapping[str, np.ndarray]]) -> np.ndarray:
-        """Stack ``(pred - measured) / scale`` over datasets, channels and masked samples.
-
-        ``preds[k][c]`` may be ``(n,)`` or ``(n, m)`` (one residual column per column).
-        """
-        parts = []
-        for ds, n, mask, pred in zip(self.datasets, self.n_samples, self.masks, preds):
-            for c in ds.channels:
-                y = pred[c][:n]
-                meas = ds.measured(c)[:n]
-                if y.ndim == 2:
-                    meas = meas[:, None]
-                parts.append(((y - meas) / ds.scales[c])[mask[c]])
-        return np.concatenate(parts, axis=0)
-
-    def residual(self, u: np.ndarray) -> np.ndarray:
-        return self._residual_of(self.predict(u))
-
-    def robust_cost(self, r: np.ndarray) -> float:
-        """The cost ``least_squares`` minimises: ``f^2 sum(sqrt(1 + (r/f)^2) - 1)`` for the
-        ``soft_l1`` loss (``0.5 sum r^2`` for ``linear``), ``f`` = ``fit.f_scale``."""
-        if str(self.config.fit("loss")) == "linear":
-            return 0.5 * float(r @ r)
-        f = self.config.number("fit", "f_scale", positive=True)
-        if str(self.config.fit("loss")) != "soft_l1":
-            raise ConfigError(
-                f"fit.loss = {self.config.fit('loss')!r} is not allowed: must be "
-                "'soft_l1' or 'linear'"
-            )
-        return float(f * f * np.sum(np.sqrt(1.0 + (r / f) ** 2) - 1.0))
-
-    def residual_columns(self, us: Sequence[np.ndarray]) -> np.ndarray:
-        """Residuals ``(n, m)`` of several optimiser vectors, one batch rollout per dataset.
-
-        Columns that give a dataset the same plant are simulated once (the piston's
-        friction does not act on a clamped rod).
-        """
-        splits = [self._split(self.values(u)) for u in us]
-        preds = []
-        for ds, n in zip(self.datasets, self.n_samples):
-            sims = simulate_unique(
-                ds, [plant for plant, _ in splits], n, [self.scopes] * len(splits)
-            )
-            preds.append(apply_sensor_model(sims, [se for _, se in splits], ds.dt_s))
-        return self._residual_of(preds)
-
-    def jacobian(self, u: np.ndarray) -> np.ndarray:
-        """Forward-difference Jacobian: one batch rollout per dataset for all plant columns."""
-        key = np.asarray(u, float).tobytes()
-        if key in self._jac_cache:
-            return self._jac_cache[key]
-        values = self.values(u)
-        plant, sensor = self._split(values)
-        base_sims = self._plant(u)
-        lo, hi = self.bounds()
-        steps, perturbed = [], []
-        for j, p in enumerate(self.free):
-            h = p.fd_step if p.fd_step is not None else self.fd_step * max(1.0, abs(u[j]))
-            if u[j] + h > hi[j]:
-                h = -h
-            uj = u.copy()
-            uj[j] += h
-            steps.append(h)
-            perturbed.append(self.values(uj)[p.name])
-        plant_idx = [j for j, p in enumerate(self.free) if p.kind == "plant"]
-        sensor_idx = [j for j, p in enumerate(self.free) if p.kind == "sensor"]
-        base_res = self.residual(u)
-        J = np.empty((base_res.size, len(self.free)))
-        col_preds = [dict() for _ in self.datasets]  # per dataset: channel -> (n, n_free)
-        for k, (ds, n) in enumerate(zip(self.datasets, self.n_samples)):
-            columns = []
-            for j in plant_idx:
-                columns.append({**plant, self.free[j].name: perturbed[j]})
-            sims = _simulate(ds, columns, n, self.scopes) if columns else {}
-            sensor_cols = [sensor] * len(plant_idx)
-            for j in sensor_idx:
-                sensor_cols.append({**sensor, self.free[j].name: perturbed[j]})
-            merged = {}
-            for c in ds.channels:
-                parts = []
-                if plant_idx:
-                    parts.append(sims[c])
-                if sensor_idx:
-                    parts.append(np.repeat(base_sims[k][c], len(sensor_idx), axis=1))
-                merged[c] = np.concatenate(parts, axis=1)
-            filtered = apply_sensor_model(merged, sensor_cols, ds.dt_s)
-            order = plant_idx + sensor_idx
-            for c in ds.channels:
-                full = np.empty_like(filtered[c])
-                full[:, order] = filtered[c]
-                col_preds[k][c] = full
-        R = self._residual_of(col_preds)
-        J[:] = (R - base_res[:, None]) / np.array(steps)[None, :]
-        self.n_jacobians += 1
-        self.cost_history.append(self.robust_cost(base_res))
-        log.info(
-            "%s: Jacobian %d, cost %.6g, %s",
-            self.label,
-            self.n_jacobians,
-            0.5 * float(base_res @ base_res),
-            ", ".join(f"{p.name}={values[p.name]:.4g}" for p in self.free),
-        )
-        self._jac_cache[key] = J
-        while len(self._jac_cache) > 2:
-            self._jac_cache.popitem(last=False)
-        return J
 
 
 def _least_squares(

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pneumatic_env.params import ConfigError, config_dir, read_yaml
+from pneumatic_env.config_files import ConfigError, config_dir, read_yaml
 
 __all__ = ["CONFIG_FILE", "FitParameter", "IdentificationConfig", "load_config"]
 

@@ -19,9 +19,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .calibrate import Dataset, FitProblem, FitResult, channel_nrmse
+from .calibrate import Dataset, FitResult, channel_nrmse
 from .candidates import Candidate, applicable
 from .config import IdentificationConfig
+from .problem import FitProblem
 
 __all__ = ["HOLDOUT_MODES", "Holdout", "index_of"]
 

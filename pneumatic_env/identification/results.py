@@ -16,7 +16,7 @@ from .config import FitParameter
 from .datasets import _ROW, Dataset, dataset_overrides, kernel_name
 
 if TYPE_CHECKING:
-    from .calibrate import FitProblem
+    from .problem import FitProblem
 
 __all__ = ["FitResult", "pooled_lag1"]
 

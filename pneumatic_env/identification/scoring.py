@@ -20,10 +20,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import progress
-from .calibrate import FitProblem, FitResult, run_fit
+from .calibrate import FitResult, run_fit
 from .candidates import Candidate
 from .config import FitParameter, IdentificationConfig
 from .holdout import Holdout
+from .problem import FitProblem
 
 __all__ = [
     "CandidateScore",

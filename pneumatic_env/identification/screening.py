@@ -43,10 +43,11 @@ import numpy as np
 
 from pneumatic_env.replay import substeps_for
 
-from .calibrate import FRICTION_NAMES, Dataset, FitProblem, FitResult, simulate_unique
+from .calibrate import Dataset, FitResult
 from .candidates import Candidate, apply_sensor_model
 from .config import FitParameter, IdentificationConfig
 from .holdout import index_of
+from .problem import FRICTION_NAMES, FitProblem, simulate_unique
 
 __all__ = ["Screen", "screen_candidates"]
 
