@@ -32,7 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from . import stats
-from .bench import markdown_table, run_suite
+from .bench import run_suite
+from .bench_results import markdown_table
 from .suite import Suite, load_suite
 
 __all__ = [

@@ -24,7 +24,8 @@ import numpy as np
 
 from pneumatic_env.params import load_parameters
 
-from .bench import markdown_table, run_suite
+from .bench import run_suite
+from .bench_results import markdown_table
 from .config import load_agent_config
 from .registry import resolve_controller
 from .suite import load_suite, parse_variant
