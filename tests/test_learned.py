@@ -308,7 +308,8 @@ def fast_run(tmp_path_factory):
         "ppo_fast-numatics-2m",
         seed=1,
         out=out,
-        minutes=0.03,
+        minutes=10.0,  # ends by steps (3 updates of 32 x 8), not by the machine's load
+        total_steps=3 * 256,
         overrides=SMALL,
         log=lambda *a, **k: None,
     )
@@ -347,7 +348,8 @@ def test_fast_trainer_resumes_from_its_checkpoint(fast_run, tmp_path):
         "ppo_fast-numatics-2m",
         seed=1,
         out=tmp_path / "run",
-        minutes=0.05,
+        minutes=10.0,
+        total_steps=5 * 256,
         overrides=SMALL,
         resume=True,
         log=lambda *a, **k: None,
@@ -410,7 +412,8 @@ def test_pure_mode_trains_and_runs_as_a_controller(tmp_path):
     s = train(
         "ppo_fast-pure-numatics-2m",
         out=tmp_path,
-        minutes=0.01,
+        minutes=10.0,
+        total_steps=256,
         overrides=SMALL,
         log=lambda *a, **k: None,
     )
