@@ -130,6 +130,9 @@ class NumpyPolicy:
             raise ValueError(
                 f"{path}: output = {self.meta.get('output')!r} is not allowed: 'clip' or 'tanh'"
             )
+        repeat = self.meta.get("action_repeat", 1)
+        if type(repeat) is not int or repeat < 1:
+            raise ValueError(f"{path}: action_repeat = {repeat!r} is not allowed: an integer >= 1")
         self.path = path
 
     @property
@@ -173,12 +176,29 @@ class PolicyController(Controller):
             )
         self.policy = policy
         self.name = policy.path.stem
+        self.action_repeat = int(policy.meta.get("action_repeat", 1))
+        self._held = np.zeros(0)
+        self._age = np.zeros(0, dtype=np.int64)
 
     def observation_si(self, obs):
         return obs  # the policy takes the observation as the env gives it
 
+    def _allocate(self, n: int) -> None:
+        self._held = np.zeros(n)
+        self._age = np.zeros(n, dtype=np.int64)
+
+    def _reset_rows(self, rows: np.ndarray) -> None:
+        self._age[rows] = 0
+
     def _act(self, obs):
-        return self.policy(obs)[:, 0]
+        if self.action_repeat == 1:
+            return self.policy(obs)[:, 0]
+        # trained with an action repeat: a new action every action_repeat periods, held
+        fresh = self._age % self.action_repeat == 0
+        if fresh.any():
+            self._held[fresh] = self.policy(obs[fresh])[:, 0]
+        self._age += 1
+        return self._held.copy()
 
 
 def load_policy_spec(path: str | Path):

@@ -10,7 +10,13 @@ which reproduces the single env seeded ``s + i``).
 
 With ``normalize_action=True`` (default) the policy acts in [-1, 1] and the adapter scales
 to the env's current range; SAC's squashing and PPO's clipping both work in that box.
-The adapter also times the env (``env_time_s``) for throughput reports.
+
+``action_repeat=k`` holds each action for k control periods (the agent's step is k env
+steps, its reward their sum, its observation the last): an agent then decides every k ms
+and its discount spans k times the time, the fix tried for SAC at a 1 ms control period
+(value methods degrade as the time step shrinks, Tallec et al. 2019). The episode length
+must be a multiple of k so that every episode ends on an agent step. The adapter also
+times the env (``env_time_s``) for throughput reports.
 """
 
 from __future__ import annotations
@@ -30,7 +36,9 @@ __all__ = ["SB3VecEnv", "make_sb3_vec_env"]
 class SB3VecEnv(VecEnv):
     """An SB3 ``VecEnv`` over a Gymnasium vector env with ``AutoresetMode.SAME_STEP``."""
 
-    def __init__(self, venv: gym.vector.VectorEnv, normalize_action: bool = True):
+    def __init__(
+        self, venv: gym.vector.VectorEnv, normalize_action: bool = True, action_repeat: int = 1
+    ):
         mode = venv.metadata.get("autoreset_mode")
         if mode != AutoresetMode.SAME_STEP:
             raise ValueError(
@@ -40,8 +48,17 @@ class SB3VecEnv(VecEnv):
         space = venv.single_action_space
         if not isinstance(space, gym.spaces.Box):
             raise ValueError(f"SB3VecEnv supports Box action spaces, got {space!r}")
+        if (
+            isinstance(action_repeat, bool)
+            or not isinstance(action_repeat, int)
+            or action_repeat < 1
+        ):
+            raise ValueError(
+                f"SB3VecEnv: action_repeat = {action_repeat!r} is not allowed: an integer >= 1"
+            )
         self.venv = venv
         self.normalize_action = bool(normalize_action)
+        self.action_repeat = action_repeat
         self._low, self._high = space.low.astype(np.float64), space.high.astype(np.float64)
         action_space = (
             gym.spaces.Box(-1.0, 1.0, shape=space.shape, dtype=np.float32)
@@ -92,20 +109,30 @@ class SB3VecEnv(VecEnv):
             raise RuntimeError("SB3VecEnv.step_wait called without step_async")
         actions = self.to_env_action(self._actions)
         self._actions = None
-        t0 = time.perf_counter()
-        obs, rewards, terminated, truncated, info = self.venv.step(actions)
-        self.env_time_s += time.perf_counter() - t0
-        self.env_steps += self.num_envs
-        dones = np.logical_or(terminated, truncated)
+        rewards = np.zeros(self.num_envs, dtype=np.float64)
+        dones = np.zeros(self.num_envs, dtype=bool)
+        ends: dict[int, dict] = {}
+        for _ in range(self.action_repeat):
+            t0 = time.perf_counter()
+            obs, reward, terminated, truncated, info = self.venv.step(actions)
+            self.env_time_s += time.perf_counter() - t0
+            self.env_steps += self.num_envs
+            rewards += np.where(dones, 0.0, reward)  # an ended episode earns no more
+            final_obs = info.get("final_obs")
+            final_info = info.get("final_info")
+            for i in np.flatnonzero(np.logical_or(terminated, truncated) & ~dones):
+                end = {
+                    "terminal_observation": final_obs[i],
+                    "TimeLimit.truncated": bool(truncated[i] and not terminated[i]),
+                }
+                if isinstance(final_info, dict):
+                    end.update(self._split_info(final_info)[i])
+                ends[int(i)] = end
+            dones |= np.logical_or(terminated, truncated)
         infos = self._split_info(info)
-        final_obs = info.get("final_obs")
-        final_info = info.get("final_info")
         for i in range(self.num_envs):  # as DummyVecEnv: the flag on every step
-            infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
-        for i in np.flatnonzero(dones):
-            infos[i]["terminal_observation"] = final_obs[i]
-            if isinstance(final_info, dict):
-                infos[i].update(self._split_info(final_info)[i])
+            infos[i]["TimeLimit.truncated"] = False
+            infos[i].update(ends.get(i, {}))
         return obs, np.asarray(rewards, dtype=np.float32), dones, infos
 
     def _split_info(self, info: dict) -> list[dict]:
@@ -163,13 +190,21 @@ def make_sb3_vec_env(
     num_envs: int,
     episode_steps: int | None = None,
     normalize_action: bool = True,
+    action_repeat: int = 1,
     **env_kwargs,
 ) -> SB3VecEnv:
     """``gym.make_vec(env_id, num_envs)`` (native vector env) wrapped for SB3.
 
-    ``episode_steps`` sets the episode length (default the registered ``ids.EPISODE_STEPS``).
+    ``episode_steps`` sets the episode length (default the registered ``ids.EPISODE_STEPS``);
+    it must be a multiple of ``action_repeat``.
     """
     if episode_steps is not None:
         env_kwargs["max_episode_steps"] = int(episode_steps)
     venv = gym.make_vec(env_id, num_envs=num_envs, **env_kwargs)
-    return SB3VecEnv(venv, normalize_action=normalize_action)
+    steps = int(venv.unwrapped.max_episode_steps)
+    if isinstance(action_repeat, int) and action_repeat >= 1 and steps % action_repeat:
+        raise ValueError(
+            f"episode_steps = {steps} is not allowed with action_repeat = {action_repeat}: "
+            "it must be a multiple of it (every episode ends on an agent step)"
+        )
+    return SB3VecEnv(venv, normalize_action=normalize_action, action_repeat=action_repeat)

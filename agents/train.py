@@ -42,11 +42,14 @@ def _variant_of(env_id: str) -> str:
     return parse_env_id(env_id).variant.lower()
 
 
-def evaluate(act, env_id: str, seeds, episode_steps: int, **env_kwargs) -> np.ndarray:
+def evaluate(
+    act, env_id: str, seeds, episode_steps: int, action_repeat: int = 1, **env_kwargs
+) -> np.ndarray:
     """Return of one episode per seed (env i reset with ``seeds[i]``) under ``act(obs) -> A``.
 
     Runs the native vector env with one env per seed, so every controller sees the same
-    references; returns the undiscounted episode returns, shape (len(seeds),).
+    references; returns the undiscounted episode returns, shape (len(seeds),). ``act`` is
+    asked every ``action_repeat`` steps and its current held in between.
     """
     import gymnasium as gym
 
@@ -55,8 +58,10 @@ def evaluate(act, env_id: str, seeds, episode_steps: int, **env_kwargs) -> np.nd
     )
     obs, _ = env.reset(seed=[int(s) for s in seeds])
     total = np.zeros(len(seeds))
-    for _ in range(int(episode_steps)):
-        a = np.asarray(act(obs), dtype=np.float64).reshape(len(seeds), 1)
+    a = np.zeros((len(seeds), 1))
+    for k in range(int(episode_steps)):
+        if k % action_repeat == 0:
+            a = np.asarray(act(obs), dtype=np.float64).reshape(len(seeds), 1)
         obs, r, _, _, _ = env.step(a)
         total += r
     env.close()
@@ -146,7 +151,10 @@ def train(
 
         torch.set_num_threads(int(torch_threads))
     set_random_seed(seed)
-    base = make_sb3_vec_env(env_id, int(cfg["n_envs"]), int(cfg["episode_steps"]), **kwargs)
+    repeat = int(cfg.get("action_repeat", 1))
+    base = make_sb3_vec_env(
+        env_id, int(cfg["n_envs"]), int(cfg["episode_steps"]), action_repeat=repeat, **kwargs
+    )
     venv = VecMonitor(base)
     hp = dict(cfg["hyperparameters"])
     if cfg.get("normalize_reward", False):
@@ -171,11 +179,13 @@ def train(
         "normalize_observation": True,
         "action_scale_a": trained.coil_current_max_a,
     }
-    export_policy(model, out / "model.npz", **policy_env)
+    export_policy(model, out / "model.npz", **policy_env, extra={"action_repeat": repeat})
     policy = NumpyPolicy(out / "model.npz")
     episode = int(cfg["episode_steps"])
     eval_kwargs = {k: v for k, v in kwargs.items() if k != "domain_randomization"}
-    returns = evaluate(lambda o: policy(o), env_id, eval_seeds, episode, **eval_kwargs)
+    returns = evaluate(
+        lambda o: policy(o), env_id, eval_seeds, episode, action_repeat=repeat, **eval_kwargs
+    )
     zero = evaluate(lambda o: np.zeros(len(o)), env_id, eval_seeds, episode, **eval_kwargs)
     steps_done = int(model.num_timesteps)
     summary = {
@@ -191,7 +201,9 @@ def train(
         "wall_s": wall,
         "env_time_s": base.env_time_s,
         "env_share": base.env_time_s / wall,
-        "env_steps_per_s": steps_done / wall,
+        "action_repeat": repeat,
+        "env_steps": int(base.env_steps),
+        "env_steps_per_s": base.env_steps / wall,
         "env_only_steps_per_s": base.env_steps / base.env_time_s if base.env_time_s else None,
         "eval_seeds": list(eval_seeds),
         "eval_return_mean": float(returns.mean()),

@@ -242,6 +242,43 @@ def test_adapter_rollout_equals_dummy_vec_env():
     assert n_done == 3 * n  # three episodes of T steps per env, all truncated
 
 
+def test_adapter_action_repeat_holds_the_action_and_sums_the_reward():
+    """action_repeat = 3 against single envs stepped three times with the same action."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    n, T, k = 2, 9, 3
+    a = _adapter(n, T, normalize_action=False, action_repeat=k)
+    d = DummyVecEnv([lambda: gym.make(ID_05, max_episode_steps=T) for _ in range(n)])
+    a.seed(7)
+    d.seed(7)
+    np.testing.assert_array_equal(a.reset(), d.reset())
+    rng = np.random.default_rng(3)
+    for step in range(2 * T // k):
+        act = rng.uniform(-1.5, 1.5, (n, 1)).astype(np.float32)
+        oa, ra, da, ia = a.step(act)
+        total = np.zeros(n)
+        for _ in range(k):
+            od, rd, dd, id_ = d.step(act)
+            total += rd
+        np.testing.assert_allclose(oa, od, rtol=1e-6)
+        np.testing.assert_allclose(ra, total, rtol=1e-5)
+        np.testing.assert_array_equal(da, dd)
+        assert da.all() == ((step + 1) % (T // k) == 0)
+        for i in np.flatnonzero(da):
+            assert ia[i]["TimeLimit.truncated"] is True
+            np.testing.assert_allclose(
+                ia[i]["terminal_observation"], id_[i]["terminal_observation"], rtol=1e-6
+            )
+    assert a.env_steps == 2 * T * n
+
+
+def test_adapter_action_repeat_errors():
+    with pytest.raises(ValueError, match=r"episode_steps = 10 .* action_repeat = 3"):
+        _adapter(1, 10, action_repeat=3)
+    with pytest.raises(ValueError, match=r"action_repeat = 0 is not allowed: an integer >= 1"):
+        _adapter(1, 10, action_repeat=0)
+
+
 def test_adapter_spaces_shapes_and_action_scaling():
     a = _adapter(4, 5)
     assert a.action_space.low.tolist() == [-1.0] and a.action_space.high.tolist() == [1.0]
@@ -371,3 +408,48 @@ def test_exported_sac_policy_matches_sb3_predict(tmp_path):
     obs = np.random.default_rng(1).normal(size=(16, policy.obs_dim)).astype(np.float32)
     expected, _ = model.predict(obs, deterministic=True)
     np.testing.assert_allclose(policy.normalized_action(obs), expected, atol=1e-5)
+
+
+def test_policy_controller_holds_a_repeated_action(tmp_path):
+    """A policy exported with action_repeat = 4 decides every 4th period and holds it."""
+    from stable_baselines3 import SAC
+
+    from pneumatic_env.agents.base import ControllerContext
+    from pneumatic_env.agents.policy import NumpyPolicy, PolicyController, export_policy
+
+    env = _adapter(1, 20, normalize_observation=True)
+    model = SAC("MlpPolicy", env, seed=2, device="cpu", policy_kwargs={"net_arch": [8]})
+    ctx = ControllerContext.from_env(gym.make(ID_05, normalize_observation=True).unwrapped)
+    path = export_policy(
+        model,
+        tmp_path / "sac.npz",
+        env_id=ID_05,
+        preview_steps=ctx.preview_steps,
+        normalize_observation=True,
+        action_scale_a=2.0,
+        extra={"action_repeat": 4},
+    )
+    policy = NumpyPolicy(path)
+    ctrl = PolicyController(ctx, policy)
+    rng = np.random.default_rng(4)
+    obs = rng.normal(size=(10, 3, policy.obs_dim))
+    out = np.array([ctrl.act(o) for o in obs])
+    for t in range(10):
+        decided = 4 * (t // 4)
+        np.testing.assert_allclose(out[t], policy(obs[decided])[:, 0], rtol=1e-12)
+    ctrl.reset([1])  # a reset env decides at once
+    after = ctrl.act(obs[0])
+    np.testing.assert_allclose(after[1], policy(obs[0][1:2])[0, 0], rtol=1e-12)
+    np.testing.assert_allclose(after[[0, 2]], out[9][[0, 2]], rtol=1e-12)
+    bad = tmp_path / "bad.npz"
+    export_policy(
+        model,
+        bad,
+        env_id=ID_05,
+        preview_steps=ctx.preview_steps,
+        normalize_observation=True,
+        action_scale_a=2.0,
+        extra={"action_repeat": 1.5},
+    )
+    with pytest.raises(ValueError, match=r"action_repeat = 1.5 is not allowed"):
+        NumpyPolicy(bad)
