@@ -41,6 +41,7 @@ from .recording_format import (
     RecordingWarning,
     _fmt,
     _read_sidecar,
+    _read_text,
     canonical_cylinder,
     rig_to_parameter_overrides,
     validate_rig,
@@ -193,12 +194,7 @@ def _read_csv(csv_path: Path) -> tuple[np.ndarray, dict[str, np.ndarray], list[s
     name = csv_path.name
     if not csv_path.is_file():
         raise RecordingError(f"{name}: file not found: {csv_path}", file=name)
-    try:
-        text = csv_path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise RecordingError(
-            f"{name}: not UTF-8 text ({exc.reason} at byte {exc.start})", file=name
-        ) from None
+    text = _read_text(csv_path)
     lines = text.split("\n")
     lines = [ln[:-1] if ln.endswith("\r") else ln for ln in lines]
     while lines and lines[-1].strip() == "":  # final newline / trailing blank lines

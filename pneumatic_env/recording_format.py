@@ -258,6 +258,16 @@ def validate_rig(rig, source: str = "rig") -> list[str]:
     return out
 
 
+def _read_text(path: Path) -> str:
+    """The file's text (UTF-8, a byte-order mark dropped); a clear error if it is not."""
+    try:
+        return path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise RecordingError(
+            f"{path.name}: not UTF-8 text ({exc.reason} at byte {exc.start})", file=path.name
+        ) from None
+
+
 def _read_sidecar(json_path: Path) -> dict:
     name = json_path.name
     if not json_path.is_file():
@@ -265,12 +275,7 @@ def _read_sidecar(json_path: Path) -> dict:
             f"{name}: sidecar not found (a recording is NAME.csv plus NAME.json): {json_path}",
             file=name,
         )
-    try:
-        text = json_path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise RecordingError(
-            f"{name}: not UTF-8 text ({exc.reason} at byte {exc.start})", file=name
-        ) from None
+    text = _read_text(json_path)
 
     def pairs(items):
         obj = {}
