@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from pneumatic_env import ids
+from pneumatic_env.simulator import INITIAL_STATE_KEYS  # the sidecar's "initial" keys
 
 FORMAT_NAME = "pneumatic-measurement"
 FORMAT_VERSION = 1
@@ -55,7 +56,6 @@ _OPTIONAL_POSITIVE_KEYS = (
     "temperature_k",
 )
 _KNOWN_TOP_KEYS = set(_REQUIRED_TOP_KEYS) | set(_OPTIONAL_POSITIVE_KEYS) | {"initial", "notes"}
-_INITIAL_KEYS = ("p1", "p2", "x", "v", "x_s")
 
 DEFAULT_AMBIENT_PA = 101325.0
 JITTER_TOLERANCE = 1e-6
@@ -240,11 +240,12 @@ def validate_rig(rig, source: str = "rig") -> list[str]:
         if not isinstance(initial, dict):
             fail(
                 "initial",
-                f"must be an object with keys among {', '.join(_INITIAL_KEYS)}, found {initial!r}",
+                f"must be an object with keys among {', '.join(INITIAL_STATE_KEYS)}, "
+                f"found {initial!r}",
             )
         for key, value in initial.items():
-            if key not in _INITIAL_KEYS:
-                fail(f"initial.{key}", f"is not allowed; allowed: {', '.join(_INITIAL_KEYS)}")
+            if key not in INITIAL_STATE_KEYS:
+                fail(f"initial.{key}", f"is not allowed; allowed: {', '.join(INITIAL_STATE_KEYS)}")
             number(f"initial.{key}", value)
     if "notes" in rig and not isinstance(rig["notes"], str):
         fail("notes", f"must be a string, found {rig['notes']!r}")
