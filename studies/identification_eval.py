@@ -121,6 +121,10 @@ def evaluate_campaign(job: dict) -> dict:
         [read_checked(p) for p in paths], candidates=job["candidates"], jobs=job["jobs"]
     )
     data = diag.to_json()
+    # the whole diagnosis beside the rig's recordings: a miss can be read without a rerun
+    (Path(job["workdir"]) / name / "diagnosis.json").write_text(
+        json.dumps(data, indent=1) + "\n", encoding="utf-8"
+    )
     result = {
         **{k: job[k] for k in ("effect", "label", "strength", "seed")},
         "selected": data["selected"],
