@@ -94,6 +94,7 @@ def evaluate_campaign(job: dict) -> dict:
     selection up to the config's number of effects); returns what was found."""
     from pneumatic_env.identification.checks import read_checked
     from pneumatic_env.identification.diagnose import diagnose
+    from pneumatic_env.identification.report import diagnosis_json
 
     from .rig_campaign import make_campaign
 
@@ -123,7 +124,7 @@ def evaluate_campaign(job: dict) -> dict:
     data = diag.to_json()
     # the whole diagnosis beside the rig's recordings: a miss can be read without a rerun
     (Path(job["workdir"]) / name / "diagnosis.json").write_text(
-        json.dumps(data, indent=1) + "\n", encoding="utf-8"
+        json.dumps(diagnosis_json(diag), indent=1, allow_nan=False) + "\n", encoding="utf-8"
     )
     result = {
         **{k: job[k] for k in ("effect", "label", "strength", "seed")},

@@ -26,7 +26,7 @@ import numpy as np
 
 from .diagnose import Diagnosis
 
-__all__ = ["REPORT_FILES", "write_report"]
+__all__ = ["REPORT_FILES", "diagnosis_json", "write_report"]
 
 REPORT_FILES = ("report.md", "diagnosis.json", "fitted_base.yaml", "fitted_final.yaml")
 _UNITS = {"p1": "Pa", "p2": "Pa", "f": "N", "x": "m", "v": "m/s", "x_s": "m"}
@@ -354,6 +354,11 @@ def _save_fit(diag: Diagnosis, fit, path: Path, notes: str) -> None:
     save_parameters(path, values, notes=notes, uncertainties=std)
 
 
+def diagnosis_json(diag: Diagnosis) -> dict:
+    """The diagnosis as ``diagnosis.json`` holds it (plain JSON types, no NaN)."""
+    return _clean(diag.to_json())
+
+
 def write_report(diag: Diagnosis, out_dir: str | os.PathLike, plots: bool = True) -> dict:
     """Write the report files into ``out_dir`` (created); returns the diagnosis.json data."""
     out_dir = Path(out_dir)
@@ -367,7 +372,7 @@ def write_report(diag: Diagnosis, out_dir: str | os.PathLike, plots: bool = True
         f"{p}_{ds.name}.png" for ds in diag.datasets for p in ("fit", "residuals")
     ]
     _check_outputs(out_dir, inputs, names)
-    data = _clean(diag.to_json())
+    data = diagnosis_json(diag)
     (out_dir / "diagnosis.json").write_text(
         json.dumps(data, indent=2, allow_nan=False) + "\n", encoding="utf-8"
     )
