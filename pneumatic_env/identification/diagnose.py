@@ -523,6 +523,7 @@ def _confidence(
     )
     runner = others[0] if others else None
     per = {k: v for k, v in best.per_recording.items() if math.isfinite(v)}
+    where = sorted(acts_on & set(per))
     return {
         "effect": best.name,
         "round": best.round,
@@ -538,7 +539,6 @@ def _confidence(
         "heldout_improvement_per_recording": per,
         "supported_by": [k for k, v in per.items() if v >= min_rel],
         "holds_on_every_heldout_recording": bool(per) and all(v > 0 for v in per.values()),
-        "acts_on": sorted(acts_on & set(per)),
-        "holds_where_it_acts": bool(acts_on & set(per))
-        and all(per[k] > 0 for k in acts_on & set(per)),
+        "acts_on": where,
+        "holds_where_it_acts": bool(where) and all(per[k] > 0 for k in where),
     }
