@@ -175,6 +175,55 @@ def test_a_second_effect_needs_support_on_data_the_first_did_not_explain(per, ac
         assert any(reason in r for r in sc.reasons), sc.reasons
 
 
+def test_a_refit_that_falls_short_of_the_screening_is_repeated_from_its_step():
+    """A refit that stops near its warm start (the exhaust muffler of issue 20's seed-2
+    rig: 1 % lower training RSS where the screening predicted 65 %) runs again from the
+    screening's step, and the lower cost wins; a refit that delivers, or a prediction
+    below screening.min_predicted_improvement, is not repeated."""
+    from pneumatic_env.identification.scoring import refit_with_restart
+
+    cfg = load_config()
+    shortfall = cfg.number("screening", "restart_shortfall")
+    worth = cfg.number("screening", "min_predicted_improvement")
+    starts = []
+
+    def run(costs):
+        def fit(start):
+            starts.append(dict(start))
+            cost = costs[len(starts) - 1]
+            return SimpleNamespace(cost=cost, rss=2 * cost)
+
+        return fit
+
+    base, step = {"dead_volume_cap_m3": 1e-6}, {"exhaust_vent_area_m2": 1.5e-6, "v": math.nan}
+    # 1 % gained of 65 % predicted: refitted from the step, which is better
+    fit, again = refit_with_restart(run([0.99, 0.3]), base, step, 0.65, 2.0, cfg)
+    assert again and fit.cost == 0.3
+    assert starts == [base, {**base, "exhaust_vent_area_m2": 1.5e-6}]
+    # the second start can be worse: the first fit stays
+    starts.clear()
+    fit, again = refit_with_restart(run([0.99, 1.2]), base, step, 0.65, 2.0, cfg)
+    assert again and fit.cost == 0.99
+    # delivered (more than the shortfall share of the prediction): one fit
+    starts.clear()
+    gained = 0.65 * shortfall * 1.1
+    fit, again = refit_with_restart(run([1.0 - gained]), base, step, 0.65, 2.0, cfg)
+    assert not again and len(starts) == 1
+    # a step the kernel rejects: the first fit stays
+    def rejects(start):
+        if "exhaust_vent_area_m2" in start:
+            raise ValueError("exhaust_vent_area_m2 = 1.5e-06 is not allowed")
+        return SimpleNamespace(cost=0.99, rss=1.98)
+
+    fit, again = refit_with_restart(rejects, base, step, 0.65, 2.0, cfg)
+    assert again and fit.cost == 0.99
+    # a prediction not worth a restart, or no step: one fit
+    for predicted, stp in ((0.5 * worth, step), (0.65, {})):
+        starts.clear()
+        assert not refit_with_restart(run([1.0]), base, stp, predicted, 2.0, cfg)[1]
+        assert len(starts) == 1
+
+
 # --------------------------------------------------------------------------- progress
 
 

@@ -305,8 +305,9 @@ def diagnose(
         progress.stage(f"refitting {len(top)} candidates (round {rnd})", len(top) * refit_work)
         t_refit = time.monotonic()
         # a refit starts from the config's warm start (starting from the screening's step
-        # was tried: it left a heat-transfer refit at its bound, 10 W/K, and a coil lag's
-        # shape unidentified, where the warm start found both)
+        # alone was tried: it left a heat-transfer refit at its bound, 10 W/K, and a coil
+        # lag's shape unidentified, where the warm start found both); from the step as well
+        # only when the first refit falls short of the screening's prediction
         args = [
             (
                 s.candidate,
@@ -323,6 +324,8 @@ def diagnose(
                 nfev,
                 cfg,
                 current_per,
+                s.values,
+                s.predicted_train,
             )
             for s in top
         ]

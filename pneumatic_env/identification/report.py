@@ -185,7 +185,7 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
         "the neutral value).",
         "",
         "| round | candidate | score (held-out improvement) | delta BIC | held-out NRMSE | "
-        "parameters (95 % CI) | accepted | why not |",
+        "parameters (95 % CI) | accepted | why not (or notes) |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for c in data["candidates"]:
@@ -199,7 +199,8 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
         lines.append(
             f"| {c['round']} | {c['name']} | {score} | "
             f"{_fmt(c['delta_ic'], 3)} | {_fmt(c['heldout_nrmse_mean'])} | {params} | "
-            f"{'yes' if c['accepted'] else 'no'} | {'; '.join(c['reasons'])} |"
+            f"{'yes' if c['accepted'] else 'no'} | "
+            f"{'; '.join([*c['reasons'], *c.get('notes', [])])} |"
         )
     if data["skipped"]:
         lines += ["", "Not tried: " + "; ".join(f"{k} ({v})" for k, v in data["skipped"].items())]

@@ -13,7 +13,7 @@ import logging
 import math
 import multiprocessing
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
@@ -32,6 +32,7 @@ __all__ = [
     "heldout_improvement",
     "improvement_is_the_basin",
     "mean_nrmse",
+    "refit_with_restart",
     "score",
     "score_many",
 ]
@@ -100,6 +101,8 @@ class CandidateScore:
     per_recording_nrmse: dict[str, float] = field(default_factory=dict)  # held-out NRMSE
     screening: dict | None = None  # the screening's prediction (see .screening)
     refitted: bool = True  # False: screened out, the score is the screening's prediction
+    restarted: bool = False  # refitted again from the screening's step (refit_with_restart)
+    notes: list[str] = field(default_factory=list)  # checks it passed, with their figures
 
     @property
     def name(self) -> str:
@@ -145,6 +148,8 @@ class CandidateScore:
             "accepted": self.accepted,
             "reasons": self.reasons,
             "refitted": self.refitted,
+            "restarted_from_screening_step": self.restarted,
+            "notes": self.notes,
             "heldout_improvement_per_recording": dict(self.per_recording),
             "screening": self.screening,
         }
@@ -180,8 +185,13 @@ def improvement_is_the_basin(
 ) -> bool:
     """True (and ``score`` refused) when the current model at the candidate's fitted values,
     the candidate's effect switched off, is within ``min_rel`` of the candidate's held-out
-    error: then the improvement came from where the candidate's refit moved the base
-    parameters (for a sliding piston, which stick events it makes), not from the effect."""
+    error and fits the training data about as well (its training cost exceeds the
+    candidate's by less than ``min_rel`` of the current model's): then the improvement
+    came from where the candidate's refit moved the base parameters (for a sliding piston,
+    which stick events it makes), not from the effect. When switching the effect off
+    costs the training fit, the base parameters are where they are because the effect
+    takes up its part of the data (an exhaust muffler that biased the calibrated discharge
+    coefficient), and the improvement is the effect's."""
     values = score.fit.all_values()
     fixed = {**current.fixed, **{p.name: values[p.name] for p in current.parameters}}
     problem = FitProblem(
@@ -208,14 +218,60 @@ def improvement_is_the_basin(
     rel, how = heldout_improvement(per, pooled, cfg, split.acted_on(score.candidate))
     if rel >= min_rel:
         return False
+    carried = (off.cost - score.fit.cost) / current.cost if current.cost > 0 else 0.0
+    if carried >= min_rel:
+        score.notes.append(
+            f"with {score.name} switched off at its fitted values the held-out NRMSE is "
+            f"{off_mean:.4g} (with it {score.heldout_mean:.4g}), but the training cost rises "
+            f"from {score.fit.cost:.4g} to {off.cost:.4g} ({100 * carried:.0f} % of the "
+            f"current model's {current.cost:.4g}): the base parameters need the effect"
+        )
+        return False
     score.accepted = False
     score.reasons.append(
         f"with {score.name} switched off at its fitted values the held-out NRMSE is "
         f"{off_mean:.4g} (with it {score.heldout_mean:.4g}; {how}: {100 * rel:.1f} % better < "
-        f"{100 * min_rel:.0f} %): the improvement is where the refit moved the base "
-        "parameters, not the effect"
+        f"{100 * min_rel:.0f} %) and the training cost {off.cost:.4g} (with it "
+        f"{score.fit.cost:.4g}, the current model {current.cost:.4g}): the improvement is "
+        "where the refit moved the base parameters, not the effect"
     )
     return True
+
+
+def refit_with_restart(
+    run: Callable[[Mapping[str, float]], FitResult],
+    start: Mapping[str, float],
+    step: Mapping[str, float],
+    predicted_train: float,
+    current_rss: float,
+    cfg: IdentificationConfig,
+    name: str = "",
+) -> tuple[FitResult, bool]:
+    """``run(start)``; again from ``start`` updated by the screening's ``step`` when that
+    fell short (it lowered the training RSS below ``current_rss`` by less than
+    ``screening.restart_shortfall`` of ``predicted_train``, the screening's prediction,
+    which is at least ``screening.min_predicted_improvement``). The lower cost wins; the
+    flag says whether the second fit ran."""
+    fit = run(start)
+    shortfall = cfg.number("screening", "restart_shortfall", minimum=0.0)
+    worth = cfg.number("screening", "min_predicted_improvement", minimum=0.0)
+    gained = (current_rss - fit.rss) / current_rss if current_rss > 0 else 0.0
+    step_start = {k: v for k, v in step.items() if math.isfinite(v)}
+    if not (step_start and predicted_train >= worth and gained < shortfall * predicted_train):
+        return fit, False
+    log.info(
+        "%s: the refit lowered the training error by %.1f %%, the screening predicted "
+        "%.1f %%: refitting from the screening's step",
+        name,
+        100 * gained,
+        100 * predicted_train,
+    )
+    try:
+        again = run({**start, **step_start})
+    except (ValueError, FloatingPointError) as exc:  # a start the kernel rejects
+        log.info("%s: the refit from the screening's step failed (%s)", name, exc)
+        return fit, True
+    return (again if again.cost < fit.cost else fit), True
 
 
 def score(
@@ -233,14 +289,15 @@ def score(
     nfev: int,
     cfg: IdentificationConfig,
     current_per: Mapping[str, float] | None = None,
-    warm: Mapping[str, float] | None = None,
+    step: Mapping[str, float] | None = None,
+    predicted_train: float = math.nan,
 ) -> CandidateScore:
     """Refit ``cand`` on top of ``current`` (training data) and score it held out.
 
     ``current_per``: the current model's mean held-out NRMSE per held-out recording; the
-    score's ``per_recording`` is the candidate's relative improvement on each. ``warm``:
-    starting values of the effect's parameters (e.g. the screening's step) instead of
-    the config's warm start."""
+    score's ``per_recording`` is the candidate's relative improvement on each. The refit
+    starts from the config's warm start, and from the screening's ``step`` as well when
+    it falls short of ``predicted_train`` (:func:`refit_with_restart`)."""
     free = unique(
         list(refit)
         + [p for c in selected for p in (*c.refit_base, *c.parameters)]
@@ -250,7 +307,6 @@ def score(
     fixed = {k: v for k, v in current.all_values().items() if k not in {p.name for p in free}}
     fixed.update(cand.scoped_set())
     start = {p.name: current.all_values()[p.name] for p in free if p.name in current.all_values()}
-    start.update({k: v for k, v in (warm or {}).items() if math.isfinite(v)})
     problem = FitProblem(
         split.train,
         free,
@@ -264,17 +320,30 @@ def score(
     # it makes observable that the current model did not fit)
     current_free = {p.name for p in current.parameters}
     n_extra = len(cand.parameters) + sum(p.name not in current_free for p in cand.refit_base)
-    try:
-        # a candidate that changes the piston's friction law moves the static friction's
-        # stick-event basins: it gets the restarts the base calibration had; the others
-        # start from the calibrated base's basin
-        fit = run_fit(
+    # a candidate that changes the piston's friction law moves the static friction's
+    # stick-event basins: it gets the restarts the base calibration had; the others
+    # start from the calibrated base's basin
+    tolerance = cfg.number("fit", "diagnosis_tolerance", positive=True)
+
+    def run(u: Mapping[str, float]) -> FitResult:
+        return run_fit(
             problem,
-            start=start,
+            start=u,
             max_nfev=nfev,
             friction_restarts=cand.requires_motion,
-            tolerance=cfg.number("fit", "diagnosis_tolerance", positive=True),
+            tolerance=tolerance,
             basin_search=cand.parameter_names if cand.requires_motion else (),
+        )
+
+    try:
+        fit, restarted = refit_with_restart(
+            run,
+            start,
+            step or {},
+            predicted_train,
+            current.rss,
+            cfg,
+            cand.name,
         )
     except (ValueError, FloatingPointError) as exc:  # e.g. a parameter set the kernel rejects
         return CandidateScore(
@@ -339,6 +408,7 @@ def score(
         reasons,
         per_recording=per,
         per_recording_nrmse=per_nrmse,
+        restarted=restarted,
     )
 
 
