@@ -209,6 +209,7 @@ def test_a_refit_that_falls_short_of_the_screening_is_repeated_from_its_step():
     gained = 0.65 * shortfall * 1.1
     fit, again = refit_with_restart(run([1.0 - gained]), base, step, 0.65, 2.0, cfg)
     assert not again and len(starts) == 1
+
     # a step the kernel rejects: the first fit stays
     def rejects(start):
         if "exhaust_vent_area_m2" in start:
