@@ -219,18 +219,20 @@ def improvement_is_the_basin(
     if rel >= min_rel:
         return False
     carried = (off.cost - score.fit.cost) / current.cost if current.cost > 0 else 0.0
+    switched_off = (
+        f"with {score.name} switched off at its fitted values the held-out NRMSE is "
+        f"{off_mean:.4g} (with it {score.heldout_mean:.4g}"
+    )
     if carried >= min_rel:
         score.notes.append(
-            f"with {score.name} switched off at its fitted values the held-out NRMSE is "
-            f"{off_mean:.4g} (with it {score.heldout_mean:.4g}), but the training cost rises "
+            f"{switched_off}), but the training cost rises "
             f"from {score.fit.cost:.4g} to {off.cost:.4g} ({100 * carried:.0f} % of the "
             f"current model's {current.cost:.4g}): the base parameters need the effect"
         )
         return False
     score.accepted = False
     score.reasons.append(
-        f"with {score.name} switched off at its fitted values the held-out NRMSE is "
-        f"{off_mean:.4g} (with it {score.heldout_mean:.4g}; {how}: {100 * rel:.1f} % better < "
+        f"{switched_off}; {how}: {100 * rel:.1f} % better < "
         f"{100 * min_rel:.0f} %) and the training cost {off.cost:.4g} (with it "
         f"{score.fit.cost:.4g}, the current model {current.cost:.4g}): the improvement is "
         "where the refit moved the base parameters, not the effect"
