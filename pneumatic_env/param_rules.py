@@ -117,6 +117,19 @@ for _other, _off, _why in (
             lambda v, o=_other: f"0 (off) while {o} = {_show(v[o])}",
         )
     )
+# The isothermal tube air is written for Eq. 14, not for the energy model's temperatures.
+_RULES.append(
+    (
+        "tube_air_model",
+        "wall_heat_transfer_w_per_k",
+        lambda v: v["tube_air_model"] == 0.0 or v["wall_heat_transfer_w_per_k"] == 0.0,
+        lambda v: (
+            "dead_volume (0): the isothermal tube air is not implemented with the energy "
+            "model (wall_heat_transfer_w_per_k > 0)"
+        ),
+        lambda v: f"0 (off) while tube_air_model = {_show(v['tube_air_model'])}",
+    )
+)
 del _pos, _alpha, _other, _off, _why
 
 

@@ -270,6 +270,8 @@ def run_rig(
         own_truth[name] = rule(s, ref)  # the nearest kernel form, stated in the truth
         if effect == "iso_flow_law":
             own_truth["flow_law"] = 1
+        if effect == "tube_volume":
+            own_truth["tube_air_model"] = 1  # the candidate's form: isothermal tube air
         if not own:  # the kernel's own form (the candidate's): an inverse crime
             true.update(own_truth)
             true = load_parameters(cylinder, params=true)  # validate

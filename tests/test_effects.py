@@ -28,6 +28,7 @@ NEUTRAL = L.EFFECT_NEUTRAL_VALUES
 # one setting per effect that switches it on
 ON = {
     "tube_volume_fraction": {"tube_volume_fraction": 1.0},
+    "tube_air_model": {"tube_volume_fraction": 1.0, "tube_air_model": "isothermal"},
     "rod_seal_leak_area_m2": {"rod_seal_leak_area_m2": 2e-8},
     "valve_null_leak_area_m2": {"valve_null_leak_area_m2": 5e-8},
     "exhaust_discharge_ratio": {"exhaust_discharge_ratio": 0.6},
@@ -137,6 +138,34 @@ def test_tube_volume_adds_whole_tube_to_each_dead_volume():
     np.testing.assert_allclose(out[:, :, 1], out[:, :, 2], rtol=1e-9, atol=1e-9)
     # the larger volume fills more slowly
     assert out[20, L.O_P1, 1] < out[20, L.O_P1, 0] - 1e4
+
+
+def test_isothermal_tube_air_fills_like_alpha_out_and_empties_like_alpha_in_dead_volumes():
+    """Eq. 14 with the tube's air isothermal at the chamber's pressure: while chamber 1 fills
+    and chamber 2 empties (rod clamped, the valve held open) the run equals the paper's
+    model with dead volumes V01 + alpha_out V_t and V02 + alpha_in V_t."""
+    p = load_parameters(tube_length_m=2.0)
+    tube = math.pi / 4 * p["tube_inner_diameter_m"] ** 2 * 2.0
+    iso = load_parameters(tube_length_m=2.0, tube_volume_fraction=1.0, tube_air_model="isothermal")
+    equivalent = load_parameters(
+        tube_length_m=2.0,
+        dead_volume_cap_m3=p["dead_volume_cap_m3"] + p["alpha_out"] * tube,
+        dead_volume_rod_m3=p["dead_volume_rod_m3"] + p["alpha_in"] * tube,
+    )
+    polytropic = load_parameters(tube_length_m=2.0, tube_volume_fraction=1.0)
+    out = run_batch(
+        [iso, equivalent, polytropic], np.full(60, 0.6), initial={"p1": 1.2e5, "p2": 6.0e5}
+    )
+    p1, p2 = out[:, L.O_P1, 0], out[:, L.O_P2, 0]
+    assert np.all(np.diff(p1) >= 0.0) and np.all(np.diff(p2) <= 0.0)  # fills, empties
+    assert p1[-1] > p1[0] + 5e4 and p2[-1] < p2[0] - 5e4
+    np.testing.assert_allclose(out[:, :, 0], out[:, :, 1], rtol=1e-9, atol=1e-9)
+    # the polytropic dead volume (alpha_in = k > alpha_out) empties chamber 2 faster
+    assert out[20, L.O_P2, 2] < p2[20] - 1e3
+    with pytest.raises(
+        ConfigError, match=r"'tube_air_model' = 1.0 is not allowed: must be dead_volume \(0\)"
+    ):
+        load_parameters(tube_air_model="isothermal", wall_heat_transfer_w_per_k=0.05)
 
 
 # --------------------------------------------------------------------------- 2 rod-seal leak

@@ -232,29 +232,19 @@ def test_sensor_lag_is_diagnosed(rig_dir):
     assert 0.7 * reference < tau < 1.3 * reference
 
 
-def test_tube_volume_needs_a_second_tube_length(rig_dir):
-    # One tube length: the tube's air only adds a constant volume to each chamber, which
-    # the dead volumes also do, so the effect is flagged collinear and not accepted, and
-    # the suggested experiment is a second tube length. With recordings at 0.5 m and 2 m
-    # fitted at once the volume scales with the length and the effect is identified.
-    # 70 % of the tube volume (strength 0.7): inside the range [0, 1] of the fraction
-    long_tube = _rig(rig_dir, "tube_volume", 6, tube_length_m=2.0, strength=0.7)  # same rig ...
+@pytest.mark.parametrize("seed", [6, 7])
+def test_tube_volume_is_identified_from_one_tube_length(rig_dir, seed):
+    # The rig's tube air is an isothermal volume behind the tube's laminar resistance
+    # (studies/rig_forms.py); the candidate's is isothermal with no resistance, a dead
+    # volume that fills at alpha_out and empties at alpha_in. That asymmetry is what a dead
+    # volume (the base fit's) cannot mimic, so one tube length suffices. 70 % of a 2 m
+    # tube's air (strength 0.7), two noise seeds. The fitted fraction is not a claim: the
+    # resistance the candidate lacks hides part of the air in fast transients (docs).
+    long_tube = _rig(rig_dir, "tube_volume", seed, tube_length_m=2.0, strength=0.7)
     one = diagnose([read_checked(long_tube)], candidates=["tube_volume", "leakage"], max_effects=1)
-    assert one.selected == []
-    score = next(s for s in one.scores if s.name == "tube_volume")
-    assert score.relative_improvement > 0.5  # it clearly explains the data ...
-    assert any("collinear with dead_volume" in r for r in score.reasons)  # ... but not alone
-    assert "tube length" in one.suggestion
-    short_tube = _rig(rig_dir, "tube_volume", 6, tube_length_m=0.5, strength=0.7)  # short tube
-    both = diagnose(
-        [read_checked(short_tube), read_checked(long_tube)],
-        candidates=["tube_volume", "leakage"],
-        max_effects=1,
-        holdout="time",
-    )
-    assert both.selected == ["tube_volume"]
-    lo, hi = both.final.ci["tube_volume_fraction"]
-    assert lo <= _truth(long_tube)["parameters"]["tube_volume_fraction"] <= hi
+    assert one.selected == ["tube_volume"]
+    before, after = (np.mean(list(d.values())) for d in (one.baseline_nrmse, one.after_nrmse))
+    assert after < 0.5 * before
 
 
 # Each effect at its realistic strength (strength 1 of configs/identification.yaml) against

@@ -94,6 +94,7 @@ Constants = namedtuple(
         "waves",
         "line_impedance",
         "line_friction",
+        "tube_air",  # m^3 of isothermal tube air per chamber (tube_air_model = 1), else 0
         # numerical guards (docs/convergence.md): pressures and gas temperatures stay positive
         "pressure_floor",
         "temperature_floor",
@@ -137,7 +138,12 @@ def env_constants(params, env, substep_s):
     tube_diameter = p[L.P_TUBE_INNER_DIAMETER_M]
     delay_s = tube_delay_s(tube_length, k, gas, temperature)
     area_cap, area_rod, rod_area = piston_areas_m2(p[L.P_BORE_DIAMETER_M], p[L.P_ROD_DIAMETER_M])
+    # the tube's air (tube_volume_fraction) as a dead volume, or isothermal (tube_air_model)
     tube_fraction = p[L.P_TUBE_VOLUME_FRACTION]
+    tube_air = 0.0
+    if p[L.P_TUBE_AIR_MODEL] == 1.0:
+        tube_air = tube_fraction * circle_area_m2(tube_diameter) * tube_length
+        tube_fraction = 0.0
     coil_tau, force_tau = coil_time_constants(p[L.P_COIL_TIME_CONSTANT_S], p[L.P_COIL_LAG_SHAPE])
     heat_conductance = p[L.P_WALL_HEAT_TRANSFER_W_PER_K]
     stribeck_v = p[L.P_STRIBECK_VELOCITY_M_PER_S]
@@ -232,6 +238,7 @@ def env_constants(params, env, substep_s):
         waves=waves_flag,
         line_impedance=line_impedance,
         line_friction=tube_length * gas * temperature / tube_area,
+        tube_air=tube_air,
         pressure_floor=PRESSURE_FLOOR_FRACTION * p[L.P_AMBIENT_PRESSURE_PA],
         temperature_floor=TEMPERATURE_FLOOR_FRACTION * temperature,
         stiffness_volume=(
@@ -265,8 +272,8 @@ def base_model_only(c):
     Then the spool overlap (p_w >= R_h, Eq. 43) keeps the supply and exhaust paths of a
     chamber from being open together, and ``base_derivatives`` gives the same result with
     two valve paths instead of four. Three effects are in it (the exhaust discharge ratio,
-    the tube volume, the spool friction, whose play acts before the substeps); the others
-    send the environment to the general path.
+    the tube volume as a dead volume, the spool friction, whose play acts before the
+    substeps); the others send the environment to the general path.
     """
     return (
         c.energy == 0.0
@@ -282,6 +289,7 @@ def base_model_only(c):
         and c.lugre == 0.0
         and c.flow_law == FLOW_LAW_PAPER
         and c.waves == 0.0
+        and c.tube_air == 0.0
         and c.half_width >= c.hole_radius
         and c.delay_substeps >= 1.0
     )
@@ -381,6 +389,7 @@ def load_constants(constants, lane):
         constants[74 * k + lane],
         constants[75 * k + lane],
         constants[76 * k + lane],
+        constants[77 * k + lane],
     )
 
 

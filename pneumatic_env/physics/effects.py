@@ -25,6 +25,24 @@ def dead_volume_with_tube(
     return dead_volume_m3 + tube_volume_fraction * tube_volume
 
 
+@njit(cache=True, forceinline=True, error_model="numpy")
+def rate_with_isothermal_tube_air(
+    pressure_rate_pa_per_s, volume_m3, tube_air_m3, alpha_in, alpha_out
+):
+    """Eq. 14's pressure rate of a chamber that shares its pressure with an isothermal
+    volume ``tube_air_m3`` (its tube's air at the wall temperature).
+
+    The chamber exchanges air with the tube as with any port (Eq. 14: leaving at
+    alpha_out, entering at alpha_in), and the tube's air obeys V_t dP/dt = R T mdot_t, so
+    V dP/dt = B - alpha R T mdot_t with B the bracket of Eq. 14 gives
+    dP/dt = B / (V + alpha V_t): alpha_out while the pressure rises (air into the tube),
+    alpha_in while it falls. ``pressure_rate_pa_per_s`` is B / V.
+    """
+    bracket = pressure_rate_pa_per_s * volume_m3
+    alpha = alpha_out if bracket > 0.0 else alpha_in
+    return bracket / (volume_m3 + alpha * tube_air_m3)
+
+
 @njit(cache=True)
 def drooped_supply_pressure(
     supply_pressure_pa, supply_flow_kg_per_s, supply_resistance_pa_s_per_kg

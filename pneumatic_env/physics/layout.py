@@ -79,6 +79,8 @@ PARAMETER_NAMES = (
     "exhaust_volume_m3",  # the exhaust node's volume (0: quasi-static, the node holds no air)
     "lugre_stiffness_n_per_m",  # LuGre bristle stiffness sigma0; > 0 replaces Karnopp friction
     "lugre_damping_n_s_per_m",  # LuGre bristle damping sigma1 (used only with sigma0 > 0)
+    "tube_air_model",  # the tube air of tube_volume_fraction: 0 a polytropic dead volume,
+    # 1 an isothermal volume at the chamber's pressure
 )
 
 # The parameters a cylinder file (configs/cylinders/) defines: bore through leakage.
@@ -104,6 +106,7 @@ EFFECT_NEUTRAL_VALUES = {
     "exhaust_volume_m3": 0.0,
     "lugre_stiffness_n_per_m": 0.0,
     "lugre_damping_n_s_per_m": 0.0,
+    "tube_air_model": 0.0,
 }
 
 # Parameter rows: P_<NAME> is the row of ``name`` in PARAMETER_NAMES (written out so that
@@ -164,6 +167,7 @@ P_EXHAUST_VENT_AREA_M2 = 52
 P_EXHAUST_VOLUME_M3 = 53
 P_LUGRE_STIFFNESS_N_PER_M = 54
 P_LUGRE_DAMPING_N_S_PER_M = 55
+P_TUBE_AIR_MODEL = 56
 N_PARAMS = len(PARAMETER_NAMES)
 PARAMETER_INDEX = {name: row for row, name in enumerate(PARAMETER_NAMES)}  # name -> row
 
@@ -173,6 +177,7 @@ DISCRETE_PARAMETERS = {
     "piston_mode": {0: "fixed", 1: "free", 2: "spring"},
     "flow_law": {0: "paper", 1: "iso6358"},
     "tube_waves": {0: "off", 1: "transmission_line"},
+    "tube_air_model": {0: "dead_volume", 1: "isothermal"},
 }
 
 STATE_NAMES = (

@@ -19,6 +19,7 @@ from .effects import (
     coil_force_gain,
     lagged_coil_current,
     lagged_coil_force_current,
+    rate_with_isothermal_tube_air,
     stribeck_friction,
 )
 from .flow import FLOW_LAW_PAPER
@@ -173,6 +174,9 @@ def derivatives(
         )
         dt1 = 0.0
         dt2 = 0.0
+        if c.tube_air > 0.0:
+            dp1 = rate_with_isothermal_tube_air(dp1, v1, c.tube_air, c.alpha_in, c.alpha_out)
+            dp2 = rate_with_isothermal_tube_air(dp2, v2, c.tube_air, c.alpha_in, c.alpha_out)
     # piston_acceleration applies friction * direction (+-1 while moving)
     friction = lugre_friction_n * direction if c.lugre else _sliding_friction(c, velocity)
     accel, a_s = _motion_and_spool(
