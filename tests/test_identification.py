@@ -175,8 +175,9 @@ def test_leakage_diagnosis_is_stable_across_noise_seeds(leak_diagnoses, rig_dir)
 def test_ablation_refuses_a_candidate_whose_effect_does_not_carry_the_improvement(leak_diagnoses):
     """``diagnose._improvement_is_the_basin`` (the moving-piston acceptance rule) keeps a
     candidate whose effect, switched off at its fitted values, costs the held-out error
-    or the training fit, and refuses one whose effect is too weak to matter to either,
-    with a reason naming the errors."""
+    or the training fit (to above the current model's, the held-out error not falling),
+    and refuses one whose effect is too weak to matter to either, with a reason naming
+    the errors."""
     from dataclasses import replace
 
     from pneumatic_env.identification.calibrate import run_fit
@@ -216,6 +217,18 @@ def test_ablation_refuses_a_candidate_whose_effect_does_not_carry_the_improvemen
     blind = replace(score, heldout_mean=mean_off, per_recording_nrmse=per_off, notes=[])
     assert not _improvement_is_the_basin(blind, diag.base, 0.10, split, cfg)
     assert blind.accepted and "the base parameters need the effect" in blind.notes[0]
+    # ... but not when the effect raises the held-out error (switched off, it falls) ...
+    worse = {k: 1.2 * v for k, v in per_off.items()}
+    hurts = replace(score, heldout_mean=1.2 * mean_off, per_recording_nrmse=worse, reasons=[])
+    assert _improvement_is_the_basin(hurts, diag.base, 0.10, split, cfg)
+    assert not hurts.accepted and "the base needs the effect only if" in hurts.reasons[0]
+    # ... nor when the refit's base alone, the effect off, fits better than the current
+    # model (a current model whose training cost is above the one with the leak off)
+    cost_off, _, _ = simulated({**score.fit.values, "leakage_area_m2": 0.0})
+    worse_current = replace(diag.base, cost=1.5 * cost_off)
+    basin = replace(score, heldout_mean=mean_off, per_recording_nrmse=per_off, reasons=[])
+    assert _improvement_is_the_basin(basin, worse_current, 0.10, split, cfg)
+    assert not basin.accepted
 
 
 def test_sensor_lag_is_diagnosed(rig_dir):

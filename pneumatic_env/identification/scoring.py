@@ -185,13 +185,13 @@ def improvement_is_the_basin(
 ) -> bool:
     """True (and ``score`` refused) when the current model at the candidate's fitted values,
     the candidate's effect switched off, is within ``min_rel`` of the candidate's held-out
-    error and fits the training data about as well (its training cost exceeds the
-    candidate's by less than ``min_rel`` of the current model's): then the improvement
-    came from where the candidate's refit moved the base parameters (for a sliding piston,
-    which stick events it makes), not from the effect. When switching the effect off
-    costs the training fit, the base parameters are where they are because the effect
-    takes up its part of the data (an exhaust muffler that biased the calibrated discharge
-    coefficient), and the improvement is the effect's."""
+    error: then the improvement came from where the candidate's refit moved the base
+    parameters (for a sliding piston, which stick events it makes), not from the effect.
+    Unless the base parameters need the effect: switched off, the training cost rises by
+    at least ``min_rel`` of the current model's, to above the current model's, and the
+    held-out error does not fall. Then the base parameters are where they are because the
+    effect takes up its part of the data (an exhaust muffler that biased the calibrated
+    discharge coefficient), and the improvement is the effect's."""
     values = score.fit.all_values()
     fixed = {**current.fixed, **{p.name: values[p.name] for p in current.parameters}}
     problem = FitProblem(
@@ -223,7 +223,9 @@ def improvement_is_the_basin(
         f"with {score.name} switched off at its fitted values the held-out NRMSE is "
         f"{off_mean:.4g} (with it {score.heldout_mean:.4g}"
     )
-    if carried >= min_rel:
+    # the base needs the effect: without it, the refit's base parameters fit the training
+    # data worse than the current model does, and the effect does not raise the held-out error
+    if carried >= min_rel and off.cost > current.cost and off_mean >= score.heldout_mean:
         score.notes.append(
             f"{switched_off}), but the training cost rises "
             f"from {score.fit.cost:.4g} to {off.cost:.4g} ({100 * carried:.0f} % of the "
@@ -234,8 +236,10 @@ def improvement_is_the_basin(
     score.reasons.append(
         f"{switched_off}; {how}: {100 * rel:.1f} % better < "
         f"{100 * min_rel:.0f} %) and the training cost {off.cost:.4g} (with it "
-        f"{score.fit.cost:.4g}, the current model {current.cost:.4g}): the improvement is "
-        "where the refit moved the base parameters, not the effect"
+        f"{score.fit.cost:.4g}, the current model {current.cost:.4g}; the base needs the "
+        "effect only if this rises by the same share, to above the current model's, and "
+        "the held-out error does not fall): the improvement is where the refit moved the "
+        "base parameters, not the effect"
     )
     return True
 
