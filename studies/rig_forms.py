@@ -11,10 +11,11 @@ valve_null_leak      laminar clearance flow of a compressible gas in a narrow ga
                      mass flow proportional to p_up^2 - p_down^2, from the supply into
                      each chamber and from each chamber to the exhaust (an orifice area
                      added to every valve path, Eq. 39)
-tube_volume          each tube's air is a state of its own: an isothermal volume
-                     exchanging with its chamber through the tube's laminar
-                     (Hagen-Poiseuille) resistance, exact over each step (the tube's
-                     volume added to the chamber's dead volume, Eq. 15)
+tube_volume          each tube's air is a state of its own: a volume exchanging with
+                     its chamber through the tube's laminar (Hagen-Poiseuille)
+                     resistance, filled and emptied adiabatically and relaxing to the
+                     wall temperature with the bore's heat-diffusion time constant
+                     (isothermal tube air at the chamber's pressure, no resistance)
 iso_flow_law         ISO 6358-2 (2013) flow with the subsonic index m = 0.6, as a
                      correction of the valve's flow at the chamber nodes (ISO 6358-1's
                      ellipse, m = 0.5, inside the valve)
@@ -80,12 +81,16 @@ class _ClearanceLeak(PlantForm):
 
 
 class _TubeVolumes(PlantForm):
-    """``tube_volume``: per chamber, the tube's air (a fraction of its volume) as an
-    isothermal volume at its own pressure, exchanging with the chamber through the
-    tube's laminar resistance; the pressure difference decays exactly over each step
-    (linear conductance held), the exchanged mass is conserved."""
+    """``tube_volume``: per chamber, the tube's air (a fraction of its volume) as a volume
+    of its own, exchanging with the chamber through the tube's laminar resistance (the
+    pressure difference decays exactly over each step, linear conductance held, the
+    exchanged mass conserved). The air entering or leaving the tube does so adiabatically
+    (a volume of capacity V_t / (k R T)); between exchanges it trades heat with the wall,
+    its pressure relaxing to the isothermal pressure of its mass with the radial
+    heat-diffusion time constant of the bore: adiabatic in fast transients, isothermal in
+    slow ones."""
 
-    def __init__(self, true: dict, fraction: float):
+    def __init__(self, true: dict, fraction: float, thermal_time_constant_s: float):
         super().__init__(true)
         d, length = true["tube_inner_diameter_m"], true["tube_length_m"]
         self.tube_volume = fraction * 0.25 * math.pi * d * d * length
@@ -93,24 +98,29 @@ class _TubeVolumes(PlantForm):
         self.conductance_per_pa = (
             math.pi * d**4 / (128.0 * true["air_viscosity_pa_s"] * length * self.gas_rt)
         )
+        self.thermal_time_constant_s = thermal_time_constant_s
         pa = true["ambient_pressure_pa"]
         self.tube_pa = [pa, pa]
+        self.tube_kg = [pa * self.tube_volume / self.gas_rt] * 2
 
     def before_step(self, sim, plant_step, h_s):
         if self.tube_volume <= 0.0:
             return
         t, state = self.true, sim.state
+        c_tube = self.tube_volume / (t["heat_capacity_ratio"] * self.gas_rt)  # adiabatic
+        relax = math.exp(-h_s / self.thermal_time_constant_s)
         for k, (row, volume) in enumerate(zip((L.S_P1, L.S_P2), self.volumes(state))):
             p_c, p_t = state[row, 0], self.tube_pa[k]
             g = self.conductance_per_pa * 0.5 * (p_c + p_t)  # kg/s per Pa
             alpha = t["alpha_out"] if p_c > p_t else t["alpha_in"]
             c_chamber = volume / (alpha * self.gas_rt)  # kg per Pa
-            c_tube = self.tube_volume / self.gas_rt
             inv = 1.0 / c_chamber + 1.0 / c_tube
             dp = p_c - p_t
             mass = dp * (1.0 - math.exp(-g * inv * h_s)) / inv  # chamber -> tube
             state[row, 0] = p_c - mass / c_chamber
-            self.tube_pa[k] = p_t + mass / c_tube
+            self.tube_kg[k] += mass
+            isothermal = self.tube_kg[k] * self.gas_rt / self.tube_volume
+            self.tube_pa[k] = isothermal + (p_t + mass / c_tube - isothermal) * relax
 
 
 class _ValveFlowCorrection(PlantForm):
@@ -192,13 +202,16 @@ class _LorentzStribeck(PlantForm):
         sim.set_parameter("load_force_n", 0, self.true["load_force_n"] + extra)
 
 
-def own_form(effect: str, value: float, true: dict) -> PlantForm:
+def own_form(
+    effect: str, value: float, true: dict, tube_thermal_time_constant_s: float
+) -> PlantForm:
     """The rig's form of ``effect`` at the kernel-parameter ``value`` it stands for; the
-    caller leaves the kernel's own parameter neutral in ``true``."""
+    caller leaves the kernel's own parameter neutral in ``true``. The tube air's thermal
+    time constant is ``virtual_rig.tube_air_thermal_time_constant_s``."""
     if effect == "valve_null_leak":
         return _ClearanceLeak(true, value)
     if effect == "tube_volume":
-        return _TubeVolumes(true, value)
+        return _TubeVolumes(true, value, tube_thermal_time_constant_s)
     if effect == "iso_flow_law":
         return _ValveFlowCorrection(true, "iso", value)
     if effect == "exhaust_discharge":

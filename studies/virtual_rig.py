@@ -313,7 +313,12 @@ def run_rig(
         form = _plant_form(effect, s, ref, true, truth_parameters, cfg, piston)
     if own:
         truth_parameters.update(own_truth)
-        form = own_form(effect, own_truth[KERNEL_EFFECTS[effect][0]], true)
+        form = own_form(
+            effect,
+            own_truth[KERNEL_EFFECTS[effect][0]],
+            true,
+            cfg.number("virtual_rig", "tube_air_thermal_time_constant_s", positive=True),
+        )
     # a stiff form acts before every plant substep (the kernel steps one substep at a time)
     steps_per_plant_step = plant_substeps if form is not None and form.every_substep else 1
     sim = BatchSimulator(
