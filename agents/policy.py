@@ -31,6 +31,12 @@ _ACTIVATIONS = {
 }
 
 
+def _activation_name(module) -> str | None:
+    """The activation a module computes: its class or the first base class we export
+    (e.g. a faster ``nn.Tanh`` subclass is a Tanh)."""
+    return next((c.__name__ for c in type(module).__mro__ if c.__name__ in _ACTIVATIONS), None)
+
+
 def _layers(modules) -> list[tuple[np.ndarray, np.ndarray, str]]:
     """(W, b, activation after it) for a sequence of torch Linear/activation modules."""
     import torch.nn as nn
@@ -45,10 +51,10 @@ def _layers(modules) -> list[tuple[np.ndarray, np.ndarray, str]]:
                     "Identity",
                 ]
             )
-        elif type(m).__name__ in _ACTIVATIONS:
+        elif (act := _activation_name(m)) is not None:
             if not layers:
-                raise ValueError(f"activation {type(m).__name__} before any Linear layer")
-            layers[-1][2] = type(m).__name__
+                raise ValueError(f"activation {act} before any Linear layer")
+            layers[-1][2] = act
         elif isinstance(m, (nn.Flatten, nn.Sequential)) and not list(m.children()):
             continue
         else:

