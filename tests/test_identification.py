@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -743,7 +744,8 @@ def test_bad_static_friction_restarts_are_refused_with_the_field_and_value(tmp_p
     text = Path(load_config().path).read_text(encoding="utf-8")
     bad = tmp_path / "identification.yaml"
     bad.write_text(
-        text.replace("value: [0.8, 0.85, 0.92, 1.08]", "value: [0.9, -1.0]"), encoding="utf-8"
+        re.sub(r"(static_friction_restarts:\n    value: )\[[^\]]*\]", r"\g<1>[0.9, -1.0]", text),
+        encoding="utf-8",
     )
     with pytest.raises(
         ConfigError,

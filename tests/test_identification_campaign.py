@@ -85,7 +85,10 @@ def test_moving_rod_base_fit_converges_monotonically(campaign_dir, seed):
     """Spring and free rods (stick-slip friction): every accepted point of the base fit
     lowers the robust cost, the number of Jacobians is bounded, the fit states why it
     stopped, and it ends far below its start (the stick-event staircase does not stall
-    it: at least a 5x lower cost, fixed before the run from the clamped fits' 10-100x)."""
+    it: at least a 5x lower cost, fixed before the run from the clamped fits' 10-100x),
+    in the rig's stick-event basin: the static friction within 10 % of the rig's (a claim
+    added with the wider friction search, fixed before its run; the narrow search ended
+    16 % low on a clean seed-2 campaign)."""
     campaign = (
         Experiment("spring", "spring", "prbs", 1.0),
         Experiment("free", "free", "multisine", 1.0),
@@ -104,6 +107,12 @@ def test_moving_rod_base_fit_converges_monotonically(campaign_dir, seed):
     assert res.message and res.message != "nothing to fit"
     assert history[-1] < history[0] / 5.0
     assert {"static_friction_n", "dynamic_friction_n"} <= set(res.values)
+    truth = json.loads(paths[0].with_suffix(".truth.json").read_text(encoding="utf-8"))
+    rig_static_n = truth["parameters"]["static_friction_n"]
+    assert abs(res.values["static_friction_n"] / rig_static_n - 1.0) < 0.10, (
+        res.values["static_friction_n"],
+        rig_static_n,
+    )
 
 
 # --------------------------------------------------------------------------- hold-out
