@@ -12,7 +12,8 @@ histories, the error integral and the classical controller inside, so it runs th
 the :class:`~pneumatic_env.agents.base.Controller` interface like the classical ones.
 
 Shipped policies live in ``agents/policies/<name>-<variant>.npz`` (``<variant>`` as in the
-controller configs, e.g. ``numatics-2m``) and run by name:
+controller configs, e.g. ``numatics-2m``; ``all`` for a generalist that runs on every
+variant) and run by name:
 ``pneumatic-env bench --controller <name> --variants <variant>``.
 
     python -m pneumatic_env.agents.learned convert runs/res-c-s0/actor_best.npz OUT.npz
@@ -36,7 +37,8 @@ from pneumatic_env.envs.features import (
 from pneumatic_env.envs.tasks import TASKS
 from pneumatic_env.ids import parse_env_id
 
-from .base import Controller, ControllerContext
+from .base import Controller, ControllerContext, valve_currents
+from .generalist import PARAM_PREFIX, param_values
 from .policy import NumpyPolicy
 from .residual import RESIDUAL_COLUMNS, ResidualConfig, ResidualCore, make_base_controller
 
@@ -44,6 +46,7 @@ __all__ = [
     "FORMAT",
     "LearnedActor",
     "LearnedController",
+    "pure_current",
     "is_learned",
     "learned_spec",
     "validate_actor",
@@ -54,6 +57,22 @@ __all__ = [
 ]
 
 FORMAT = "pneumatic_env-learned-v1"
+
+
+def pure_current(action, action_scale_a: float, deadband_a, smoothing: float, i_max_a: float):
+    """A pure policy's coil current (A) for actions in [-1, 1]:
+    ``clip(action_scale_a a + deadband_a tanh(a / smoothing), -i_max, i_max)``.
+
+    The tanh term (on when ``smoothing > 0``) steps over the valve's dead band
+    (``deadband_a``, the current where the supply path opens, Eqs. 43-46;
+    ``agents.base.valve_currents``) within a few hundredths of the action, so a small
+    action moves air and zero holds it; without it a smooth policy rests inside the dead
+    band, where the chambers are sealed and a force error stays (measured: a -3.6 % offset
+    on Numatics-0.5m). An actuator map from the nominal valve, not a controller."""
+    u = action_scale_a * np.asarray(action, dtype=np.float64)
+    if smoothing > 0:
+        u = u + deadband_a * np.tanh(np.asarray(action) / smoothing)
+    return np.clip(u, -i_max_a, i_max_a)
 
 
 def is_learned(path: str | Path) -> bool:
@@ -133,6 +152,10 @@ class LearnedController(Controller):
         )
         columns = observation_columns(context.preview_steps, self.features_config)
         columns += list(RESIDUAL_COLUMNS) if rc is not None else []
+        # a generalist's plant columns (agents.generalist): nominal parameters it may know
+        plant = [c for c in actor.meta["inputs"] if c.startswith(PARAM_PREFIX)]
+        self.plant_values = param_values(context.base_params, plant).astype(np.float32)
+        columns += plant
         missing = [c for c in actor.meta["inputs"] if c not in columns]
         if missing:
             raise ValueError(
@@ -141,6 +164,8 @@ class LearnedController(Controller):
             )
         self.index = np.array([columns.index(c) for c in actor.meta["inputs"]])
         self.action_scale_a = float(actor.meta["action_scale_a"])
+        self.deadband_smoothing = float(actor.meta.get("deadband_smoothing") or 0.0)
+        self.deadband_a = valve_currents(context.base_params)[0]
         self.tracked = TASKS[parse_env_id(actor.meta["env_id"]).task].tracked  # "f" or "x"
 
     def _allocate(self, n):
@@ -184,6 +209,7 @@ class LearnedController(Controller):
         parts.append(self.features.values)
         if self.residual is not None:
             parts.append(self.residual.observe(obs_si))
+        parts.append(np.broadcast_to(self.plant_values, (obs_si.shape[0], self.plant_values.size)))
         return np.concatenate(parts, axis=1)
 
     def _act(self, obs):
@@ -194,7 +220,9 @@ class LearnedController(Controller):
             self.residual.applied(u)
         else:
             i_max = self.context.i_max_a
-            u = np.clip(self.action_scale_a * a, -i_max, i_max)
+            u = pure_current(
+                a, self.action_scale_a, self.deadband_a, self.deadband_smoothing, i_max
+            )
         self.last_current = u
         return u
 
@@ -270,6 +298,8 @@ def shipped_policy_path(name: str, variant: str) -> Path:
             f"{sorted(shipped_policies())}"
         )
     key = variant.lower()
+    if key not in available and "all" in available:  # a generalist: one actor for all
+        key = "all"
     if key not in available:
         raise ValueError(
             f"controller = {name!r} has no actor for variant = {variant!r}: "

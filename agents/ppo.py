@@ -36,8 +36,10 @@ import numpy as np
 import torch
 import torch.nn as nn
 
+from .base import valve_currents
 from .config import ConfigError, agent_config_path, load_agent_config
-from .learned import FORMAT, validate_actor
+from .generalist import MixtureVectorEnv
+from .learned import FORMAT, pure_current, validate_actor
 from .policy import _layers
 from .residual import RESIDUAL_COLUMNS, ResidualVectorWrapper, env_variant
 
@@ -99,6 +101,14 @@ def load_config(config: str | Path | dict, overrides: dict | None = None) -> dic
     for key in ("env_kwargs", "policy_inputs", "reward", "hyperparameters", "training"):
         if key not in cfg:
             raise ConfigError(f"ppo_fast config is missing {key!r}")
+    variants = cfg.get("variants")
+    if variants is not None:
+        ids = list(gym.registry)
+        if not isinstance(variants, list) or len(variants) < 2:
+            raise ConfigError(f"variants = {variants!r} is not allowed: a list of >= 2 env ids")
+        for v in variants:
+            if v not in ids:
+                raise ConfigError(f"variants: {v!r} is not a registered env id")
     return cfg
 
 
@@ -124,11 +134,24 @@ def select_columns(columns: list[str], patterns: list[str]) -> list[str]:
     return out
 
 
-def make_training_env(cfg: dict, env_id: str, seed: int = 0) -> gym.vector.VectorEnv:
-    """The vector env of a config: features, training references, residual wrapper."""
+def make_training_env(cfg: dict, env_id: str, seed: int = 0, num_envs: int | None = None):
+    """The vector env of a config: features, training references, residual wrapper; with
+    ``variants`` (a generalist) an ``agents.generalist.MixtureVectorEnv`` of one such env
+    per variant id, ``num_envs`` split evenly, plant columns ``plant_inputs``."""
     from .bench import scale_spec
 
     hp, tr = cfg["hyperparameters"], cfg["training"]
+    n_envs = int(hp["num_envs"]) if num_envs is None else int(num_envs)
+    variants = cfg.get("variants")
+    if variants:
+        if n_envs % len(variants):
+            raise ConfigError(
+                f"num_envs = {n_envs} is not allowed with {len(variants)} variants: "
+                "must be a multiple of their number"
+            )
+        single = {k: v for k, v in cfg.items() if k != "variants"}
+        envs = [make_training_env(single, v, seed, n_envs // len(variants)) for v in variants]
+        return MixtureVectorEnv(envs, cfg.get("plant_inputs", ("tube_length_m", "bore_diameter_m")))
     episode = int(tr["episode_steps"])
     kwargs = dict(cfg["env_kwargs"])
     ref, _ = references(cfg)
@@ -138,7 +161,7 @@ def make_training_env(cfg: dict, env_id: str, seed: int = 0) -> gym.vector.Vecto
         probe.close()
     env = gym.make_vec(
         env_id,
-        num_envs=int(hp["num_envs"]),
+        num_envs=n_envs,
         max_episode_steps=episode,
         reference_steps=max(episode, 2000),
         **kwargs,
@@ -259,6 +282,8 @@ def export_actor(
         "normalize_observation": bool(env_options["normalize_observation"]),
         "residual": dict(cfg["residual"]) if cfg["mode"] == "residual" else None,
         "action_scale_a": _action_scale(cfg),
+        "deadband_smoothing": _deadband_smoothing(cfg),
+        "variants": cfg.get("variants"),  # a generalist's training variants (else None)
     }
     arrays = {}
     for i, (w, b, _) in enumerate(layers):
@@ -278,19 +303,37 @@ def _action_scale(cfg: dict) -> float:
     return float((cfg.get("pure") or {}).get("action_scale_a", 1.3))
 
 
+def _deadband_smoothing(cfg: dict) -> float:
+    """Pure mode: the action width of the dead-band step (``learned.pure_current``; 0: off)."""
+    return float((cfg.get("pure") or {}).get("deadband_smoothing", 0.0))
+
+
+def _row_deadband_a(env) -> np.ndarray | float:
+    """The valve's dead-band current of each env row (a mixture's variants differ)."""
+    top = env.unwrapped
+    if isinstance(top, MixtureVectorEnv):
+        return np.concatenate(
+            [np.full(e.num_envs, valve_currents(e.unwrapped.base_params)[0]) for e in top.envs]
+        )
+    return valve_currents(top.base_params)[0]
+
+
 # --------------------------------------------------------------------------- training
 
 
 def _env_only_rate(env, n_steps: int = 30) -> float:
     """Env steps/s of the bare vector env of ``env`` (same options), zero current."""
-    raw = env.unwrapped
-    raw.reset(seed=0)
-    action = np.zeros((raw.num_envs, 1))
-    raw.step(action)  # warm: the first call loads the jitted step
+    top = env.unwrapped
+    raws = [e.unwrapped for e in (top.envs if isinstance(top, MixtureVectorEnv) else [env])]
+    actions = [np.zeros((raw.num_envs, 1)) for raw in raws]
+    for raw, action in zip(raws, actions):
+        raw.reset(seed=0)
+        raw.step(action)  # warm: the first call loads the jitted step
     t0 = time.perf_counter()
     for _ in range(n_steps):
-        raw.step(action)
-    return raw.num_envs * n_steps / (time.perf_counter() - t0)
+        for raw, action in zip(raws, actions):
+            raw.step(action)
+    return sum(raw.num_envs for raw in raws) * n_steps / (time.perf_counter() - t0)
 
 
 PROGRESS_COLUMNS = (
@@ -341,11 +384,15 @@ def train(
     residual = cfg["mode"] == "residual"
     env = make_training_env(cfg, env_id, seed)
     raw = env.unwrapped
-    columns = raw.observation_columns + (list(RESIDUAL_COLUMNS) if residual else [])
+    columns = getattr(raw, "columns", None) or (
+        raw.observation_columns + (list(RESIDUAL_COLUMNS) if residual else [])
+    )
     inputs = select_columns(columns, cfg["policy_inputs"])
     index = np.array([columns.index(c) for c in inputs])
     _, validation = references(cfg)
-    variant = env_variant(env)
+    variants = tr.get("validation_variants") or (
+        raw.variants if isinstance(raw, MixtureVectorEnv) else [env_variant(env)]
+    )
     N, T, D = int(hp["num_envs"]), int(hp["rollout_steps"]), len(inputs)
     scale, i_max = raw.reference_scale, raw.coil_current_max_a
     env_only = _env_only_rate(env)
@@ -391,7 +438,8 @@ def train(
         float(rw["chatter_unit_a"]),
         float(rw["effort_unit_a"]),
     )
-    action_scale = _action_scale(cfg)
+    action_scale, smoothing = _action_scale(cfg), _deadband_smoothing(cfg)
+    deadband = _row_deadband_a(env)
     base = getattr(env, "residual", None)
     t_env = t_upd = 0.0
     base_t0 = base.base_time_s if base else 0.0
@@ -425,7 +473,11 @@ def train(
                     logp, v = d.log_prob(a).sum(-1), agent.value(xt)
                 a_np = a.numpy()[:, 0].astype(np.float64)
                 a_clip = np.clip(a_np, -1.0, 1.0)
-                act = a_clip if residual else np.clip(action_scale * a_clip, -i_max, i_max)
+                act = (
+                    a_clip
+                    if residual
+                    else pure_current(a_clip, action_scale, deadband, smoothing, i_max)
+                )
                 t0 = time.perf_counter()
                 obs, _, _, trunc, info = env.step(act[:, None])
                 t_env += time.perf_counter() - t0
@@ -527,7 +579,11 @@ def train(
                 path = export_actor(
                     agent, obs_rms, cfg, env_id, inputs, out / "actor_tmp.npz", out.name
                 )
-                val = validate_actor(path, variant, validation, int(tr["validation_steps"]))
+                vals = [
+                    validate_actor(path, v, validation, int(tr["validation_steps"]))
+                    for v in variants
+                ]
+                val = {k: float(np.mean([v[k] for v in vals])) for k in vals[0]}
                 row.update({k: round(v, 5) for k, v in val.items()})
                 record = {
                     "wall_s": w,
