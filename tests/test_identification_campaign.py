@@ -22,8 +22,9 @@ from pneumatic_env.identification.calibrate import Dataset, calibrate
 from pneumatic_env.identification.candidates import candidate_table
 from pneumatic_env.identification.checks import read_checked
 from pneumatic_env.identification.config import load_config
-from pneumatic_env.identification.diagnose import _second_effect_support, diagnose
+from pneumatic_env.identification.diagnose import diagnose
 from pneumatic_env.identification.holdout import Holdout
+from pneumatic_env.identification.later_effects import second_effect_support
 from pneumatic_env.identification.report import write_report
 from pneumatic_env.identification.scoring import CandidateScore
 from pneumatic_env.studies.rig_campaign import CAMPAIGNS, Experiment, make_campaign
@@ -178,7 +179,7 @@ def _score(per: dict) -> CandidateScore:
 )
 def test_a_second_effect_needs_support_on_data_the_first_did_not_explain(per, accepted, reason):
     sc = _score(per)
-    _second_effect_support(sc, 0.10)
+    second_effect_support(sc, 0.10)
     assert sc.accepted is accepted
     if reason:
         assert any(reason in r for r in sc.reasons), sc.reasons

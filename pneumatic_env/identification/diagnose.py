@@ -17,7 +17,8 @@
    and its parameters are plausible and identified (confidence interval narrower than
    the plausible range and excluding the neutral value). A second or later effect must
    also be supported on held-out data the effects before it did not explain: it must
-   lower the error of at least one held-out recording by the threshold and raise none.
+   lower the error of at least one held-out recording by the threshold and raise none,
+   and beat the effects before it refitted per experiment type (:mod:`.later_effects`).
    Select greedily (the accepted best joins the model, the rest are screened again),
    report the winner, the runner-up, or "none", and each selected effect's margins.
 5. Suggest an experiment that separates the winner from a close runner-up.
@@ -53,6 +54,7 @@ from .candidates import (
 )
 from .config import IdentificationConfig, load_config
 from .holdout import Holdout
+from .later_effects import fit_freer_form, freer_form_check, second_effect_support
 from .problem import FitProblem
 from .residuals import PHASES, dead_band_current, phase_masks, residual_analysis
 from .scoring import (
@@ -111,6 +113,7 @@ class Diagnosis:
     confidence: list = field(default_factory=list)  # per selected effect (see diagnose)
     per_recording: dict = field(default_factory=dict)  # held-out NRMSE before/after per recording
     quick: bool = False  # screening only, nothing refitted
+    freer_forms: list = field(default_factory=list)  # per later round (.later_effects)
     timings: dict = field(default_factory=dict)  # seconds per stage
 
     def ranked(self) -> list[CandidateScore]:
@@ -140,6 +143,7 @@ class Diagnosis:
             "confidence": self.confidence,
             "per_recording": self.per_recording,
             "screening": self.screening,
+            "freer_forms": self.freer_forms,
             "quick": self.quick,
             "timings_s": self.timings,
             "note": "NRMSE = RMSE / channel scale (supply - ambient for pressures, that times the "
@@ -280,7 +284,8 @@ def diagnose(
     current_per = {k: mean_nrmse(v) for k, v in base_per.items()}
     selected: list[Candidate] = []
     scores: list[CandidateScore] = []
-    screening, confidence = [], []
+    screening, confidence, freer_forms = [], [], []
+    over_freer: dict[str, float] = {}
     for rnd in range(1, max_effects + 1):
         eligible = [c for c in pool if c not in selected and not conflicts(c, selected)]
         if not eligible:
@@ -371,13 +376,27 @@ def diagnose(
             accepted = [s for s in accepted if s.accepted]
         if rnd > 1:  # supported on held-out data the effects before did not explain
             for sc in accepted:
-                _second_effect_support(sc, min_rel)
+                second_effect_support(sc, min_rel)
             accepted = [s for s in accepted if s.accepted]
+            if accepted:  # ... and not the effects before in a freer form (.later_effects)
+                t_freer = time.monotonic()
+                what = f"refitting the selected effects per experiment (round {rnd})"
+                progress.stage(what, refit_work)
+                freer = fit_freer_form(selected, current, refit, split, nfev, cfg)
+                timings[f"freer_form_round_{rnd}"] = time.monotonic() - t_freer
+                if freer is not None:
+                    freer_forms.append({"round": rnd, **freer.to_dict()})
+                    for sc in accepted:
+                        over_freer[sc.name] = freer_form_check(
+                            sc, freer, current_per, min_rel, split, cfg
+                        )
+                    accepted = [s for s in accepted if s.accepted]
         if not accepted:
             break
         best = accepted[0]
         selected.append(best.candidate)
         confidence.append(_confidence(best, round_scores, min_rel, split.acted_on(best.candidate)))
+        confidence[-1]["margin_over_freer_form"] = over_freer.get(best.name)
         # Re-converge base + selected effects with the full budget, so the next round
         # compares against a converged model (not against a refit stopped by its budget).
         free = unique(
@@ -481,34 +500,11 @@ def diagnose(
         predictions=predictions,
         screening=screening,
         confidence=confidence,
+        freer_forms=freer_forms,
         per_recording=per_recording,
         quick=quick,
         timings=timings,
     )
-
-
-def _second_effect_support(sc: CandidateScore, min_rel: float) -> None:
-    """Refuse a later-round effect (``sc.accepted`` False, with the reason) unless it lowers
-    the held-out error of at least one held-out recording by ``min_rel`` over the model
-    with the effects before it, and raises none of them."""
-    per = {k: v for k, v in sc.per_recording.items() if math.isfinite(v)}
-    supported = [k for k, v in per.items() if v >= min_rel]
-    worse = [k for k, v in per.items() if v < 0]
-    if supported and not worse:
-        return
-    sc.accepted = False
-    if not supported:
-        sc.reasons.append(
-            f"no held-out recording is {100 * min_rel:.0f} % better with it than "
-            "with the effects already selected ("
-            + ", ".join(f"{k} {100 * v:+.1f} %" for k, v in per.items())
-            + ")"
-        )
-    if worse:
-        sc.reasons.append(
-            "held-out recording(s) worse with it: "
-            + ", ".join(f"{k} {100 * per[k]:+.1f} %" for k in worse)
-        )
 
 
 def _confidence(

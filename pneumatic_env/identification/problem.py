@@ -119,7 +119,7 @@ class FitProblem:
         if len(set(names)) != len(names):
             raise ValueError(f"free parameters repeat a name: {names}")
         for p in self.free:
-            if p.kind == "plant" and p.name not in _ROW:
+            if p.kind == "plant" and kernel_name(p.name) not in _ROW:
                 raise ConfigError(f"{p.name!r} is not a kernel parameter")
         self.fixed = dict(fixed or {})
         for key, v in self.fixed.items():
