@@ -18,13 +18,26 @@ import numpy as np
 import pytest
 
 from pneumatic_env.identification import progress
-from pneumatic_env.identification.calibrate import Dataset, calibrate
+from pneumatic_env.identification.calibrate import (
+    Dataset,
+    base_fit_parameters,
+    calibrate,
+    prepare_datasets,
+    run_fit,
+)
 from pneumatic_env.identification.candidates import candidate_table
 from pneumatic_env.identification.checks import read_checked
 from pneumatic_env.identification.config import load_config
 from pneumatic_env.identification.diagnose import diagnose
 from pneumatic_env.identification.holdout import Holdout
-from pneumatic_env.identification.later_effects import second_effect_support
+from pneumatic_env.identification.later_effects import (
+    FreerForm,
+    fit_freer_form,
+    freer_form_check,
+    per_mode_parameters,
+    second_effect_support,
+)
+from pneumatic_env.identification.problem import FitProblem
 from pneumatic_env.identification.report import write_report
 from pneumatic_env.identification.scoring import CandidateScore
 from pneumatic_env.studies.rig_campaign import CAMPAIGNS, Experiment, make_campaign
@@ -170,19 +183,95 @@ def _score(per: dict) -> CandidateScore:
 
 
 @pytest.mark.parametrize(
-    "per, accepted, reason",
+    "per, acts_on, accepted, reason",
     [
-        ({"c3": 0.25, "s1": 0.02}, True, None),
-        ({"c3": 0.06, "s1": 0.05}, False, "no held-out recording is 10 % better"),
-        ({"c3": 0.30, "s1": -0.04}, False, "held-out recording(s) worse with it: s1 -4.0 %"),
+        ({"c3": 0.25, "s1": 0.12}, {"c3", "s1"}, True, None),
+        ({"c3": 0.25, "s1": 0.02}, {"c3", "s1"}, False, "not 10 % better on every held-out"),
+        ({"c3": 0.30, "s1": -0.04}, {"c3", "s1"}, False, "worse with it: s1 -4.0 %"),
+        # a friction law: judged where the rod moves (s1), the clamped c3 may stay as it was
+        ({"c3": 0.01, "s1": 0.2}, {"s1"}, True, None),
+        ({"c3": 0.25, "s1": 0.05}, {"s1"}, False, "not 10 % better on every held-out"),
     ],
 )
-def test_a_second_effect_needs_support_on_data_the_first_did_not_explain(per, accepted, reason):
+def test_a_second_effect_needs_support_on_every_recording_it_acts_on(
+    per, acts_on, accepted, reason
+):
     sc = _score(per)
-    second_effect_support(sc, 0.10)
+    second_effect_support(sc, 0.10, acts_on)
     assert sc.accepted is accepted
     if reason:
         assert any(reason in r for r in sc.reasons), sc.reasons
+
+
+def test_the_freer_form_frees_each_effect_per_rod_mode_it_acts_in():
+    """Per-mode copies of a selected effect's plant parameters: every rod mode for a
+    plant effect, the moving ones for a friction law, none for a sensor effect or an
+    effect that acts in one mode only (a load cell's compliance: clamped rods)."""
+    table = candidate_table()
+    modes = ["fixed", "free", "spring"]
+    names = [p.name for p in per_mode_parameters([table["heat_transfer"]], modes)]
+    (param,) = table["heat_transfer"].parameter_names
+    assert names == [f"{param}@{m}" for m in modes]
+    lugre = [p.name for p in per_mode_parameters([table["lugre"]], modes)]
+    assert lugre and all(n.endswith(("@free", "@spring")) for n in lugre)
+    assert len(lugre) == 2 * len(table["lugre"].parameters)
+    for name in ("pressure_sensor_offset", "load_cell_compliance"):
+        assert per_mode_parameters([table[name]], modes) == []
+    assert per_mode_parameters([table["heat_transfer"]], ["fixed"]) == []
+
+
+@pytest.mark.parametrize(
+    "freer, accepted, reason",
+    [
+        # the freer form explains little: the second effect is 15-20 % better than it
+        ({"c3": 0.0095, "s1": 0.0098, "f1": 0.0099}, True, None),
+        # the freer form explains as much as the second effect on one experiment type
+        ({"c3": 0.0095, "s1": 0.0079, "f1": 0.0099}, False, "per experiment type"),
+        # a freer form that extrapolates worse than the current model sets no bar
+        ({"c3": 0.02, "s1": 0.03, "f1": 0.04}, True, None),
+    ],
+)
+def test_a_second_effect_must_beat_the_first_refitted_per_experiment(freer, accepted, reason):
+    """The current model's held-out NRMSE is 0.01 on each recording, the second effect's
+    0.008 (20 % better, past the 10 % threshold): it stays only when it is also 10 %
+    better than the freer form of the first effect on every recording, each against the
+    lower of the freer form's and the current model's error."""
+    sc = _score({"c3": 0.2, "s1": 0.2, "f1": 0.2})
+    sc.per_recording_nrmse = {"c3": 0.008, "s1": 0.008, "f1": 0.008}
+    current = {"c3": 0.01, "s1": 0.01, "f1": 0.01}
+    form = FreerForm(fit=None, per_recording_nrmse=freer, parameters=[])
+    margin = freer_form_check(sc, form, current, 0.10, {"c3", "s1", "f1"})
+    assert sc.accepted is accepted
+    assert (margin >= 0.10) is accepted
+    if reason:
+        assert any(reason in r for r in sc.reasons), sc.reasons
+    else:
+        assert any("beats the freer form" in n for n in sc.notes), sc.notes
+
+
+@pytest.mark.slow
+def test_the_freer_form_nests_the_current_model(campaign_dir):
+    """Fitted from the current model's values, the freer form (the selected effect per
+    rod mode) reaches a training cost no higher than the current model's over two rig
+    seeds, and its per-mode values differ from each other (they are fitted, not copied)."""
+    cfg = load_config()
+    cand = candidate_table(cfg)["heat_transfer"]
+    for seed in (1, 2):
+        paths = _campaign(campaign_dir, "heat_transfer", seed)
+        datasets, _ = prepare_datasets([read_checked(p) for p in paths], None, cfg)
+        split = Holdout(datasets, "auto", cfg)
+        refit = base_fit_parameters(datasets, ["discharge_coefficient"], cfg)
+        free = refit + list(cand.parameters)
+        problem = FitProblem(split.train, free, n_samples=split.train_n, config=cfg)
+        current = run_fit(problem, tolerance=1e-3)
+        form = fit_freer_form([cand], current, refit, split, 20, cfg)
+        assert form is not None
+        assert form.fit.cost <= current.cost * (1 + 1e-9), seed
+        values = [form.fit.values[n] for n in form.parameters]
+        assert len(values) == len({ds.rod_mode for ds in split.train}) >= 2
+        assert len(set(values)) == len(values), values
+        assert set(form.per_recording_nrmse) == {ds.name for ds in split.held}
+        assert all(math.isfinite(v) and v > 0 for v in form.per_recording_nrmse.values())
 
 
 def test_a_refit_that_falls_short_of_the_screening_is_repeated_from_its_step():

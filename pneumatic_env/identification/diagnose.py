@@ -376,7 +376,7 @@ def diagnose(
             accepted = [s for s in accepted if s.accepted]
         if rnd > 1:  # supported on held-out data the effects before did not explain
             for sc in accepted:
-                second_effect_support(sc, min_rel)
+                second_effect_support(sc, min_rel, split.acted_on(sc.candidate))
             accepted = [s for s in accepted if s.accepted]
             if accepted:  # ... and not the effects before in a freer form (.later_effects)
                 t_freer = time.monotonic()
@@ -388,7 +388,7 @@ def diagnose(
                     freer_forms.append({"round": rnd, **freer.to_dict()})
                     for sc in accepted:
                         over_freer[sc.name] = freer_form_check(
-                            sc, freer, current_per, min_rel, split, cfg
+                            sc, freer, current_per, min_rel, split.acted_on(sc.candidate)
                         )
                     accepted = [s for s in accepted if s.accepted]
         if not accepted:

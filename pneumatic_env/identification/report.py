@@ -284,16 +284,17 @@ def _confidence_lines(data: dict) -> list[str]:
         "## How sure",
         "",
         "| effect | held-out improvement (over the model before it) | runner-up | margin "
-        "over the runner-up | delta BIC | supported by (held out) | holds on every held-out "
-        "recording |",
-        "|---|---|---|---|---|---|---|",
+        "over the runner-up | margin over the effects before it per experiment type | "
+        "delta BIC | supported by (held out) | holds on every held-out recording |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for c in data["confidence"]:
         lines.append(
             f"| {c['effect']} | {_pct(c['margin_over_none'])} | "
             f"{c['runner_up'] or '-'} ({_pct(c['runner_up_improvement'])}"
             f"{'' if c['runner_up_refitted'] in (True, None) else ', screened'}) | "
-            f"{_pct(c['margin_over_runner_up'])} | {_fmt(c['delta_ic'], 3)} | "
+            f"{_pct(c['margin_over_runner_up'])} | {_pct(c.get('margin_over_freer_form'))} | "
+            f"{_fmt(c['delta_ic'], 3)} | "
             f"{', '.join(c['supported_by']) or '-'} | "
             f"{_holds(c)} |"
         )

@@ -151,6 +151,7 @@ class CandidateScore:
             "restarted_from_screening_step": self.restarted,
             "notes": self.notes,
             "heldout_improvement_per_recording": dict(self.per_recording),
+            "heldout_nrmse_per_recording": dict(self.per_recording_nrmse),
             "screening": self.screening,
         }
 
