@@ -91,7 +91,7 @@ def per_mode_parameters(selected: Sequence[Candidate], modes: Sequence[str]) -> 
     """A copy ``name@mode`` of each selected plant effect's parameter for every rod mode
     in ``modes`` it acts in (its ``rod_modes``; a friction law not on a clamped rod);
     none where it acts in fewer than two of them (no freer form to fit)."""
-    out = []
+    out: list[FitParameter] = []
     for cand in selected:
         if cand.kind != "plant":
             continue
@@ -127,8 +127,10 @@ def fit_freer_form(
     shared = [p for c in selected for p in c.refit_base]
     free = unique(list(refit) + shared + copies)
     fixed = {k: v for k, v in values.items() if k not in {p.name for p in free}}
-    start = {p.name: values[p.name] for p in unique(list(refit) + shared) if p.name in values}
-    start.update((p.name, values[p.name.partition("@")[0]]) for p in copies)
+    start = {
+        p.name: float(values[p.name]) for p in unique(list(refit) + shared) if p.name in values
+    }
+    start.update((p.name, float(values[p.name.partition("@")[0]])) for p in copies)
     problem = FitProblem(
         split.train,
         free,
