@@ -17,8 +17,9 @@
    and its parameters are plausible and identified (confidence interval narrower than
    the plausible range and excluding the neutral value). A second or later effect must
    also be supported on held-out data the effects before it did not explain: it must
-   lower the error of at least one held-out recording by the threshold and raise none,
-   and beat the effects before it refitted per experiment type (:mod:`.later_effects`).
+   lower the error of every held-out recording it can act on by the threshold, raise
+   none, and beat the effects before it refitted per experiment type
+   (:mod:`.later_effects`).
    Select greedily (the accepted best joins the model, the rest are screened again),
    report the winner, the runner-up, or "none", and each selected effect's margins.
 5. Suggest an experiment that separates the winner from a close runner-up.
@@ -403,14 +404,8 @@ def diagnose(
             list(base_params) + [p for c in selected for p in (*c.refit_base, *c.parameters)]
         )
         fixed = {k: v for k, v in best.fit.all_values().items() if k not in {p.name for p in free}}
-        polish = FitProblem(
-            split.train,
-            free,
-            fixed=fixed,
-            n_samples=split.train_n,
-            config=cfg,
-            label=f"model with {', '.join(c.name for c in selected)}",
-            scopes=best.fit.scopes,
+        polish = split.training_problem(
+            free, fixed, f"model with {', '.join(c.name for c in selected)}", best.fit.scopes
         )
         current = run_fit(
             polish,

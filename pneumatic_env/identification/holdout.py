@@ -15,13 +15,13 @@ Modes (``--holdout``):
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
 from .calibrate import Dataset, FitResult, channel_nrmse
 from .candidates import Candidate, applicable
-from .config import IdentificationConfig
+from .config import FitParameter, IdentificationConfig
 from .problem import FitProblem
 
 __all__ = ["HOLDOUT_MODES", "Holdout", "index_of"]
@@ -94,6 +94,24 @@ class Holdout:
                 "time_split": [ds.name for ds in timed],
                 "train_fraction": frac,
             }
+
+    def training_problem(
+        self,
+        free: Sequence[FitParameter],
+        fixed: Mapping[str, float | str],
+        label: str,
+        scopes: Mapping[str, Sequence[str]] | None = None,
+    ) -> FitProblem:
+        """The fit problem of ``free`` parameters (the rest ``fixed``) on the training data."""
+        return FitProblem(
+            self.train,
+            free,
+            fixed=fixed,
+            n_samples=self.train_n,
+            config=self.config,
+            label=label,
+            scopes=scopes,
+        )
 
     def predict(self, fit: FitResult, datasets=None) -> list[dict[str, np.ndarray]]:
         """Whole-recording predictions of ``datasets`` (default: the held-out ones)."""

@@ -32,7 +32,6 @@ from .calibrate import FitResult, run_fit
 from .candidates import Candidate
 from .config import FitParameter, IdentificationConfig
 from .holdout import Holdout
-from .problem import FitProblem
 from .scoring import CandidateScore, mean_nrmse, unique
 
 __all__ = ["FreerForm", "fit_freer_form", "freer_form_check", "second_effect_support"]
@@ -131,14 +130,8 @@ def fit_freer_form(
         p.name: float(values[p.name]) for p in unique(list(refit) + shared) if p.name in values
     }
     start.update((p.name, float(values[p.name.partition("@")[0]])) for p in copies)
-    problem = FitProblem(
-        split.train,
-        free,
-        fixed=fixed,
-        n_samples=split.train_n,
-        config=cfg,
-        label="selected effects per experiment type",
-        scopes=current.scopes,
+    problem = split.training_problem(
+        free, fixed, "selected effects per experiment type", current.scopes
     )
     try:
         fit = run_fit(

@@ -24,7 +24,6 @@ from .calibrate import FitResult, run_fit
 from .candidates import Candidate
 from .config import FitParameter, IdentificationConfig
 from .holdout import Holdout
-from .problem import FitProblem
 
 __all__ = [
     "CandidateScore",
@@ -195,14 +194,8 @@ def improvement_is_the_basin(
     discharge coefficient), and the improvement is the effect's."""
     values = score.fit.all_values()
     fixed = {**current.fixed, **{p.name: values[p.name] for p in current.parameters}}
-    problem = FitProblem(
-        split.train,
-        [],
-        fixed=fixed,
-        n_samples=split.train_n,
-        config=cfg,
-        label=f"the fit with {score.name}, the effect off",
-        scopes=current.scopes,
+    problem = split.training_problem(
+        [], fixed, f"the fit with {score.name}, the effect off", current.scopes
     )
     try:
         off = run_fit(problem)
@@ -314,14 +307,8 @@ def score(
     fixed = {k: v for k, v in current.all_values().items() if k not in {p.name for p in free}}
     fixed.update(cand.scoped_set())
     start = {p.name: current.all_values()[p.name] for p in free if p.name in current.all_values()}
-    problem = FitProblem(
-        split.train,
-        free,
-        fixed=fixed,
-        n_samples=split.train_n,
-        config=cfg,
-        label=f"{cand.name} (round {rnd})",
-        scopes={**current.scopes, **cand.scopes()},
+    problem = split.training_problem(
+        free, fixed, f"{cand.name} (round {rnd})", {**current.scopes, **cand.scopes()}
     )
     # parameters the candidate adds to the current model (its own and the base parameters
     # it makes observable that the current model did not fit)
