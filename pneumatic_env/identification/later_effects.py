@@ -39,11 +39,13 @@ __all__ = ["FreerForm", "fit_freer_form", "freer_form_check", "second_effect_sup
 log = logging.getLogger("pneumatic_env.identification")
 
 
-def _short_of(per: Mapping[str, float], acts_on: set[str], min_rel: float) -> list[str]:
-    """The recordings among those ``acts_on`` (all of ``per`` when it names none of
-    them) whose improvement ``per`` is below ``min_rel``."""
-    where = [k for k in per if k in acts_on] or list(per)
-    return [k for k in where if not per[k] >= min_rel]
+def _acting(per: Mapping[str, float], acts_on: set[str]) -> list[str]:
+    """The recordings of ``per`` among those ``acts_on`` (all of them when it names none)."""
+    return [k for k in per if k in acts_on] or list(per)
+
+
+def _figures(per: Mapping[str, float]) -> str:
+    return ", ".join(f"{k} {100 * v:+.1f} %" for k, v in per.items())
 
 
 def second_effect_support(sc: CandidateScore, min_rel: float, acts_on: set[str]) -> None:
@@ -52,7 +54,7 @@ def second_effect_support(sc: CandidateScore, min_rel: float, acts_on: set[str])
     :meth:`.Holdout.acted_on`) by ``min_rel`` over the model with the effects before it,
     and raises that of none."""
     per = {k: v for k, v in sc.per_recording.items() if math.isfinite(v)}
-    short = _short_of(per, acts_on, min_rel)
+    short = [k for k in _acting(per, acts_on) if not per[k] >= min_rel]
     worse = [k for k, v in per.items() if v < 0]
     if per and not short and not worse:
         return
@@ -60,9 +62,7 @@ def second_effect_support(sc: CandidateScore, min_rel: float, acts_on: set[str])
     if short or not per:
         sc.reasons.append(
             f"not {100 * min_rel:.0f} % better on every held-out recording it acts on "
-            "than the effects already selected ("
-            + ", ".join(f"{k} {100 * v:+.1f} %" for k, v in per.items())
-            + ")"
+            f"than the effects already selected ({_figures(per)})"
         )
     if worse:
         sc.reasons.append(
@@ -166,10 +166,9 @@ def freer_form_check(
         ref = min(freer.per_recording_nrmse.get(name, math.inf), current_per.get(name, math.inf))
         if math.isfinite(ref) and ref > 0 and math.isfinite(nrmse):
             per[name] = (ref - nrmse) / ref
-    where = [k for k in per if k in acts_on] or list(per)
-    margin = min((per[k] for k in where), default=-math.inf)
-    figures = ", ".join(f"{k} {100 * v:+.1f} %" for k, v in per.items())
-    if not _short_of(per, acts_on, min_rel) and per:
+    margin = min((per[k] for k in _acting(per, acts_on)), default=-math.inf)
+    figures = _figures(per)
+    if margin >= min_rel:
         sc.notes.append(
             "beats the freer form of the effects before it (their parameters per "
             f"experiment type) on every held-out recording it acts on ({figures})"
