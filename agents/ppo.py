@@ -42,6 +42,7 @@ from .generalist import MixtureVectorEnv
 from .learned import FORMAT, pure_current, validate_actor
 from .policy import _layers
 from .residual import RESIDUAL_COLUMNS, ResidualVectorWrapper, env_variant
+from .teacher import Teacher, TeacherConfig
 
 __all__ = [
     "load_config",
@@ -440,7 +441,14 @@ def train(
     )
     action_scale, smoothing = _action_scale(cfg), _deadband_smoothing(cfg)
     deadband = _row_deadband_a(env)
-    base = getattr(env, "residual", None)
+    teacher_cfg = TeacherConfig.from_config(cfg)
+    teacher = Teacher(env, teacher_cfg, action_scale, deadband, smoothing) if teacher_cfg else None
+    # the classical controller's time (a residual's base, inside env.step, or a pure
+    # policy's teacher, outside it)
+    base = getattr(env, "residual", None) or (teacher.core if teacher else None)
+    if teacher:
+        teacher.reset()
+    b_teach = np.zeros((T, N), np.float32)
     t_env = t_upd = 0.0
     base_t0 = base.base_time_s if base else 0.0
     progress_path = out / "progress.csv"
@@ -472,15 +480,21 @@ def train(
                     a = d.sample()
                     logp, v = d.log_prob(a).sum(-1), agent.value(xt)
                 a_np = a.numpy()[:, 0].astype(np.float64)
+                if teacher:
+                    b_teach[t] = teacher.targets(obs)
                 a_clip = np.clip(a_np, -1.0, 1.0)
                 act = (
                     a_clip
                     if residual
                     else pure_current(a_clip, action_scale, deadband, smoothing, i_max)
                 )
+                if teacher:
+                    teacher.applied(act)
                 t0 = time.perf_counter()
                 obs, _, _, trunc, info = env.step(act[:, None])
                 t_env += time.perf_counter() - t0
+                if teacher and trunc.any():
+                    teacher.reset(np.flatnonzero(trunc))
                 feat = obs[:, index]
                 e = info["tracking_error"] / e_unit
                 u = info["coil_current_a"]
@@ -520,6 +534,8 @@ def train(
             fa = torch.from_numpy(b_act.reshape(B, 1))
             flp, fadv = torch.from_numpy(b_logp.reshape(-1)), torch.from_numpy(adv.reshape(-1))
             fret = torch.from_numpy((adv + b_val[:T]).reshape(-1))
+            fteach = torch.from_numpy(b_teach.reshape(-1))
+            w_teach = teacher.config.weight_at(frac) if teacher else 0.0
             n_mb = int(hp["minibatches"])
             mb = B // n_mb
             kls = []
@@ -544,6 +560,9 @@ def train(
                         + float(hp["vf_coef"]) * vl
                         - float(hp["ent_coef"]) * d.entropy().sum(-1).mean()
                     )
+                    if w_teach > 0:  # imitation of the teacher (agents.teacher)
+                        gap = (d.mean[:, 0] - fteach[idx]) / teacher.config.unit
+                        loss = loss + w_teach * (gap**2).mean()
                     opt.zero_grad()
                     loss.backward()
                     nn.utils.clip_grad_norm_(agent.parameters(), float(hp["max_grad_norm"]))
@@ -563,7 +582,7 @@ def train(
                 "wall_s": round(w, 3),
                 "steps": state["steps"],
                 "steps_per_s": round(state["steps"] / max(w, 1e-9)),
-                "env_share": round((t_env - base_s) / span, 4),
+                "env_share": round((t_env - base_s * residual) / span, 4),
                 "base_share": round(base_s / span, 4),
                 "update_share": round(t_upd / span, 4),
                 "train_rms_pct": round(100 * np.sqrt(sq_err / T), 4),
@@ -637,7 +656,7 @@ def train(
         "wall_s": w,
         "steps_per_s": state["steps"] / max(w, 1e-9),
         "env_only_steps_per_s": env_only,
-        "env_share": (t_env - base_s) / span,
+        "env_share": (t_env - base_s * residual) / span,
         "base_share": base_s / span,
         "update_share": t_upd / span,
         "inputs": inputs,

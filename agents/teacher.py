@@ -1,0 +1,100 @@
+"""A classical teacher for a pure policy's first updates (ppo_fast, ``pure.teacher``).
+
+A pure policy learned from zero spends most of its budget finding what a sliding mode
+already knows: hold the force on a slow reference without dithering around the valve's
+dead band. With a teacher, PPO's loss gets an imitation term for the first part of the
+budget: the squared distance between the policy's mean action and the action whose
+current (``learned.pure_current``) equals the teacher's, on the states the policy itself
+visits (so the labels are on the learner's distribution, as in DAgger, Ross et al. 2011).
+Its weight falls linearly to zero, after which the policy-gradient term alone shapes the
+policy, as in demo-augmented policy gradients (DAPG, Rajeswaran et al. 2018). The teacher
+runs only in training; the exported actor is the network alone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .residual import ResidualConfig, _residual_core
+
+__all__ = ["TeacherConfig", "Teacher", "pure_action_for_current"]
+
+
+@dataclass(frozen=True)
+class TeacherConfig:
+    """``pure.teacher*`` of a ppo_fast config."""
+
+    name: str  # a classical controller (agents.residual.BASE_CONTROLLERS)
+    weight: float  # imitation loss weight at the start
+    unit: float  # action difference that costs ``weight`` (action units)
+    fraction: float  # share of the wall-time budget over which the weight falls to 0
+
+    @classmethod
+    def from_config(cls, cfg: dict) -> TeacherConfig | None:
+        pure = cfg.get("pure") or {}
+        if cfg.get("mode") != "pure" or not pure.get("teacher"):
+            return None
+        out = cls(
+            str(pure["teacher"]),
+            float(pure.get("teacher_weight", 1.0)),
+            float(pure.get("teacher_unit", 0.02)),
+            float(pure.get("teacher_fraction", 0.5)),
+        )
+        for name, low, high in (("weight", 0.0, np.inf), ("unit", 0.0, np.inf)):
+            value = getattr(out, name)
+            if not (np.isfinite(value) and low < value < high):
+                raise ValueError(
+                    f"pure.teacher_{name} = {value!r} is not allowed: must be a finite number > 0"
+                )
+        if not (0.0 < out.fraction <= 1.0):
+            raise ValueError(
+                f"pure.teacher_fraction = {out.fraction!r} is not allowed: must be in (0, 1]"
+            )
+        return out
+
+    def weight_at(self, budget_fraction: float) -> float:
+        """The imitation weight after ``budget_fraction`` of the budget (linear to 0)."""
+        return self.weight * max(0.0, 1.0 - budget_fraction / self.fraction)
+
+
+def pure_action_for_current(
+    current_a, action_scale_a: float, deadband_a: float, smoothing: float
+) -> np.ndarray:
+    """The action in [-1, 1] whose ``learned.pure_current`` is ``current_a`` (the map is
+    increasing; currents beyond the action range go to its ends)."""
+    a = np.linspace(-1.0, 1.0, 4001)
+    u = action_scale_a * a
+    if smoothing > 0:
+        u = u + deadband_a * np.tanh(a / smoothing)
+    return np.interp(np.asarray(current_a, dtype=np.float64), u, a)
+
+
+class Teacher:
+    """The teacher's action targets on a vector env's batch, step by step.
+
+    ``targets(obs)`` before the step (the env's observation rows), ``applied(u)`` with the
+    current the policy chose (the teacher's predictor of the commands in the tube must
+    know them), ``reset(rows)`` for rows that start a new episode."""
+
+    def __init__(self, env, config: TeacherConfig, action_scale_a, deadband_a, smoothing):
+        if np.ndim(deadband_a) != 0:
+            raise ValueError(
+                "pure.teacher is not allowed with several variants (a generalist): "
+                "one teacher's gains fit one cylinder and tube"
+            )
+        self.config = config
+        self.core = _residual_core(env, config.name, ResidualConfig(base=config.name))
+        self._map = (float(action_scale_a), float(deadband_a), float(smoothing))
+
+    def targets(self, obs) -> np.ndarray:
+        self.core.observe(obs)
+        return pure_action_for_current(self.core.u_base, *self._map).astype(np.float32)
+
+    def applied(self, current) -> None:
+        self.core._correction = np.asarray(current, dtype=np.float64) - self.core.u_base
+        self.core.applied(current)
+
+    def reset(self, rows=None) -> None:
+        self.core.reset(rows)
