@@ -351,6 +351,7 @@ PROGRESS_COLUMNS = (
     "value_loss",
     "val_rms_pct",
     "val_chatter_a",
+    "teacher_gap",  # RMS of (policy mean - teacher's action) over the rollout; "" without one
 )
 
 
@@ -376,6 +377,8 @@ def train(
     env_id = env_id or cfg["env"]
     hp, tr, rw = cfg["hyperparameters"], cfg["training"], cfg["reward"]
     budget_s = 60.0 * float(minutes if minutes is not None else tr["minutes"])
+    if total_steps is None:  # the config's step budget, if it has one
+        total_steps = tr.get("total_steps")
     total_steps = float(total_steps) if total_steps is not None else float("inf")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -453,8 +456,12 @@ def train(
     base_t0 = base.base_time_s if base else 0.0
     progress_path = out / "progress.csv"
     new_file = not (resume and progress_path.is_file())
+    columns_written = PROGRESS_COLUMNS
+    if not new_file:  # a resumed run keeps its file's columns (older runs have fewer)
+        with open(progress_path, newline="", encoding="utf-8") as f:
+            columns_written = tuple(next(csv.reader(f), PROGRESS_COLUMNS))
     progress = open(progress_path, "a" if not new_file else "w", newline="", encoding="utf-8")
-    writer = csv.DictWriter(progress, fieldnames=PROGRESS_COLUMNS)
+    writer = csv.DictWriter(progress, fieldnames=columns_written, extrasaction="ignore")
     if new_file:
         writer.writeheader()
     t_start, wall0 = time.perf_counter(), state["wall_s"]
@@ -467,10 +474,11 @@ def train(
     lr0, lr_end = float(hp["learning_rate"]), float(hp["learning_rate_final_fraction"])
     try:
         while state["steps"] < total_steps and wall() < budget_s:
-            frac = min(wall() / budget_s, 1.0)
+            # progress through the budget that binds first (wall time or env steps)
+            frac = min(max(wall() / budget_s, state["steps"] / total_steps), 1.0)
             for g in opt.param_groups:
                 g["lr"] = lr0 * (1.0 - (1.0 - lr_end) * frac)
-            sq_err = 0.0
+            sq_err = sq_gap = 0.0
             for t in range(T):
                 obs_rms.update(feat)
                 x = norm(feat)
@@ -482,6 +490,7 @@ def train(
                 a_np = a.numpy()[:, 0].astype(np.float64)
                 if teacher:
                     b_teach[t] = teacher.targets(obs)
+                    sq_gap += float(np.mean((d.mean.numpy()[:, 0] - b_teach[t]) ** 2))
                 a_clip = np.clip(a_np, -1.0, 1.0)
                 act = (
                     a_clip
@@ -591,6 +600,7 @@ def train(
                 "value_loss": round(vl.item(), 5),
                 "val_rms_pct": "",
                 "val_chatter_a": "",
+                "teacher_gap": round(np.sqrt(sq_gap / T), 5) if teacher else "",
             }
             done = w >= budget_s or state["steps"] >= total_steps
             if w - last_eval >= float(tr["eval_every_s"]) or done:
@@ -631,7 +641,8 @@ def train(
                     f"upd {state['updates']} {state['steps'] / 1e6:.1f}M steps "
                     f"{state['steps'] / max(w, 1e-9):.0f} steps/s (env alone {env_only:.0f}) "
                     f"train RMS {100 * np.sqrt(sq_err / T):.2f} % log_std "
-                    f"{agent.log_std.item():.2f}",
+                    f"{agent.log_std.item():.2f}"
+                    + (f" teacher gap {row['teacher_gap']:.3f}" if teacher else ""),
                     flush=True,
                 )
             if state["updates"] % int(tr["checkpoint_every"]) == 0:
