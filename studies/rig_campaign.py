@@ -7,10 +7,9 @@ records such a campaign (synthetic data) from one virtual rig (one ``seed``: the
 parameters and the same effect in every experiment), each experiment with its own
 excitation and noise draws (``run_rig(experiment=k)``).
 
-An effect the rig can only make with the rod clamped (the segmented line of
-``tube_waves``, the load cell's compliance) is left out of the moving-rod experiments,
-and a friction effect (``stribeck``, ``lugre``) shows only where the rod moves; the
-truth file of each experiment states what it had.
+An effect the rig can only make with the rod clamped (the load cell's compliance) is left
+out of the moving-rod experiments, and a friction effect (``stribeck``, ``lugre``) shows
+only where the rod moves; the truth file of each experiment states what it had.
 """
 
 from __future__ import annotations
@@ -19,7 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NamedTuple
 
-from .virtual_rig import LINE_EFFECTS, MOVING_EFFECTS, make_recording
+from .virtual_rig import MOVING_EFFECTS, make_recording
 
 __all__ = ["CAMPAIGNS", "Experiment", "make_campaign"]
 
@@ -58,7 +57,7 @@ CAMPAIGNS: dict[str, tuple[Experiment, ...]] = {
         Experiment("e3_spring_msine", "spring", "multisine", 1.0),
     ),
 }
-_CLAMPED_ONLY = (*LINE_EFFECTS, "load_cell_compliance")
+_CLAMPED_ONLY = ("load_cell_compliance",)
 
 
 def experiment_effect(effect: str, piston: str) -> str:

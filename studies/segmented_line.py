@@ -14,10 +14,14 @@ spread along the line (R_t of Eqs. 33, 35 by the link's Reynolds number, Eq. 32)
 
 the last link ending in the chamber (P_n = the chamber's pressure, Eq. 14). The valve
 (Eq. 38 spool, Eqs. 39-45 orifices, no delay: the line is the delay) feeds the first
-node of each tube. The rod is clamped (Eq. 1 gives the load-cell force). The same
-equations as ``reference_solution.simulate_segmented_line`` (SciPy, a constant current),
+node of each tube. With the rod clamped (Eq. 1 gives the load-cell force) these are the
+equations of ``reference_solution.simulate_segmented_line`` (SciPy, a constant current),
 here jitted with fixed RK4 steps and a current that changes every plant step, built on the
-kernel's sub-model functions; ``tests/test_virtual_rig.py`` compares the two.
+kernel's sub-model functions; ``tests/test_virtual_rig.py`` compares the two. With the rod
+free or on a spring the piston moves by Eq. 1 with Karnopp friction (Eq. 47): its direction
+is chosen at the start of each RK4 step (``piston.motion_direction``) and held over it, a
+velocity that changes sign within a step ends at zero, and the stops are inelastic; the
+chambers' volumes (Eq. 15) and their rates enter Eq. 14.
 """
 
 from __future__ import annotations
@@ -29,7 +33,15 @@ from pneumatic_env.physics import layout as L
 from pneumatic_env.physics.chamber import chamber_volumes, pressure_rate
 from pneumatic_env.physics.derived import circle_area_m2, orifice_gas_constants, piston_areas_m2
 from pneumatic_env.physics.flow import orifice_mass_flow
-from pneumatic_env.physics.piston import MODE_FIXED, pneumatic_force
+from pneumatic_env.physics.piston import (
+    MODE_FIXED,
+    end_of_substep,
+    external_force,
+    motion_direction,
+    output_force,
+    piston_acceleration,
+    pneumatic_force,
+)
 from pneumatic_env.physics.tube import reynolds_number, tube_resistance
 from pneumatic_env.physics.valve import orifice_area, spool_acceleration
 
@@ -58,8 +70,6 @@ __all__ = ["line_constants", "segmented_line_rollout"]
     _ALPHA_IN,
     _ALPHA_OUT,
     _ALPHA_MOTION,
-    _V1,
-    _V2,
     _A_T,
     _DX,
     _D_T,
@@ -69,18 +79,25 @@ __all__ = ["line_constants", "segmented_line_rollout"]
     _A1,
     _A2,
     _A_ROD,
+    _MODE,
+    _HALF_STROKE,
+    _V01,
+    _V02,
+    _X0,
+    _INV_MASS,
+    _F_SF,
+    _F_DF,
+    _BETA,
+    _F_LOAD,
+    _K_SPRING,
+    _X_REST,
     _N_CONSTANTS,
-) = range(33)
+) = range(43)
 
 
 def line_constants(p: dict, n_segments: int) -> np.ndarray:
     """The constants of :func:`segmented_line_rollout` for the parameters ``p`` (a
-    ``load_parameters`` dict with the rod clamped) and ``n_segments`` nodes per tube."""
-    if int(p["piston_mode"]) != MODE_FIXED:
-        raise ValueError(
-            f"the segmented line plant models a clamped rod (piston_mode = 0); "
-            f"got piston_mode = {p['piston_mode']!r}"
-        )
+    ``load_parameters`` dict, any piston mode) and ``n_segments`` nodes per tube."""
     switched_on = [
         n
         for n, neutral in L.EFFECT_NEUTRAL_VALUES.items()
@@ -98,14 +115,6 @@ def line_constants(p: dict, n_segments: int) -> np.ndarray:
         p["heat_capacity_ratio"], r_gas, temp, p["flow_linear_ratio"]
     )
     area_cap, area_rod_side, _ = piston_areas_m2(p["bore_diameter_m"], p["rod_diameter_m"])
-    v1, v2 = chamber_volumes(
-        p["fixed_position_m"],
-        0.5 * p["stroke_m"],
-        area_cap,
-        area_rod_side,
-        p["dead_volume_cap_m3"],
-        p["dead_volume_rod_m3"],
-    )
     c = np.empty(_N_CONSTANTS)
     c[_M_INV_SPOOL] = 1.0 / p["spool_mass_kg"]
     c[_C_S], c[_K_S] = p["spool_damping_n_s_per_m"], p["spool_spring_n_per_m"]
@@ -121,7 +130,6 @@ def line_constants(p: dict, n_segments: int) -> np.ndarray:
     c[_SLOPE] = slope
     c[_RT] = r_gas * temp
     c[_ALPHA_IN], c[_ALPHA_OUT], c[_ALPHA_MOTION] = p["alpha_in"], p["alpha_out"], p["alpha_motion"]
-    c[_V1], c[_V2] = v1, v2
     c[_A_T] = circle_area_m2(p["tube_inner_diameter_m"])
     c[_DX] = p["tube_length_m"] / n_segments
     c[_D_T], c[_MU], c[_RE_T] = (
@@ -132,6 +140,14 @@ def line_constants(p: dict, n_segments: int) -> np.ndarray:
     c[_A_LEAK] = p["leakage_area_m2"]
     c[_A1], c[_A2] = area_cap, area_rod_side
     c[_A_ROD] = area_cap - area_rod_side
+    fixed = int(p["piston_mode"]) == MODE_FIXED
+    c[_MODE], c[_HALF_STROKE] = int(p["piston_mode"]), 0.5 * p["stroke_m"]
+    c[_V01], c[_V02] = p["dead_volume_cap_m3"], p["dead_volume_rod_m3"]
+    c[_X0] = p["fixed_position_m"] if fixed else 0.0  # the kernel's initial state
+    c[_INV_MASS] = 1.0 / (p["piston_mass_kg"] + p["load_mass_kg"])
+    c[_F_SF], c[_F_DF] = p["static_friction_n"], p["dynamic_friction_n"]
+    c[_BETA], c[_F_LOAD] = p["viscous_friction_n_s_per_m"], p["load_force_n"]
+    c[_K_SPRING], c[_X_REST] = p["spring_stiffness_n_per_m"], p["spring_rest_position_m"]
     return c
 
 
@@ -154,9 +170,11 @@ def _flow(c, area, p_from, p_to):
 
 
 @njit(cache=True)
-def _derivatives(c, n, coil_current_a, y, out):
-    """dy/dt of the state [x_s, v_s, tube 1 (n nodes, n links, chamber 1), tube 2 (...)]."""
+def _derivatives(c, n, coil_current_a, direction, y, out):
+    """dy/dt of the state [x_s, v_s, tube 1 (n nodes, n links, chamber 1), tube 2 (...),
+    x, v] with the piston's direction of motion held (0: held, the clamp included)."""
     x_s, v_s = y[0], y[1]
+    x, v = y[-2], y[-1]
     out[0] = v_s
     out[1] = spool_acceleration(
         x_s, v_s, coil_current_a, c[_M_INV_SPOOL], c[_C_S], c[_K_S], c[_K_F]
@@ -165,6 +183,13 @@ def _derivatives(c, n, coil_current_a, y, out):
     a_ex = orifice_area(-x_s, c[_R_H], c[_P_W], c[_N_H])
     node_rate = c[_K] * c[_RT] / (c[_A_T] * c[_DX])
     p1, p2 = y[2 + 2 * n], y[2 + 2 * (2 * n + 1) - 1]
+    v1, v2 = chamber_volumes(x, c[_HALF_STROKE], c[_A1], c[_A2], c[_V01], c[_V02])
+    moving = direction != 0.0
+    out[-2] = v if moving else 0.0
+    applied = pneumatic_force(p1, p2, c[_A1], c[_A2], c[_A_ROD], c[_P_A]) - external_force(
+        int(c[_MODE]), x, c[_F_LOAD], c[_K_SPRING], c[_X_REST]
+    )
+    out[-1] = piston_acceleration(applied, v, direction, c[_F_DF], c[_BETA], c[_INV_MASS])
     leak = _flow(c, c[_A_LEAK], p2, p1)  # chamber 2 -> chamber 1 (Sec. 2.2)
     for side in range(2):
         first = 2 + side * (2 * n + 1)
@@ -188,8 +213,8 @@ def _derivatives(c, n, coil_current_a, y, out):
         chamber = y[first + 2 * n]
         out[first + 2 * n] = pressure_rate(
             chamber,
-            c[_V1] if side == 0 else c[_V2],
-            0.0,
+            v1 if side == 0 else v2,
+            (c[_A1] * out[-2]) if side == 0 else (-c[_A2] * out[-2]),
             max(chamber_in, 0.0),
             max(-chamber_in, 0.0),
             c[_RT],
@@ -201,34 +226,48 @@ def _derivatives(c, n, coil_current_a, y, out):
 
 @njit(cache=True)
 def segmented_line_rollout(c, n, coil_current_a, step_s, substeps):
-    """Run the plant from rest (spool centred, every node and chamber at ambient, no flow)
-    with ``coil_current_a[j]`` held over plant step j (``substeps`` RK4 steps of
-    ``step_s / substeps``). Returns (steps + 1, 3): p1, p2 (Pa) and the load-cell force
-    (N, Eq. 1 at the clamp) at the start and the end of every step."""
-    size = 2 + 2 * (2 * n + 1)
+    """Run the plant from rest (spool centred, every node and chamber at ambient, no flow,
+    the piston at rest at the kernel's initial position) with ``coil_current_a[j]`` held
+    over plant step j (``substeps`` RK4 steps of ``step_s / substeps``). Returns
+    (steps + 1, 4): p1, p2 (Pa), the force channel (N: the load cell at a clamp, else as
+    ``piston.output_force``) and the piston position (m) at the start and the end of
+    every step."""
+    size = 2 + 2 * (2 * n + 1) + 2
     y = np.zeros(size)
     for side in range(2):
         first = 2 + side * (2 * n + 1)
         y[first : first + n] = c[_P_A]
         y[first + 2 * n] = c[_P_A]
+    y[-2] = c[_X0]
     k1, k2, k3, k4 = np.empty(size), np.empty(size), np.empty(size), np.empty(size)
     stage = np.empty(size)
-    out = np.empty((coil_current_a.size + 1, 3))
+    out = np.empty((coil_current_a.size + 1, 4))
     h = step_s / substeps
-    i1, i2 = 2 + 2 * n, size - 1
+    i1, i2 = 2 + 2 * n, 2 + 2 * (2 * n + 1) - 1
+    mode = int(c[_MODE])
+    stick = max(c[_F_SF], c[_F_DF])  # Karnopp's threshold, as the kernel's
     for j in range(coil_current_a.size + 1):
-        out[j, 0], out[j, 1] = y[i1], y[i2]
-        out[j, 2] = pneumatic_force(y[i1], y[i2], c[_A1], c[_A2], c[_A_ROD], c[_P_A])
+        f_p = pneumatic_force(y[i1], y[i2], c[_A1], c[_A2], c[_A_ROD], c[_P_A])
+        out[j, 0], out[j, 1], out[j, 3] = y[i1], y[i2], y[-2]
+        out[j, 2] = output_force(mode, f_p, y[-2], c[_K_SPRING], c[_X_REST])
         if j == coil_current_a.size:
             break
         current = coil_current_a[j]
         for _ in range(substeps):
-            _derivatives(c, n, current, y, k1)
+            direction = 0.0
+            if mode != MODE_FIXED:
+                f_p = pneumatic_force(y[i1], y[i2], c[_A1], c[_A2], c[_A_ROD], c[_P_A])
+                applied = f_p - external_force(mode, y[-2], c[_F_LOAD], c[_K_SPRING], c[_X_REST])
+                direction = motion_direction(y[-2], y[-1], applied, stick, c[_HALF_STROKE])
+            _derivatives(c, n, current, direction, y, k1)
             stage[:] = y + 0.5 * h * k1
-            _derivatives(c, n, current, stage, k2)
+            _derivatives(c, n, current, direction, stage, k2)
             stage[:] = y + 0.5 * h * k2
-            _derivatives(c, n, current, stage, k3)
+            _derivatives(c, n, current, direction, stage, k3)
             stage[:] = y + h * k3
-            _derivatives(c, n, current, stage, k4)
+            _derivatives(c, n, current, direction, stage, k4)
             y += (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+            if direction != 0.0 and y[-1] * direction < 0.0:
+                y[-1] = 0.0  # the velocity reversed: the piston stops, friction decides next
+            y[-2], y[-1] = end_of_substep(y[-2], y[-1], c[_HALF_STROKE])
     return out

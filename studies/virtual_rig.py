@@ -57,7 +57,7 @@ How the plant differs from the fitting model:
                                     plant steps on the full energy equation (one constant hA)
   tube_waves                        each tube a segmented line of finite volumes with the
                                     air's inertia and the friction along the line
-                                    (``segmented_line``; rod clamped) instead of the kernel
+                                    (``segmented_line``; any rod) instead of the kernel
                                     (a transmission line, friction lumped at its ends)
   valve_null_leak, tube_volume,     the rig's own forms (:mod:`.rig_forms`: a laminar
   iso_flow_law,                     clearance flow, tube volumes as states of their own, ISO
@@ -208,11 +208,6 @@ def run_rig(
         raise ValueError(f"strength = {strength!r} is not allowed: must be a finite number >= 0")
     if piston not in PISTON_MODES:
         raise ValueError(f"piston = {piston!r} is not allowed: must be one of {list(PISTON_MODES)}")
-    if effect in LINE_EFFECTS and strength > 0 and piston != "fixed":
-        raise ValueError(
-            f"effect {effect!r} needs piston = 'fixed' (the segmented line plant "
-            f"has a clamped rod); got piston = {piston!r}"
-        )
     if effect == "load_cell_compliance" and piston != "fixed":
         raise ValueError(
             f"effect 'load_cell_compliance' needs piston = 'fixed' (a clamped rod "
@@ -345,8 +340,8 @@ def run_rig(
             plant_dt,
             int(cfg.number("virtual_rig", "line_substeps", positive=True)),
         )
-        rows = np.tile(first, (fine.size, 1))  # the rod stays at the clamp
-        rows[:, [L.O_P1, L.O_P2, L.O_F]] = line[1:]
+        rows = np.tile(first, (fine.size, 1))  # its velocity column is not recorded
+        rows[:, [L.O_P1, L.O_P2, L.O_F, L.O_X]] = line[1:]
     elif form is None:
         rows = sim.rollout(fine[:, None])[:, :, 0]
     else:

@@ -44,7 +44,11 @@ def test_teacher_weight_falls_linearly_to_zero():
 
 @pytest.mark.parametrize(
     "key, value, rule",
-    [("teacher_weight", -1.0, "> 0"), ("teacher_unit", 0.0, "> 0"), ("teacher_fraction", 1.5, "(0, 1]")],
+    [
+        ("teacher_weight", -1.0, "> 0"),
+        ("teacher_unit", 0.0, "> 0"),
+        ("teacher_fraction", 1.5, "(0, 1]"),
+    ],
 )
 def test_bad_teacher_settings_are_named(key, value, rule):
     cfg = {"mode": "pure", "pure": {"teacher": "sliding_mode", key: value}}

@@ -284,14 +284,46 @@ def test_rig_segmented_line_follows_the_scipy_segmented_line():
 def test_rig_segmented_line_refusals():
     from pneumatic_env.studies.segmented_line import line_constants
 
-    with pytest.raises(ValueError, match="effect 'tube_waves' needs piston = 'fixed'"):
-        run_rig("tube_waves", piston="spring", duration_s=0.1)
     with pytest.raises(ValueError, match=r"effects switched on: \['coil_time_constant_s'\]"):
         line_constants(load_parameters(coil_time_constant_s=1e-3), 20)
     with pytest.raises(ValueError, match="n_segments = 1 is not allowed: must be an integer >= 2"):
         line_constants(load_parameters(), 1)
-    with pytest.raises(ValueError, match="models a clamped rod .* got piston_mode = 2"):
-        line_constants(load_parameters(piston_mode=2), 20)
+
+
+def test_rig_segmented_line_with_a_rod_held_by_friction_is_the_clamped_line():
+    """A free rod whose static friction no pressure can overcome stays at x = 0 and gives
+    the clamped line's pressures and force bit for bit (the moving equations reduce to
+    the clamped ones when the piston is held)."""
+    from pneumatic_env.studies.segmented_line import line_constants, segmented_line_rollout
+
+    u = np.concatenate([np.full(150, 1.2), np.full(150, -1.2)])
+    clamped = load_parameters(tube_length_m=0.5)
+    held = load_parameters(tube_length_m=0.5, piston_mode=1, static_friction_n=1e9)
+    a = segmented_line_rollout(line_constants(clamped, 10), 10, u, 1e-4, 4)
+    b = segmented_line_rollout(line_constants(held, 10), 10, u, 1e-4, 4)
+    assert np.array_equal(a, b) and np.all(b[:, 3] == 0.0)
+
+
+@pytest.mark.parametrize("mode, extra", [(1, {}), (2, {"spring_stiffness_n_per_m": 3000.0})])
+def test_rig_segmented_line_with_a_moving_rod_tends_to_the_kernel_as_the_tube_shortens(mode, extra):
+    """Free and spring-loaded rods: as the tube shortens, the line's air (its volume, its
+    inertia, its delay) matters less and the segmented line's piston path tends to the
+    kernel's (the paper's model, its own event-located friction and stops) under a step
+    up and a step down of the current that drive the rod across its stroke."""
+    from pneumatic_env.params import parameter_array
+    from pneumatic_env.physics import layout as L
+    from pneumatic_env.simulator import BatchSimulator
+    from pneumatic_env.studies.segmented_line import line_constants, segmented_line_rollout
+
+    u = np.concatenate([np.full(400, 0.4), np.full(400, -0.3)])
+    errors = []
+    for tube_length_m in (0.2, 0.05):
+        p = load_parameters(tube_length_m=tube_length_m, piston_mode=mode, **extra)
+        line = segmented_line_rollout(line_constants(p, 4), 4, u, 1e-4, 8)
+        kernel = BatchSimulator(parameter_array([p]), 1e-4, 8).rollout(u[:, None])[:, :, 0]
+        assert np.ptp(kernel[:, L.O_X]) > 0.4 * p["stroke_m"]  # most of its half stroke
+        errors.append(np.abs(line[1:, 3] - kernel[:, L.O_X]).max() / p["stroke_m"])
+    assert errors[1] < 0.5 * errors[0] and errors[1] < 0.03, errors
 
 
 def test_two_cascaded_lags_keep_the_total_time_constant():
