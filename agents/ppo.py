@@ -9,7 +9,10 @@ advanced in one jitted call (``gym.make_vec`` with the ``envs.features`` options
 rollouts, a few large minibatches, GAE, and a bootstrap on time-limit truncation (the
 vector env truncates and resets in the same step; V of ``info["final_obs"]`` is added to
 the last reward). Residual mode trains a correction on a classical controller through
-``agents.residual.ResidualVectorWrapper``; pure mode sets the current directly. The
+``agents.residual.ResidualVectorWrapper``; pure mode sets the current directly, taught in
+its first updates by a classical controller if ``pure.teacher`` names one
+(``agents.teacher``). The run ends at ``training.minutes`` or ``training.total_steps``,
+whichever comes first, and the schedules follow the one nearer its end. The
 policy reads the columns ``policy_inputs`` of the observation (running mean/std
 normalised); rewards are scaled by a running std of the discounted return. The reward is
 the trainer's, computed from ``info`` to match the benchmark's RMS metric (config

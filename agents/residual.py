@@ -190,6 +190,12 @@ class ResidualCore:
             self.base.applied(self._obs, current, np.flatnonzero(self._correction != 0.0))
             self.base_time_s += time.perf_counter() - t0
 
+    def follow(self, current) -> None:
+        """Tell the base controller the current another controller chose after the last
+        ``observe`` (a pure policy it teaches, ``agents.teacher``)."""
+        self._correction = np.asarray(current, dtype=np.float64) - self.u_base
+        self.applied(current)
+
     def peek(self, obs, rows) -> np.ndarray:
         """Residual columns for final observations ``obs`` of ``rows`` (no state change)."""
         t0 = time.perf_counter()

@@ -93,8 +93,7 @@ class Teacher:
         return pure_action_for_current(self.core.u_base, *self._map).astype(np.float32)
 
     def applied(self, current) -> None:
-        self.core._correction = np.asarray(current, dtype=np.float64) - self.core.u_base
-        self.core.applied(current)
+        self.core.follow(current)
 
     def reset(self, rows=None) -> None:
         self.core.reset(rows)
