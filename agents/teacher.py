@@ -29,7 +29,7 @@ class TeacherConfig:
     name: str  # a classical controller (agents.residual.BASE_CONTROLLERS)
     weight: float  # imitation loss weight at the start
     unit: float  # action difference that costs ``weight`` (action units)
-    fraction: float  # share of the wall-time budget over which the weight falls to 0
+    fraction: float  # share of the budget (wall time or steps) over which the weight falls to 0
 
     @classmethod
     def from_config(cls, cfg: dict) -> TeacherConfig | None:
@@ -42,9 +42,9 @@ class TeacherConfig:
             float(pure.get("teacher_unit", 0.02)),
             float(pure.get("teacher_fraction", 0.5)),
         )
-        for name, low, high in (("weight", 0.0, np.inf), ("unit", 0.0, np.inf)):
+        for name in ("weight", "unit"):
             value = getattr(out, name)
-            if not (np.isfinite(value) and low < value < high):
+            if not (np.isfinite(value) and value > 0.0):
                 raise ValueError(
                     f"pure.teacher_{name} = {value!r} is not allowed: must be a finite number > 0"
                 )
@@ -59,15 +59,21 @@ class TeacherConfig:
         return self.weight * max(0.0, 1.0 - budget_fraction / self.fraction)
 
 
+def _action_table(action_scale_a: float, deadband_a: float, smoothing: float):
+    """(currents, actions) of ``learned.pure_current`` over [-1, 1], without the clip."""
+    a = np.linspace(-1.0, 1.0, 4001)
+    u = action_scale_a * a
+    if smoothing > 0:
+        u = u + deadband_a * np.tanh(a / smoothing)
+    return u, a
+
+
 def pure_action_for_current(
     current_a, action_scale_a: float, deadband_a: float, smoothing: float
 ) -> np.ndarray:
     """The action in [-1, 1] whose ``learned.pure_current`` is ``current_a`` (the map is
     increasing; currents beyond the action range go to its ends)."""
-    a = np.linspace(-1.0, 1.0, 4001)
-    u = action_scale_a * a
-    if smoothing > 0:
-        u = u + deadband_a * np.tanh(a / smoothing)
+    u, a = _action_table(action_scale_a, deadband_a, smoothing)
     return np.interp(np.asarray(current_a, dtype=np.float64), u, a)
 
 
@@ -86,11 +92,12 @@ class Teacher:
             )
         self.config = config
         self.core = _residual_core(env, config.name, ResidualConfig(base=config.name))
-        self._map = (float(action_scale_a), float(deadband_a), float(smoothing))
+        # the map's table once, not every step
+        self._u, self._a = _action_table(float(action_scale_a), float(deadband_a), smoothing)
 
     def targets(self, obs) -> np.ndarray:
         self.core.observe(obs)
-        return pure_action_for_current(self.core.u_base, *self._map).astype(np.float32)
+        return np.interp(self.core.u_base, self._u, self._a).astype(np.float32)
 
     def applied(self, current) -> None:
         self.core.follow(current)
