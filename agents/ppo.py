@@ -451,7 +451,7 @@ def train(
     teacher = Teacher(env, teacher_cfg, action_scale, deadband, smoothing) if teacher_cfg else None
     # the classical controller's time (a residual's base, inside env.step, or a pure
     # policy's teacher, outside it)
-    base = getattr(env, "residual", None) or (teacher.core if teacher else None)
+    base = getattr(env, "residual", None) or teacher
     if teacher:
         teacher.reset()
     b_teach = np.zeros((T, N), np.float32)
@@ -493,7 +493,7 @@ def train(
                 a_np = a.numpy()[:, 0].astype(np.float64)
                 if teacher:
                     b_teach[t] = teacher.targets(obs)
-                    sq_gap += float(np.mean((d.mean.numpy()[:, 0] - b_teach[t]) ** 2))
+                    sq_gap += float(np.nanmean((d.mean.numpy()[:, 0] - b_teach[t]) ** 2))
                 a_clip = np.clip(a_np, -1.0, 1.0)
                 act = (
                     a_clip
@@ -547,6 +547,9 @@ def train(
             flp, fadv = torch.from_numpy(b_logp.reshape(-1)), torch.from_numpy(adv.reshape(-1))
             fret = torch.from_numpy((adv + b_val[:T]).reshape(-1))
             fteach = torch.from_numpy(b_teach.reshape(-1))
+            # rows without a teacher (a generalist's untuned variants): no imitation term
+            fmask = torch.from_numpy(np.tile(teacher.taught, T)) if teacher else None
+            all_taught = teacher is None or bool(teacher.taught.all())
             w_teach = teacher.config.weight_at(frac) if teacher else 0.0
             n_mb = int(hp["minibatches"])
             mb = B // n_mb
@@ -574,7 +577,12 @@ def train(
                     )
                     if w_teach > 0:  # imitation of the teacher (agents.teacher)
                         gap = (d.mean[:, 0] - fteach[idx]) / teacher.config.unit
-                        loss = loss + w_teach * (gap**2).mean()
+                        if all_taught:
+                            loss = loss + w_teach * (gap**2).mean()
+                        else:
+                            m = fmask[idx]
+                            sq = torch.where(m, gap, torch.zeros_like(gap)) ** 2
+                            loss = loss + w_teach * sq.sum() / m.sum().clamp(min=1)
                     opt.zero_grad()
                     loss.backward()
                     nn.utils.clip_grad_norm_(agent.parameters(), float(hp["max_grad_norm"]))

@@ -17,9 +17,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .residual import ResidualConfig, _residual_core
+from .config import agent_config_path
+from .generalist import MixtureVectorEnv
+from .residual import ResidualConfig, _residual_core, env_variant
 
-__all__ = ["TeacherConfig", "Teacher", "pure_action_for_current"]
+__all__ = ["TeacherConfig", "Teacher", "pure_action_for_current", "has_tuned_gains"]
 
 
 @dataclass(frozen=True)
@@ -77,30 +79,69 @@ def pure_action_for_current(
     return np.interp(np.asarray(current_a, dtype=np.float64), u, a)
 
 
+def has_tuned_gains(name: str, variant: str) -> bool:
+    """Whether ``configs/agents/<name>-<variant>.yaml`` holds the benchmark's gains."""
+    return agent_config_path(f"{name}-{variant.lower()}").is_file()
+
+
 class Teacher:
     """The teacher's action targets on a vector env's batch, step by step.
 
     ``targets(obs)`` before the step (the env's observation rows), ``applied(u)`` with the
     current the policy chose (the teacher's predictor of the commands in the tube must
-    know them), ``reset(rows)`` for rows that start a new episode."""
+    know them), ``reset(rows)`` for rows that start a new episode.
+
+    On a mixture of variants (a generalist, ``agents.generalist.MixtureVectorEnv``) each
+    variant with tuned gains (``configs/agents/<name>-<variant>.yaml``) gets its own
+    teacher; the rows of the others have no target (NaN; ``taught`` is False there) and
+    learn from the policy gradient alone."""
 
     def __init__(self, env, config: TeacherConfig, action_scale_a, deadband_a, smoothing):
-        if np.ndim(deadband_a) != 0:
-            raise ValueError(
-                "pure.teacher is not allowed with several variants (a generalist): "
-                "one teacher's gains fit one cylinder and tube"
-            )
+        top = env.unwrapped
+        mixture = isinstance(top, MixtureVectorEnv)
+        subs, bounds = (top.envs, top.bounds) if mixture else ([env], (0, env.num_envs))
+        deadbands = np.broadcast_to(np.asarray(deadband_a, dtype=np.float64), (bounds[-1],))
         self.config = config
-        self.core = _residual_core(env, config.name, ResidualConfig(base=config.name))
-        # the map's table once, not every step
-        self._u, self._a = _action_table(float(action_scale_a), float(deadband_a), smoothing)
+        self.num_envs = int(bounds[-1])
+        self.parts = []  # (rows, core, the action map's table (u, a)), built once per run
+        for k, sub in enumerate(subs):
+            if mixture and not has_tuned_gains(config.name, env_variant(sub)):
+                continue
+            rows = slice(int(bounds[k]), int(bounds[k + 1]))
+            core = _residual_core(sub, config.name, ResidualConfig(base=config.name))
+            table = _action_table(float(action_scale_a), float(deadbands[rows.start]), smoothing)
+            self.parts.append((rows, core, table))
+        if not self.parts:
+            raise ValueError(
+                f"pure.teacher = {config.name!r} is not allowed here: no variant of the "
+                f"mixture has tuned gains (configs/agents/{config.name}-<variant>.yaml)"
+            )
+        self.taught = np.zeros(self.num_envs, dtype=bool)
+        for rows, _, _ in self.parts:
+            self.taught[rows] = True
+
+    @property
+    def base_time_s(self) -> float:
+        """The teachers' summed time (s)."""
+        return float(sum(core.base_time_s for _, core, _ in self.parts))
 
     def targets(self, obs) -> np.ndarray:
-        self.core.observe(obs)
-        return np.interp(self.core.u_base, self._u, self._a).astype(np.float32)
+        out = np.full(self.num_envs, np.nan, dtype=np.float32)
+        for rows, core, (u, a) in self.parts:
+            core.observe(obs[rows])
+            out[rows] = np.interp(core.u_base, u, a)
+        return out
 
     def applied(self, current) -> None:
-        self.core.follow(current)
+        for rows, core, _ in self.parts:
+            core.follow(current[rows])
 
     def reset(self, rows=None) -> None:
-        self.core.reset(rows)
+        for part_rows, core, _ in self.parts:
+            if rows is None:
+                core.reset()
+                continue
+            mine = np.asarray(rows)
+            mine = mine[(mine >= part_rows.start) & (mine < part_rows.stop)] - part_rows.start
+            if mine.size:
+                core.reset(mine)
