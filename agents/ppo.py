@@ -468,7 +468,8 @@ def train(
     if new_file:
         writer.writeheader()
     t_start, wall0 = time.perf_counter(), state["wall_s"]
-    last_eval = wall0
+    last_eval, last_eval_steps = wall0, state["steps"]
+    eval_every_steps = float(tr.get("eval_every_steps") or 0.0)  # 0: by wall time only
     eval_time = 0.0
 
     def wall():
@@ -614,7 +615,10 @@ def train(
                 "teacher_gap": round(np.sqrt(sq_gap / T), 5) if teacher else "",
             }
             done = w >= budget_s or state["steps"] >= total_steps
-            if w - last_eval >= float(tr["eval_every_s"]) or done:
+            due_by_steps = eval_every_steps > 0 and (
+                state["steps"] - last_eval_steps >= eval_every_steps
+            )
+            if w - last_eval >= float(tr["eval_every_s"]) or due_by_steps or done:
                 te = time.perf_counter()
                 path = export_actor(
                     agent, obs_rms, cfg, env_id, inputs, out / "actor_tmp.npz", out.name
@@ -641,7 +645,7 @@ def train(
                     state["best"] = record
                     path.replace(out / "actor_best.npz")
                 eval_time += time.perf_counter() - te
-                last_eval = wall()
+                last_eval, last_eval_steps = wall(), state["steps"]
             writer.writerow(row)
             if row["val_rms_pct"] != "" and on_eval is not None:
                 progress.flush()

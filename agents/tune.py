@@ -36,6 +36,8 @@ __all__ = [
     "load_space",
     "suggest",
     "objective",
+    "score",
+    "objective_name",
     "run_local",
     "run_ray",
     "write_best",
@@ -91,19 +93,51 @@ def suggest(trial, space: dict) -> dict:
     return out
 
 
+def objective_name(spec: dict) -> str:
+    """What :func:`score` measures, for messages and the tuned config's sources."""
+    weight = float((spec.get("objective") or {}).get("chatter_pct_per_a", 0.0))
+    extra = f" + {weight:g} %/A x validation chatter" if weight else ""
+    return f"validation RMS (%){extra}"
+
+
+def score(spec: dict, record: dict) -> float:
+    """The objective of one validation record: ``val_rms_pct`` plus, if the tuning file
+    sets ``objective.chatter_pct_per_a``, that weight times ``val_chatter_a``."""
+    weight = float((spec.get("objective") or {}).get("chatter_pct_per_a", 0.0))
+    return float(record[METRIC]) + weight * float(record.get("val_chatter_a", 0.0))
+
+
 def _train_trial(
-    params: dict, spec: dict, env_id: str, seed: int, out: Path, minutes: float, report
+    params: dict,
+    spec: dict,
+    env_id: str,
+    seed: int,
+    out: Path,
+    minutes: float,
+    report,
+    steps: float | None = None,
 ) -> float:
-    """Train one trial; ``report(value, slice)`` after each evaluation; the last value."""
+    """Train one trial; ``report(value, slice)`` after each evaluation; the last value.
+
+    With ``steps`` the trial ends after that many env steps and evaluates every
+    ``steps / slices`` (``minutes`` is then only a cap), so a loaded machine does not
+    change what a trial learns; else it runs ``minutes`` and evaluates by wall time."""
     from .ppo import train
 
     slices = int(spec["budget"]["slices"])
-    overrides = {**params, "training.eval_every_s": 60.0 * minutes / slices}
+    if steps:
+        overrides = {
+            **params,
+            "training.eval_every_s": 1.0e12,
+            "training.eval_every_steps": float(steps) / slices,
+        }
+    else:
+        overrides = {**params, "training.eval_every_s": 60.0 * minutes / slices}
     count = {"n": 0}
 
     def on_eval(record):
         count["n"] += 1
-        report(record[METRIC], count["n"])
+        report(score(spec, record), count["n"])
 
     s = train(
         agent_config_path(spec["base_config"]),
@@ -111,14 +145,17 @@ def _train_trial(
         seed,
         out,
         minutes,
+        total_steps=steps,
         overrides=overrides,
         on_eval=on_eval,
         log=lambda *a, **k: None,
     )
-    return float(s["curve"][-1][METRIC])
+    return score(spec, s["curve"][-1])
 
 
-def objective(spec: dict, env_id: str, seed: int, out: Path, minutes: float):
+def objective(
+    spec: dict, env_id: str, seed: int, out: Path, minutes: float, steps: float | None = None
+):
     """The Optuna objective: train with the trial's values, report per slice, prune."""
     import optuna
 
@@ -138,6 +175,7 @@ def objective(spec: dict, env_id: str, seed: int, out: Path, minutes: float):
             out / f"trial-{trial.number:03d}",
             minutes,
             report,
+            steps,
         )
 
     return run_trial
@@ -172,6 +210,7 @@ def run_local(
     storage: str,
     name: str,
     seed: int = 0,
+    steps: float | None = None,
 ):
     """Run (or continue) the study until ``trials`` trials are complete or pruned."""
     import optuna
@@ -183,7 +222,9 @@ def run_local(
     )
     if trials > done:
         study.optimize(
-            objective(spec, env_id, seed, out, minutes), n_trials=trials - done, catch=()
+            objective(spec, env_id, seed, out, minutes, steps),
+            n_trials=trials - done,
+            catch=(),
         )
     return study
 
@@ -202,6 +243,7 @@ def run_ray(
     address: str,
     name: str,
     seed: int = 0,
+    steps: float | None = None,
 ) -> dict:
     """The trials on Ray Tune with the Optuna searcher; resumes ``<out>/ray/<name>``."""
     import optuna
@@ -233,6 +275,7 @@ def run_ray(
             out / "trials" / tune.get_context().get_trial_id(),
             minutes,
             report,
+            steps,
         )
 
     searcher = OptunaSearch(
@@ -281,7 +324,7 @@ def write_best(spec: dict, params: dict, value: float, out: Path, name: str) -> 
         entry = dict(old) if isinstance(old, dict) and "value" in old else {"unit": "-"}
         entry["value"] = value_
         entry["source"] = (
-            f"tuned: pneumatic-env tune, study {name!r} (validation RMS {value:.3f} %)"
+            f"tuned: pneumatic-env tune, study {name!r} ({objective_name(spec)} {value:.3f})"
         )
         node[leaf] = {k: entry[k] for k in ("value", "unit", "source")}
     path = out / "ppo_fast-tuned.yaml"
@@ -302,7 +345,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="tuning file (default configs/agents/tune-ppo_fast.yaml)",
     )
     parser.add_argument("--trials", type=int, help="trials to finish (default: the file's)")
-    parser.add_argument("--minutes-per-trial", type=float, help="wall time per trial")
+    parser.add_argument(
+        "--minutes-per-trial", type=float, help="wall time per trial (a cap with steps)"
+    )
+    parser.add_argument(
+        "--steps-per-trial",
+        type=float,
+        help="env steps per trial (default: the file's budget.steps_per_trial, if any)",
+    )
     parser.add_argument("--storage", help="Optuna storage URL (default sqlite:///OUT/study.db)")
     parser.add_argument("--study-name", default="ppo_fast", help="study to create or continue")
     parser.add_argument("--seed", type=int, default=0)
@@ -321,12 +371,24 @@ def run(args: argparse.Namespace) -> int:
     env_id = args.env or load_config(agent_config_path(spec["base_config"]))["env"]
     trials = int(args.trials if args.trials is not None else spec["budget"]["trials"])
     minutes = float(args.minutes_per_trial or spec["budget"]["minutes_per_trial"])
+    steps = args.steps_per_trial or spec["budget"].get("steps_per_trial")
+    if steps is not None and not float(steps) > 0:
+        raise SystemExit(f"steps per trial = {steps!r} is not allowed: must be > 0")
+    steps = float(steps) if steps is not None else None
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if args.ray_address:
         try:
             best = run_ray(
-                spec, env_id, out, trials, minutes, args.ray_address, args.study_name, args.seed
+                spec,
+                env_id,
+                out,
+                trials,
+                minutes,
+                args.ray_address,
+                args.study_name,
+                args.seed,
+                steps,
             )
         except ModuleNotFoundError as exc:
             if (exc.name or "").split(".")[0] != "ray":
@@ -337,7 +399,9 @@ def run(args: argparse.Namespace) -> int:
         value, params = best["value"], best["params"]
     else:
         storage = args.storage or f"sqlite:///{(out / 'study.db').resolve()}"
-        study = run_local(spec, env_id, out, trials, minutes, storage, args.study_name, args.seed)
+        study = run_local(
+            spec, env_id, out, trials, minutes, storage, args.study_name, args.seed, steps
+        )
         import optuna
 
         if not any(t.state == optuna.trial.TrialState.COMPLETE for t in study.trials):
@@ -347,5 +411,5 @@ def run(args: argparse.Namespace) -> int:
             )
         value, params = study.best_value, study.best_params
     path = write_best(spec, params, value, out, args.study_name)
-    print(f"best validation RMS {value:.3f} % with {params}; wrote {path}")
+    print(f"best {objective_name(spec)} {value:.3f} with {params}; wrote {path}")
     return 0

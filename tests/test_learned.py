@@ -547,6 +547,7 @@ def test_tune_tiny_budget_runs_and_resumes(tmp_path):
         env=None,
         trials=1,
         minutes_per_trial=None,
+        steps_per_trial=None,
         storage=None,
         study_name="tiny",
         seed=0,
@@ -567,6 +568,53 @@ def test_tune_tiny_budget_runs_and_resumes(tmp_path):
     tuned = load_config(tmp_path / "out" / "ppo_fast-tuned.yaml")
     assert tuned["hyperparameters"]["epochs"] == best["params"]["hyperparameters.epochs"]
     assert tuned["hyperparameters"]["num_envs"] == 16
+
+
+def test_tune_with_a_step_budget_evaluates_at_fixed_steps_and_scores_chatter(tmp_path):
+    """``--steps-per-trial``: every trial ends at the step budget with its validations at
+    the slices' step counts (not by wall time), and ``objective.chatter_pct_per_a`` adds
+    the chatter to the score each trial reports."""
+    import argparse
+    import csv
+
+    import optuna
+
+    from pneumatic_env.agents import tune
+
+    space = _tiny_tune_files(tmp_path)
+    space.write_text(
+        space.read_text()
+        + "objective:\n  chatter_pct_per_a: {value: 20.0, unit: '%/A', source: test}\n"
+    )
+    batch = 16 * 4  # num_envs x rollout_steps of the tiny base config
+    args = argparse.Namespace(
+        space=str(space),
+        env=None,
+        trials=2,
+        minutes_per_trial=10.0,  # a cap only
+        steps_per_trial=6 * batch,
+        storage=None,
+        study_name="steps",
+        seed=0,
+        out=str(tmp_path / "out"),
+        ray_address=None,
+    )
+    assert tune.run(args) == 0
+    study = optuna.load_study(
+        study_name="steps", storage=f"sqlite:///{tmp_path / 'out' / 'study.db'}"
+    )
+    for trial in study.trials:
+        rows = list(
+            csv.DictReader(open(tmp_path / "out" / f"trial-{trial.number:03d}" / "progress.csv"))
+        )
+        evaluated = [int(r["steps"]) for r in rows if r["val_rms_pct"] != ""]
+        assert evaluated == [3 * batch, 6 * batch], evaluated
+        last = rows[-1]
+        expect = float(last["val_rms_pct"]) + 20.0 * float(last["val_chatter_a"])
+        assert trial.value == pytest.approx(expect, rel=1e-4)
+        assert float(last["val_chatter_a"]) > 0.0
+    tuned = (tmp_path / "out" / "ppo_fast-tuned.yaml").read_text()
+    assert "20 %/A x validation chatter" in tuned
 
 
 def test_tune_search_space_errors(tmp_path):
@@ -595,6 +643,7 @@ def test_tune_on_a_local_ray_instance(tmp_path):
         env=None,
         trials=2,
         minutes_per_trial=None,
+        steps_per_trial=None,
         storage=None,
         study_name="ray",
         seed=0,
@@ -610,7 +659,7 @@ def test_ray_path_is_optional(tmp_path):
         "import sys; sys.modules['ray'] = None; import argparse; "
         "from pneumatic_env.agents import tune; "
         "a = argparse.Namespace(space='tune-ppo_fast', env=None, trials=1, "
-        "minutes_per_trial=None, storage=None, study_name='x', seed=0, "
+        "minutes_per_trial=None, steps_per_trial=None, storage=None, study_name='x', seed=0, "
         "out=sys.argv[1], ray_address='auto'); tune.run(a)"
     )
     res = subprocess.run(
