@@ -366,7 +366,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     spec = load_space(args.space)
-    from .ppo import load_config
+    from .ppo_setup import load_config
 
     env_id = args.env or load_config(agent_config_path(spec["base_config"]))["env"]
     trials = int(args.trials if args.trials is not None else spec["budget"]["trials"])

@@ -57,7 +57,7 @@ def test_mixture_rows_are_each_variant_alone_with_its_plant_columns(seed):
 
 def test_mixture_and_config_errors_name_the_field():
     from pneumatic_env.agents.config import ConfigError
-    from pneumatic_env.agents.ppo import load_config, make_training_env
+    from pneumatic_env.agents.ppo_setup import load_config, make_training_env
 
     with pytest.raises(ValueError) as err:
         MixtureVectorEnv([_vec(IDS[0], 2), _vec(IDS[1], 2, action_history=4)])
@@ -79,7 +79,8 @@ def test_generalist_trains_and_its_controller_rebuilds_the_training_observation(
     learned controller rebuilds the mixture's row from the base observation and its
     context's nominal parameters, bit for bit (SI base columns, as the env sees them)."""
     from pneumatic_env.agents.learned import LearnedActor, LearnedController, pure_current
-    from pneumatic_env.agents.ppo import _row_deadband_a, train
+    from pneumatic_env.agents.ppo import train
+    from pneumatic_env.agents.ppo_setup import row_deadband_a
 
     s = train(
         "ppo_fast-generalist",
@@ -104,7 +105,7 @@ def test_generalist_trains_and_its_controller_rebuilds_the_training_observation(
         ctrl.reset()
         ctrls.append(ctrl)
     rows0, rows1 = slice(0, 2), slice(2, 4)
-    deadband = _row_deadband_a(mix)
+    deadband = row_deadband_a(mix)
     for k in range(20):
         us = []
         for ctrl, rows in zip(ctrls, (rows0, rows1)):

@@ -427,7 +427,8 @@ def test_learned_controller_rebuilds_the_training_observation(fast_run):
 
 def test_pure_mode_trains_and_runs_as_a_controller(tmp_path):
     from pneumatic_env.agents.bench import closed_loop, make_env
-    from pneumatic_env.agents.ppo import load_config, train
+    from pneumatic_env.agents.ppo import train
+    from pneumatic_env.agents.ppo_setup import load_config
 
     cfg = load_config("ppo_fast-pure-numatics-2m")
     assert cfg["mode"] == "pure" and cfg["hyperparameters"]["num_envs"] == 2048  # extends
@@ -563,7 +564,7 @@ def test_tune_tiny_budget_runs_and_resumes(tmp_path):
     assert len(study.trials) == 2
     best = json.loads((tmp_path / "out" / "best.json").read_text())
     assert set(best["params"]) == {"hyperparameters.learning_rate", "hyperparameters.epochs"}
-    from pneumatic_env.agents.ppo import load_config
+    from pneumatic_env.agents.ppo_setup import load_config
 
     tuned = load_config(tmp_path / "out" / "ppo_fast-tuned.yaml")
     assert tuned["hyperparameters"]["epochs"] == best["params"]["hyperparameters.epochs"]

@@ -93,17 +93,17 @@ def test_mixture_teacher_teaches_each_tuned_variant_as_it_would_alone(seed):
     targets equal a teacher of that variant alone bit for bit (through a truncation); the
     rows of a variant without gains (Airpel-3m) have none (NaN, ``taught`` False)."""
     from pneumatic_env.agents.generalist import MixtureVectorEnv
-    from pneumatic_env.agents.ppo import _row_deadband_a
+    from pneumatic_env.agents.ppo_setup import row_deadband_a
     from pneumatic_env.agents.teacher import Teacher, has_tuned_gains
 
     cfg = TeacherConfig.from_config({"mode": "pure", "pure": {"teacher": "sliding_mode"}})
     layout = [("Numatics-0.5m", 3), ("Airpel-3m", 2), ("Airpel-2m", 2)]
     assert [has_tuned_gains("sliding_mode", v) for v, _ in layout] == [True, False, True]
     mix = MixtureVectorEnv([_teacher_vec(v, n) for v, n in layout])
-    taught = Teacher(mix, cfg, 1.3, _row_deadband_a(mix), 0.02)
+    taught = Teacher(mix, cfg, 1.3, row_deadband_a(mix), 0.02)
     alone_envs = [_teacher_vec(v, n) for v, n in layout]
     alone = {
-        k: Teacher(alone_envs[k], cfg, 1.3, _row_deadband_a(alone_envs[k]), 0.02) for k in (0, 2)
+        k: Teacher(alone_envs[k], cfg, 1.3, row_deadband_a(alone_envs[k]), 0.02) for k in (0, 2)
     }
     assert taught.taught.tolist() == [True] * 3 + [False] * 2 + [True] * 2
     obs, _ = mix.reset(seed=seed)
