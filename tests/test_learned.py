@@ -536,15 +536,12 @@ def _tiny_tune_files(tmp_path):
     return space
 
 
-def test_tune_tiny_budget_runs_and_resumes(tmp_path):
+def _tune_args(tmp_path, space, **changes):
+    """``pneumatic-env tune``'s arguments for a tiny study in ``tmp_path/out``."""
     import argparse
 
-    import optuna
-
-    from pneumatic_env.agents import tune
-
-    args = argparse.Namespace(
-        space=str(_tiny_tune_files(tmp_path)),
+    args = dict(
+        space=str(space),
         env=None,
         trials=1,
         minutes_per_trial=None,
@@ -555,6 +552,16 @@ def test_tune_tiny_budget_runs_and_resumes(tmp_path):
         out=str(tmp_path / "out"),
         ray_address=None,
     )
+    return argparse.Namespace(**{**args, **changes})
+
+
+def test_tune_tiny_budget_runs_and_resumes(tmp_path):
+
+    import optuna
+
+    from pneumatic_env.agents import tune
+
+    args = _tune_args(tmp_path, _tiny_tune_files(tmp_path))
     assert tune.run(args) == 0
     args.trials = 2  # the same storage and name: continues with one more trial
     assert tune.run(args) == 0
@@ -575,7 +582,6 @@ def test_tune_with_a_step_budget_evaluates_at_fixed_steps_and_scores_chatter(tmp
     """``--steps-per-trial``: every trial ends at the step budget with its validations at
     the slices' step counts (not by wall time), and ``objective.chatter_pct_per_a`` adds
     the chatter to the score each trial reports."""
-    import argparse
     import csv
 
     import optuna
@@ -588,17 +594,13 @@ def test_tune_with_a_step_budget_evaluates_at_fixed_steps_and_scores_chatter(tmp
         + "objective:\n  chatter_pct_per_a: {value: 20.0, unit: '%/A', source: test}\n"
     )
     batch = 16 * 4  # num_envs x rollout_steps of the tiny base config
-    args = argparse.Namespace(
-        space=str(space),
-        env=None,
+    args = _tune_args(
+        tmp_path,
+        space,
         trials=2,
         minutes_per_trial=10.0,  # a cap only
         steps_per_trial=6 * batch,
-        storage=None,
         study_name="steps",
-        seed=0,
-        out=str(tmp_path / "out"),
-        ray_address=None,
     )
     assert tune.run(args) == 0
     study = optuna.load_study(
@@ -635,21 +637,11 @@ def test_tune_search_space_errors(tmp_path):
 @pytest.mark.slow
 def test_tune_on_a_local_ray_instance(tmp_path):
     pytest.importorskip("ray")
-    import argparse
 
     from pneumatic_env.agents import tune
 
-    args = argparse.Namespace(
-        space=str(_tiny_tune_files(tmp_path)),
-        env=None,
-        trials=2,
-        minutes_per_trial=None,
-        steps_per_trial=None,
-        storage=None,
-        study_name="ray",
-        seed=0,
-        out=str(tmp_path / "out"),
-        ray_address="local",
+    args = _tune_args(
+        tmp_path, _tiny_tune_files(tmp_path), trials=2, study_name="ray", ray_address="local"
     )
     assert tune.run(args) == 0
     assert (tmp_path / "out" / "best.json").is_file()
