@@ -163,9 +163,11 @@ def objective(
         params = suggest(trial, spec["search_space"])
 
         def report(value, step):
-            trial.report(value, step)
+            # Optuna counts steps from 0 and prunes from step n_warmup_steps on, so slice 1
+            # is step 0: n_warmup_steps = 1 keeps every trial's first evaluation
+            trial.report(value, step - 1)
             if trial.should_prune():
-                raise optuna.TrialPruned(f"slice {step}: {METRIC} = {value:.3f}")
+                raise optuna.TrialPruned(f"slice {step}: {objective_name(spec)} = {value:.3f}")
 
         return _train_trial(
             params,

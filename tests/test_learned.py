@@ -620,6 +620,30 @@ def test_tune_with_a_step_budget_evaluates_at_fixed_steps_and_scores_chatter(tmp
     assert "20 %/A x validation chatter" in tuned
 
 
+def test_tune_never_prunes_a_trial_at_its_warmup_evaluations(tmp_path, monkeypatch):
+    """With ``pruner.n_warmup_steps`` = 1 the median pruner judges a trial from its second
+    evaluation on: later trials that are worse at every slice are pruned there, never at
+    the first (a stand-in for training reports the slices)."""
+    import optuna
+
+    from pneumatic_env.agents import tune
+
+    spec = tune.load_space(_tiny_tune_files(tmp_path))
+    spec["pruner"] = {"n_startup_trials": 1, "n_warmup_steps": 1}
+
+    def fake_trial(params, spec_, env_id, seed, out, minutes, report, steps=None):
+        for slice_ in (1, 2, 3):
+            report(10.0 + seed, slice_)  # each trial worse than the ones before
+        return 10.0 + seed
+
+    monkeypatch.setattr(tune, "_train_trial", fake_trial)
+    study = tune._study(spec, "sqlite:///" + str(tmp_path / "s.db"), "warmup", seed=0)
+    study.optimize(tune.objective(spec, "unused", 0, tmp_path, 1.0), n_trials=4)
+    pruned = [t for t in study.trials if t.state == optuna.trial.TrialState.PRUNED]
+    assert len(pruned) == 3
+    assert all(sorted(t.intermediate_values) == [0, 1] for t in pruned)
+
+
 def test_tune_search_space_errors(tmp_path):
     from pneumatic_env.agents.config import ConfigError
     from pneumatic_env.agents.tune import load_space
