@@ -50,11 +50,16 @@ METRIC = "val_rms_pct"
 
 
 def load_space(path: str | Path = "tune-ppo_fast") -> dict:
-    """The tuning file with entries resolved; its search space checked."""
+    """The tuning file with entries resolved; its search space checked. ``units`` maps each
+    search-space key to its entry's unit (the tuned config's units)."""
     spec = load_agent_config(path)
     space = spec.get("search_space")
     if not isinstance(space, dict) or not space:
         raise ConfigError(f"{path}: missing the 'search_space' mapping")
+    raw = read_yaml(agent_config_path(path)).get("search_space") or {}
+    spec["units"] = {
+        k: str(v.get("unit", "-")) if isinstance(v, dict) else "-" for k, v in raw.items()
+    }
     for key, dim in space.items():
         where = f"{path}: search_space.{key}"
         if not isinstance(dim, dict) or dim.get("type") not in TYPES:
@@ -323,7 +328,8 @@ def write_best(spec: dict, params: dict, value: float, out: Path, name: str) -> 
         for s in sections:
             node = node.setdefault(s, {})
         old = node.get(leaf)
-        entry = dict(old) if isinstance(old, dict) and "value" in old else {"unit": "-"}
+        unit = (spec.get("units") or {}).get(key, "-")
+        entry = dict(old) if isinstance(old, dict) and "value" in old else {"unit": unit}
         entry["value"] = value_
         entry["source"] = (
             f"tuned: pneumatic-env tune, study {name!r} ({objective_name(spec)} {value:.3f})"

@@ -531,7 +531,7 @@ def _tiny_tune_files(tmp_path):
         "    unit: '-'\n    source: test\n"
         "  hyperparameters.epochs:\n"
         "    value: {type: categorical, choices: [1, 2]}\n"
-        "    unit: '-'\n    source: test\n"
+        "    unit: epochs per update\n    source: test\n"
     )
     return space
 
@@ -618,6 +618,11 @@ def test_tune_with_a_step_budget_evaluates_at_fixed_steps_and_scores_chatter(tmp
         assert float(last["val_chatter_a"]) > 0.0
     tuned = (tmp_path / "out" / "ppo_fast-tuned.yaml").read_text()
     assert "20 %/A x validation chatter" in tuned
+    # a tuned value the base file does not set takes its unit from the search space
+    from pneumatic_env.config_files import read_yaml
+
+    entry = read_yaml(tmp_path / "out" / "ppo_fast-tuned.yaml")["hyperparameters"]["epochs"]
+    assert entry["unit"] == "epochs per update"
 
 
 def test_tune_never_prunes_a_trial_at_its_warmup_evaluations(tmp_path, monkeypatch):
