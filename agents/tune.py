@@ -2,14 +2,16 @@
 
     pneumatic-env tune --env pneumatic_env/ForceTrack-Numatics-2m-v0 \\
         [--space configs/agents/tune-ppo_fast.yaml] [--trials N] [--minutes-per-trial M] \\
-        [--storage sqlite:///runs/tune/study.db] [--study-name NAME] [--out DIR] \\
-        [--ray-address ADDR]
+        [--steps-per-trial S] [--storage sqlite:///runs/tune/study.db] [--study-name NAME] \\
+        [--out DIR] [--ray-address ADDR]
 
 Optuna's TPE sampler proposes the values of ``search_space`` (dotted paths into the
-ppo_fast config); each trial trains ``agents/ppo.py`` for ``minutes_per_trial`` and
+ppo_fast config); each trial trains ``agents/ppo.py`` for ``minutes_per_trial`` of wall
+time, or for ``steps_per_trial`` env steps if given (then the minutes are only a cap), and
 evaluates on the validation references after every budget slice; the median pruner stops
 trials whose intermediate value is worse than the median of earlier trials at the same
-slice. The objective is the validation mean RMS error (%) at the end of the trial.
+slice. The objective is the validation mean RMS error (%) at the end of the trial, plus
+``objective.chatter_pct_per_a`` times the validation chatter (A) if the file sets it.
 ``--storage`` (default ``sqlite:///<out>/study.db``) keeps the study: running the command
 again with the same ``--study-name`` continues it until ``--trials`` trials are finished.
 The best values are written to ``<out>/best.json`` and ``<out>/ppo_fast-tuned.yaml`` (the
@@ -98,9 +100,14 @@ def suggest(trial, space: dict) -> dict:
     return out
 
 
+def _chatter_weight(spec: dict) -> float:
+    """``objective.chatter_pct_per_a`` of the tuning file (%/A; 0 if unset)."""
+    return float((spec.get("objective") or {}).get("chatter_pct_per_a", 0.0))
+
+
 def objective_name(spec: dict) -> str:
     """What :func:`score` measures, for messages and the tuned config's sources."""
-    weight = float((spec.get("objective") or {}).get("chatter_pct_per_a", 0.0))
+    weight = _chatter_weight(spec)
     extra = f" + {weight:g} %/A x validation chatter" if weight else ""
     return f"validation RMS (%){extra}"
 
@@ -108,8 +115,7 @@ def objective_name(spec: dict) -> str:
 def score(spec: dict, record: dict) -> float:
     """The objective of one validation record: ``val_rms_pct`` plus, if the tuning file
     sets ``objective.chatter_pct_per_a``, that weight times ``val_chatter_a``."""
-    weight = float((spec.get("objective") or {}).get("chatter_pct_per_a", 0.0))
-    return float(record[METRIC]) + weight * float(record.get("val_chatter_a", 0.0))
+    return float(record[METRIC]) + _chatter_weight(spec) * float(record.get("val_chatter_a", 0.0))
 
 
 def _train_trial(
@@ -381,7 +387,10 @@ def run(args: argparse.Namespace) -> int:
     minutes = float(args.minutes_per_trial or spec["budget"]["minutes_per_trial"])
     steps = args.steps_per_trial or spec["budget"].get("steps_per_trial")
     if steps is not None and not float(steps) > 0:
-        raise SystemExit(f"steps per trial = {steps!r} is not allowed: must be > 0")
+        raise SystemExit(
+            f"--steps-per-trial (budget.steps_per_trial) = {steps!r} is not allowed: "
+            "must be a number > 0"
+        )
     steps = float(steps) if steps is not None else None
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

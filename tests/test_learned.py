@@ -649,6 +649,16 @@ def test_tune_never_prunes_a_trial_at_its_warmup_evaluations(tmp_path, monkeypat
     assert all(sorted(t.intermediate_values) == [0, 1] for t in pruned)
 
 
+def test_tune_refuses_a_step_budget_that_is_not_positive(tmp_path):
+    from pneumatic_env.agents import tune
+
+    args = _tune_args(tmp_path, _tiny_tune_files(tmp_path), steps_per_trial=-5.0)
+    with pytest.raises(SystemExit) as err:
+        tune.run(args)
+    assert "--steps-per-trial (budget.steps_per_trial) = -5.0" in str(err.value)
+    assert "> 0" in str(err.value)
+
+
 def test_tune_search_space_errors(tmp_path):
     from pneumatic_env.agents.config import ConfigError
     from pneumatic_env.agents.tune import load_space
