@@ -13,7 +13,13 @@ from .base import Controller, ControllerContext, ZeroController
 from .config import agent_config_path, load_agent_config
 from .suite import suite_preview_steps
 
-__all__ = ["ControllerSpec", "resolve_controller", "controller_names", "CLASSICAL"]
+__all__ = [
+    "ControllerSpec",
+    "resolve_controller",
+    "controller_names",
+    "tuned_config_path",
+    "CLASSICAL",
+]
 
 CLASSICAL = ("pid", "sliding_mode", "zero")
 
@@ -28,8 +34,10 @@ class ControllerSpec:
     source: str = ""
 
 
-def _variant_key(variant: str) -> str:
-    return variant.lower()
+def tuned_config_path(name: str, variant: str) -> Path:
+    """``configs/agents/<name>-<variant>.yaml``: the benchmark's gains of a classical
+    controller for one variant (the file may not exist: no gains tuned there)."""
+    return agent_config_path(f"{name}-{variant.lower()}")
 
 
 def _classical(
@@ -40,7 +48,7 @@ def _classical(
 
     classes = {"pid": PIDController, "sliding_mode": SlidingModeController}
     if config is None:
-        per_variant = agent_config_path(f"{name}-{_variant_key(variant)}")
+        per_variant = tuned_config_path(name, variant)
         config = per_variant if per_variant.is_file() else agent_config_path(name)
     cfg = load_agent_config(config)
     if cfg.get("controller") != name:

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .config import agent_config_path
 from .generalist import MixtureVectorEnv
+from .registry import tuned_config_path
 from .residual import ResidualConfig, _residual_core, env_variant
 
 __all__ = ["TeacherConfig", "Teacher", "pure_action_for_current", "has_tuned_gains"]
@@ -81,7 +81,7 @@ def pure_action_for_current(
 
 def has_tuned_gains(name: str, variant: str) -> bool:
     """Whether ``configs/agents/<name>-<variant>.yaml`` holds the benchmark's gains."""
-    return agent_config_path(f"{name}-{variant.lower()}").is_file()
+    return tuned_config_path(name, variant).is_file()
 
 
 class Teacher:

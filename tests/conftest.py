@@ -7,6 +7,8 @@ quick run.
 
 from __future__ import annotations
 
+import functools
+
 import numba
 import numpy as np
 import pytest
@@ -148,3 +150,12 @@ def first_crossing_time(t_s: np.ndarray, values: np.ndarray, threshold: float) -
         return float(t_s[0])
     v0, v1 = values[k - 1], values[k]
     return float(t_s[k - 1] + (threshold - v0) / (v1 - v0) * (t_s[k] - t_s[k - 1]))
+
+
+@functools.cache
+def suite_rms_pct(controller: str, variant: str) -> dict[str, float]:
+    """{task: RMS error (% of the scale)} of a named controller on suite v1 for one variant
+    (``agents.bench.run_suite``; deterministic, so computed once per session)."""
+    from pneumatic_env.agents.bench import run_suite
+
+    return {r["task"]: r["rms_error_pct"] for r in run_suite(controller, [variant])[0]}

@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from conftest import assert_error_names
+from conftest import assert_error_names, suite_rms_pct
 from pneumatic_env.agents.base import ControllerContext
 from pneumatic_env.agents.generalist import MixtureVectorEnv, param_values
 from pneumatic_env.envs.observation import observation_dim
@@ -151,7 +151,7 @@ def test_shipped_generalist_runs_every_variant_and_is_near_the_sliding_mode():
     eight variants: it builds on each from the context alone, and on each of the four suite
     variants its mean RMS error is within issue 19's 10 % of the sliding mode's (target 2's
     threshold)."""
-    from pneumatic_env.agents.bench import resolve_controller, run_suite
+    from pneumatic_env.agents.bench import resolve_controller
     from pneumatic_env.ids import CYLINDER_IDS, TUBE_LENGTHS_M
 
     for variant in [f"{c}-{t}m" for c in CYLINDER_IDS for t in TUBE_LENGTHS_M]:
@@ -165,6 +165,6 @@ def test_shipped_generalist_runs_every_variant_and_is_near_the_sliding_mode():
             assert np.all(np.isfinite(current)) and np.all(np.abs(current) <= 1.3), variant
             obs = env.step(current)[0]
     for variant in ("Numatics-0.5m", "Numatics-2m", "Airpel-0.5m", "Airpel-2m"):
-        learned = np.mean([r["rms_error_pct"] for r in run_suite("ppo_generalist", [variant])[0]])
-        base = np.mean([r["rms_error_pct"] for r in run_suite("sliding_mode", [variant])[0]])
+        learned = np.mean(list(suite_rms_pct("ppo_generalist", variant).values()))
+        base = np.mean(list(suite_rms_pct("sliding_mode", variant).values()))
         assert learned <= 1.1 * base, variant

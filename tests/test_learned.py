@@ -12,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from conftest import assert_check_env_passes, assert_error_names
+from conftest import assert_check_env_passes, assert_error_names, suite_rms_pct
 from pneumatic_env.agents.base import ControllerContext
 from pneumatic_env.agents.registry import resolve_controller
 from pneumatic_env.envs.features import FeatureConfig, FeatureState, normalize_base_observation
@@ -455,10 +455,8 @@ def test_shipped_policy_beats_the_sliding_mode_where_the_delay_hurts(variant):
     """The shipped residual on a 2 m variant: a lower mean RMS error than the sliding mode
     it corrects, and at least 20 % lower on the 10 and 20 Hz sines and the chirp (issue
     19's target 1; the thresholds are the issue's)."""
-    from pneumatic_env.agents.bench import run_suite
-
-    learned = {r["task"]: r["rms_error_pct"] for r in run_suite("ppo_residual", [variant])[0]}
-    base = {r["task"]: r["rms_error_pct"] for r in run_suite("sliding_mode", [variant])[0]}
+    learned = suite_rms_pct("ppo_residual", variant)
+    base = suite_rms_pct("sliding_mode", variant)
     assert np.mean(list(learned.values())) < np.mean(list(base.values()))
     for task in ("sine_10hz", "sine_20hz", "chirp"):
         assert learned[task] <= 0.8 * base[task], task
@@ -469,13 +467,12 @@ def test_shipped_taught_pure_policy_is_within_10_percent_of_the_sliding_mode(var
     """The shipped pure policy (no classical controller inside; trained with the sliding
     mode as its teacher, agents/teacher.py) on each variant: its mean RMS error is at
     most 1.1 x the sliding mode's (issue 19's target 2; the threshold is the issue's)."""
-    from pneumatic_env.agents.bench import run_suite
     from pneumatic_env.agents.learned import LearnedActor, shipped_policy_path
 
     actor = LearnedActor(shipped_policy_path("ppo_pure", variant))
     assert actor.residual_config is None  # pure: the network sets the current
-    learned = [r["rms_error_pct"] for r in run_suite("ppo_pure", [variant])[0]]
-    base = [r["rms_error_pct"] for r in run_suite("sliding_mode", [variant])[0]]
+    learned = list(suite_rms_pct("ppo_pure", variant).values())
+    base = list(suite_rms_pct("sliding_mode", variant).values())
     assert np.mean(learned) <= 1.1 * np.mean(base)
 
 
@@ -556,7 +553,6 @@ def _tune_args(tmp_path, space, **changes):
 
 
 def test_tune_tiny_budget_runs_and_resumes(tmp_path):
-
     import optuna
 
     from pneumatic_env.agents import tune
@@ -676,7 +672,6 @@ def test_tune_search_space_errors(tmp_path):
 @pytest.mark.slow
 def test_tune_on_a_local_ray_instance(tmp_path):
     pytest.importorskip("ray")
-
     from pneumatic_env.agents import tune
 
     args = _tune_args(
