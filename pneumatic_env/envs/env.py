@@ -278,29 +278,35 @@ class PneumaticTrackingEnv(_TaskProperties, gym.Env[NDArray[np.float32], NDArray
     an error naming the field, the value and what is allowed:
 
     * ``task`` (``"ForceTrack"`` or ``"PositionTrack"``), ``cylinder`` (name, alias or
-      config id) and ``tube_length_m``: set by the registered id.
+      config id) and ``tube_length_m`` (m): set by the registered id.
     * ``params``: a parameter YAML file (written by ``identify`` or
       ``params.save_parameters``) or mapping. Any physical parameter by its name in
-      ``configs/`` (``supply_pressure_pa=5e5``; ``piston_mode`` among the task's rod modes).
-    * ``max_episode_steps`` (2000, ``ids.EPISODE_STEPS``).
-    * ``reference_steps`` (2000): length of the generated reference, held at its last value.
-    * ``preview_steps`` (10, ``ids.ENV_PREVIEW_STEPS``): reference samples ahead.
+      ``configs/``, in SI units (``supply_pressure_pa=5e5``; ``piston_mode`` among the
+      task's rod modes; ``fixed_position_m``, the clamp position, 0 m).
+    * ``max_episode_steps`` (control steps; registered: 2000, ``ids.EPISODE_STEPS``).
+    * ``reference_steps`` (control steps, 2000): length of the generated reference, held at
+      its last value.
+    * ``preview_steps`` (control steps, 10, ``ids.ENV_PREVIEW_STEPS``): reference samples
+      ahead, H.
     * ``reference``: every episode's reference spec, in the tracked channel's SI unit
       (``{"kind": "sine", "amplitude": 40, "frequency_hz": 10}``; kinds step, sine, chirp,
       multisine, random_step, array, mixture: ``pneumatic_env.references``).
-    * ``normalize_observation`` (False); ``effort_weight`` and ``chatter_weight`` (0).
-    * ``action_history`` (0), ``measurement_history`` (0), ``tracking_error`` (False),
-      ``error_integral_tau_s`` (0.2), ``error_integral_leaky`` (True),
+    * ``normalize_observation`` (False): the last column of the table above.
+    * ``effort_weight`` and ``chatter_weight`` (dimensionless, 0): the reward's weights.
+    * ``action_history`` (K, 0), ``measurement_history`` (M, 0), ``tracking_error``
+      (False), ``error_integral_tau_s`` (tau, s, 0.2), ``error_integral_leaky`` (True),
       ``relative_preview`` (False): the observation features above.
-    * ``domain_randomization``: ``{name: (low, high)}`` or ``{name: relative_half_width}``,
-      uniform per episode (around the plant's values).
-    * ``plant``: ``{name: value}``, a model mismatch: the simulated plant takes these
+    * ``domain_randomization``: ``{name: (low, high)}`` in the parameter's SI unit or
+      ``{name: relative_half_width}`` (a fraction in [0, 1)), uniform per episode (around
+      the plant's values).
+    * ``plant``: ``{name: value}`` (SI), a model mismatch: the simulated plant takes these
       parameters while the task, the reference scale, the observation scales and
       ``base_params`` (what a controller may know) keep the model's; for robustness
       studies (``agents/robustness.py``).
-    * ``sensor_noise``: ``{channel: std}`` for p1, p2, x, f (SI); ``sensor_lag_s`` (0): a
-      first-order sensor lag.
-    * ``control_dt_s``, ``substeps``: control period and RK4 substeps (configs/numerics.yaml).
+    * ``sensor_noise``: ``{channel: std}`` for p1, p2 (Pa), x (m), f (N), Gaussian per
+      step; ``sensor_lag_s`` (s, 0): the time constant of a first-order sensor lag.
+    * ``control_dt_s`` (s) and ``substeps``: the control period and RK4 substeps per
+      period (default 1 ms and 5, configs/numerics.yaml).
     * ``render_mode``: ``"rgb_array"`` or None.
 
     ``reset(seed=None, options=None)`` accepts ``options={"reference": r}``: this episode's
