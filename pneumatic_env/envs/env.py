@@ -211,7 +211,8 @@ class PneumaticTrackingEnv(_TaskProperties, gym.Env[NDArray[np.float32], NDArray
     (``PositionTrack``: track a piston position). Each control period (1 ms) the agent sets
     the coil current, held while the model advances by RK4 substeps. The registered ids are
     ``pneumatic_env/{task}-{cylinder}-{tube}m-v0`` (``pneumatic_env.registered_ids()``),
-    e.g. ``pneumatic_env/ForceTrack-Numatics-2m-v0``.
+    e.g. ``pneumatic_env/ForceTrack-Numatics-2m-v0``: cylinders Numatics (0750D02-03A) and
+    Airpel (E16D3.0N), tubes 0.5, 1, 2 and 3 m long.
 
     ## Action Space
 
