@@ -38,7 +38,6 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 from gymnasium.envs.registration import register, registry
 
-from ._numba_cache import invalidate_stale_numba_cache
 from .ids import (
     CYLINDER_IDS,
     ENV_PREVIEW_STEPS,
@@ -50,8 +49,6 @@ from .ids import (
     parse_env_id,
     registered_ids,
 )
-
-invalidate_stale_numba_cache()  # before any jitted function is loaded from the cache
 
 if TYPE_CHECKING:
     from .envs.env import PneumaticTrackingEnv, PneumaticTrackingVectorEnv
