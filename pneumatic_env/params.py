@@ -48,13 +48,14 @@ from pneumatic_env.config_files import (
     resolve_cylinder,
 )
 from pneumatic_env.ids import CYLINDERS, DEFAULT_CYLINDER
-from pneumatic_env.param_rules import _check_relations, _is_number, _show
+from pneumatic_env.param_rules import _check_relations
 from pneumatic_env.physics.layout import (
     CYLINDER_PARAMETERS,
     DISCRETE_PARAMETERS,
     N_PARAMS,
     PARAMETER_NAMES,
 )
+from pneumatic_env.text_format import is_number, value_text
 
 __all__ = [
     "CONFIG_DIR_ENV",
@@ -160,19 +161,19 @@ def _discrete_text(spec: _Spec) -> str:
 
 def _coerce(spec: _Spec, value: Any, source: str) -> float:
     """Validate one value against its spec and return it as a float."""
-    head = f"{source} {spec.name!r} = {_show(value)} is not allowed: must be "
+    head = f"{source} {spec.name!r} = {value_text(value)} is not allowed: must be "
     if spec.allowed is not None:
         if isinstance(value, str):
             key = value.strip().lower()
             for code, label in DISCRETE_PARAMETERS.get(spec.name, {}).items():
                 if label == key and code in spec.allowed:
                     return float(code)
-        elif _is_number(value):
+        elif is_number(value):
             v = float(value)
             if v.is_integer() and int(v) in spec.allowed:
                 return v
         raise ConfigError(head + _discrete_text(spec))
-    if not _is_number(value):
+    if not is_number(value):
         raise ConfigError(head + "a number in " + _range_text(spec))
     v = float(value)
     if not math.isfinite(v):
@@ -191,7 +192,7 @@ def _parse_entry(path: str, name: str, entry: Any, level: int) -> _Spec:
     if not isinstance(entry, Mapping):
         raise ConfigError(
             f"{where} must be a mapping with keys value, unit, source, "
-            f"min/max or allowed; got {_show(entry)}"
+            f"min/max or allowed; got {value_text(entry)}"
         )
     extra = sorted(set(map(str, entry)) - _ENTRY_KEYS)
     if extra:
@@ -232,9 +233,9 @@ def _parse_entry(path: str, name: str, entry: Any, level: int) -> _Spec:
         for key in ("min", "max"):
             if key not in entry:
                 raise ConfigError(f"{where} is missing key {key!r} (or 'allowed')")
-            if not _is_number(entry[key]) or math.isnan(float(entry[key])):
+            if not is_number(entry[key]) or math.isnan(float(entry[key])):
                 raise ConfigError(
-                    f"{where}: {key!r} must be a number or .inf/-.inf, got {_show(entry[key])}"
+                    f"{where}: {key!r} must be a number or .inf/-.inf, got {value_text(entry[key])}"
                 )
         lo, hi = float(entry["min"]), float(entry["max"])
         if lo > hi:
@@ -428,9 +429,9 @@ def parameter_array(param_dicts: Mapping[str, float] | Sequence[Mapping[str, flo
                     f"parameter set {j}: {name!r} is missing "
                     f"(use load_parameters for a complete set)"
                 )
-            if not _is_number(d[name]):
+            if not is_number(d[name]):
                 raise ConfigError(
-                    f"parameter set {j}: {name!r} = {_show(d[name])} is not a "
+                    f"parameter set {j}: {name!r} = {value_text(d[name])} is not a "
                     f"number (use load_parameters to convert names)"
                 )
             out[i, j] = d[name]
@@ -486,7 +487,7 @@ def _reference_cylinder(values: Mapping[str, Any]) -> str:
         score = sum(
             1
             for n in CYLINDER_PARAMETERS
-            if n in values and _is_number(values[n]) and float(values[n]) == specs[n].value
+            if n in values and is_number(values[n]) and float(values[n]) == specs[n].value
         )
         if score > best_score:
             best, best_score = canonical, score
@@ -516,9 +517,9 @@ def save_parameters(
     for name, u in uncertainties.items():
         if name not in values:
             raise ConfigError(f"uncertainties: {name!r} is not in values")
-        if not _is_number(u) or not float(u) >= 0.0:
+        if not is_number(u) or not float(u) >= 0.0:
             raise ConfigError(
-                f"uncertainties: {name!r} = {_show(u)} is not allowed: must be a number >= 0"
+                f"uncertainties: {name!r} = {value_text(u)} is not allowed: must be a number >= 0"
             )
     one_line = " ".join(notes.split())
     fitted = f"fitted: {one_line}" if one_line else "fitted"

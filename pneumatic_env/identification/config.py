@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from pneumatic_env.config_files import ConfigError, config_dir, read_yaml
+from pneumatic_env.text_format import is_number
 
 __all__ = ["CONFIG_FILE", "FitParameter", "IdentificationConfig", "load_config"]
 
@@ -79,10 +80,6 @@ class FitParameter:
         return self.to_u(self.lower), self.to_u(self.upper)
 
 
-def _is_number(x: Any) -> bool:
-    return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(float(x))
-
-
 def _is_infinity(x: Any) -> bool:
     return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isinf(float(x))
 
@@ -127,7 +124,7 @@ def _parse_parameter(
                 # an effect that vanishes only in a limit (a rigid load cell: k -> inf)
                 nums[key] = float(entry[key])
                 continue
-            if not _is_number(entry[key]):
+            if not is_number(entry[key], finite=True):
                 allowed = (
                     (
                         "a finite number, .inf / -.inf for an effect that vanishes only "
@@ -245,7 +242,7 @@ class IdentificationConfig:
         """A finite numeric setting, checked."""
         v = self.value(section, name, sub)
         where = f"{section}.{name}" + (f".{sub}" if sub else "")
-        if not _is_number(v):
+        if not is_number(v, finite=True):
             raise ConfigError(
                 f"{self.path}: {where} = {v!r} is not allowed: must be a finite number"
             )
@@ -261,7 +258,7 @@ class IdentificationConfig:
     def positive_numbers(self, section: str, name: str) -> list[float]:
         """A list of finite numbers > 0 (possibly empty), checked."""
         v = self.value(section, name)
-        if not isinstance(v, list) or not all(_is_number(x) and x > 0 for x in v):
+        if not isinstance(v, list) or not all(is_number(x, finite=True) and x > 0 for x in v):
             raise ConfigError(
                 f"{self.path}: {section}.{name} = {v!r} is not allowed: must be "
                 "a list of finite numbers > 0"

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pneumatic_env.text_format import number_text
+
 from .diagnose import Diagnosis
 
 __all__ = ["REPORT_FILES", "diagnosis_json", "write_report"]
@@ -33,11 +35,7 @@ _UNITS = {"p1": "Pa", "p2": "Pa", "f": "N", "x": "m", "v": "m/s", "x_s": "m"}
 
 
 def _fmt(x, digits: int = 4) -> str:
-    if x is None:
-        return "-"
-    if isinstance(x, float) and not math.isfinite(x):
-        return "inf" if x > 0 else ("-inf" if x < 0 else "nan")
-    return f"{x:.{digits}g}"
+    return number_text(x, digits)  # None: "-"
 
 
 def _check_outputs(out_dir: Path, inputs: Sequence[Path], names: Sequence[str]) -> None:
