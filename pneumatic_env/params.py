@@ -40,10 +40,13 @@ import yaml
 
 from pneumatic_env.config_files import (
     CONFIG_DIR_ENV,
+    ENTRY_KEYS,
     ConfigError,
     _cylinder_path,
     _stamp,
+    check_entry,
     config_dir,
+    make_entry,
     read_yaml,
     resolve_cylinder,
 )
@@ -53,6 +56,7 @@ from pneumatic_env.physics.layout import (
     CYLINDER_PARAMETERS,
     DISCRETE_PARAMETERS,
     N_PARAMS,
+    PARAMETER_INDEX,
     PARAMETER_NAMES,
 )
 from pneumatic_env.text_format import is_number, value_text
@@ -79,22 +83,20 @@ __all__ = [
 # aliases) and DEFAULT_CYLINDER: pneumatic_env.ids
 
 BASE_FILES = ("air.yaml", "valve.yaml", "tube.yaml", "load.yaml", "numerics.yaml", "effects.yaml")
-_PARAMETER_INDEX = {name: i for i, name in enumerate(PARAMETER_NAMES)}
 # Numerics settings in numerics.yaml that are not kernel parameter rows.
 NUMERICS_NAMES = ("control_dt_s", "substeps")
 
-_ENTRY_KEYS = {
-    "value",
-    "unit",
-    "source",
+# keys of an entry in the config files and in a file of save_parameters
+_CONFIG_ENTRY_KEYS = (
+    *ENTRY_KEYS,
     "min",
     "max",
     "min_exclusive",
     "max_exclusive",
     "allowed",
     "integer",
-}
-_PARAMS_ENTRY_KEYS = {"value", "unit", "source", "uncertainty"}
+)
+_PARAMS_ENTRY_KEYS = (*ENTRY_KEYS, "uncertainty")
 
 # How specific a value's origin is; a cross-field violation blames the more specific field.
 _LEVEL_BASE, _LEVEL_CYLINDER, _LEVEL_PARAMS, _LEVEL_OVERRIDE = range(4)
@@ -189,22 +191,7 @@ def _coerce(spec: _Spec, value: Any, source: str) -> float:
 
 def _parse_entry(path: str, name: str, entry: Any, level: int) -> _Spec:
     where = f"{path}: entry {name!r}"
-    if not isinstance(entry, Mapping):
-        raise ConfigError(
-            f"{where} must be a mapping with keys value, unit, source, "
-            f"min/max or allowed; got {value_text(entry)}"
-        )
-    extra = sorted(set(map(str, entry)) - _ENTRY_KEYS)
-    if extra:
-        raise ConfigError(
-            f"{where} has unknown key {extra[0]!r}; allowed keys: {', '.join(sorted(_ENTRY_KEYS))}"
-        )
-    for key in ("value", "unit", "source"):
-        if key not in entry:
-            raise ConfigError(f"{where} is missing key {key!r}")
-    for key in ("unit", "source"):
-        if not isinstance(entry[key], str) or not entry[key].strip():
-            raise ConfigError(f"{where}: {key!r} must be a non-empty string")
+    check_entry(where, entry, keys=_CONFIG_ENTRY_KEYS)
     flags = {}
     for key in ("min_exclusive", "max_exclusive", "integer"):
         flags[key] = entry.get(key, False)
@@ -354,14 +341,7 @@ def _params_items(params: Any, specs: Mapping[str, _Spec]) -> tuple[list, str]:
         if name not in specs:
             raise _unknown(source, name, PARAMETER_NAMES)
         if isinstance(entry, Mapping):
-            extra = sorted(set(map(str, entry)) - _PARAMS_ENTRY_KEYS)
-            if extra:
-                raise ConfigError(
-                    f"{source}: entry {name!r} has unknown key {extra[0]!r}; "
-                    f"allowed keys: {', '.join(sorted(_PARAMS_ENTRY_KEYS))}"
-                )
-            if "value" not in entry:
-                raise ConfigError(f"{source}: entry {name!r} is missing key 'value'")
+            check_entry(f"{source}: entry {name!r}", entry, _PARAMS_ENTRY_KEYS, ("value",))
             unit = entry.get("unit")
             if unit is not None and str(unit).strip() != specs[name].unit:
                 raise ConfigError(
@@ -421,9 +401,9 @@ def parameter_array(param_dicts: Mapping[str, float] | Sequence[Mapping[str, flo
         if not isinstance(d, Mapping):
             raise ConfigError(f"parameter set {j} is a {type(d).__name__}, not a mapping")
         for name in d:
-            if name not in _PARAMETER_INDEX:
+            if name not in PARAMETER_INDEX:
                 raise _unknown(f"parameter set {j}:", name, PARAMETER_NAMES)
-        for i, name in enumerate(PARAMETER_NAMES):
+        for name, row in PARAMETER_INDEX.items():
             if name not in d:
                 raise ConfigError(
                     f"parameter set {j}: {name!r} is missing "
@@ -434,7 +414,7 @@ def parameter_array(param_dicts: Mapping[str, float] | Sequence[Mapping[str, flo
                     f"parameter set {j}: {name!r} = {value_text(d[name])} is not a "
                     f"number (use load_parameters to convert names)"
                 )
-            out[i, j] = d[name]
+            out[row, j] = d[name]
     return out
 
 
@@ -528,14 +508,13 @@ def save_parameters(
         if name not in values:
             continue
         spec, v = specs[name], checked[name]
-        entry: dict[str, Any] = {
-            "value": int(v) if spec.allowed is not None else v,
-            "unit": spec.unit,
-            "source": spec.source if v == spec.value else fitted,
-        }
-        if name in uncertainties:
-            entry["uncertainty"] = float(uncertainties[name])
-        doc[name] = entry
+        more = {"uncertainty": float(uncertainties[name])} if name in uncertainties else {}
+        doc[name] = make_entry(
+            int(v) if spec.allowed is not None else v,
+            spec.unit,
+            spec.source if v == spec.value else fitted,
+            **more,
+        )
     header = [
         "# pneumatic_env parameter set (pneumatic_env.params.save_parameters)",
         f"# reference cylinder: {reference}",

@@ -17,7 +17,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pneumatic_env.config_files import ConfigError, config_dir, read_yaml
+from pneumatic_env.config_files import (
+    ConfigError,
+    check_entry,
+    config_dir,
+    is_entry,
+    read_yaml,
+)
 from pneumatic_env.text_format import is_number
 
 __all__ = ["CONFIG_FILE", "FitParameter", "IdentificationConfig", "load_config"]
@@ -87,24 +93,8 @@ def _is_infinity(x: Any) -> bool:
 def _parse_parameter(
     where: str, name: str, entry: Any, kind: str, need_initial: bool
 ) -> FitParameter:
-    if not isinstance(entry, Mapping):
-        raise ConfigError(
-            f"{where}: entry {name!r} must be a mapping with keys "
-            f"{', '.join(_PARAM_REQUIRED)}; got {entry!r}"
-        )
-    extra = sorted(set(entry) - _PARAM_KEYS)
-    if extra:
-        raise ConfigError(
-            f"{where}: entry {name!r} has unknown key {extra[0]!r}; allowed keys: "
-            f"{', '.join(sorted(_PARAM_KEYS))}"
-        )
     required = _PARAM_REQUIRED + (("initial", "neutral") if need_initial else ())
-    for key in required:
-        if key not in entry:
-            raise ConfigError(f"{where}: entry {name!r} is missing key {key!r}")
-    for key in ("unit", "source"):
-        if not isinstance(entry[key], str) or not entry[key].strip():
-            raise ConfigError(f"{where}: entry {name!r}: {key!r} must be a non-empty string")
+    check_entry(f"{where}: entry {name!r}", entry, _PARAM_KEYS, required)
     nums = {}
     for key in (
         "lower",
@@ -223,12 +213,9 @@ class IdentificationConfig:
         entry = node.get(name) if isinstance(node, Mapping) else None
         if sub is not None:
             entry = entry.get(sub) if isinstance(entry, Mapping) else None
-        if not isinstance(entry, Mapping) or "value" not in entry:
+        if not is_entry(entry):
             raise ConfigError(f"{self.path}: entry {where} is missing (needs value, unit, source)")
-        for key in ("unit", "source"):
-            if key not in entry:
-                raise ConfigError(f"{self.path}: entry {where} is missing key {key!r}")
-        return entry["value"]
+        return check_entry(f"{self.path}: entry {where}", entry)["value"]
 
     def number(
         self,
