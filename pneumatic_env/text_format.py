@@ -63,15 +63,18 @@ def number_text(
     return f"{value:.{digits}{'f' if fixed else 'g'}}"
 
 
-def jsonable(value: Any) -> Any:
+def jsonable(value: Any, *, finite: bool = False) -> Any:
     """``value`` with dict keys as strings, tuples and arrays as lists and NumPy scalars
-    as Python numbers, so that ``json.dumps`` takes it."""
+    as Python values, so that ``json.dumps`` takes it; with ``finite``, NaN and infinities
+    become None (strict JSON)."""
     if isinstance(value, dict):
-        return {str(k): jsonable(v) for k, v in value.items()}
+        return {str(k): jsonable(v, finite=finite) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [jsonable(v) for v in value]
+        return [jsonable(v, finite=finite) for v in value]
     if isinstance(value, np.ndarray):
-        return jsonable(value.tolist())
+        return jsonable(value.tolist(), finite=finite)
     if isinstance(value, np.generic):
-        return value.item()
+        value = value.item()
+    if finite and isinstance(value, float) and not math.isfinite(value):
+        return None
     return value

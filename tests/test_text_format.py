@@ -69,3 +69,9 @@ def test_number_text_styles():
 def test_jsonable_turns_numpy_values_into_plain_json():
     data = {1: (np.float64(0.5), np.arange(2)), "b": [np.bool_(True), {"c": np.int32(3)}]}
     assert json.dumps(jsonable(data)) == '{"1": [0.5, [0, 1]], "b": [true, {"c": 3}]}'
+
+
+def test_jsonable_with_finite_writes_nan_and_inf_as_null():
+    data = {"a": [np.float64("nan"), math.inf, 1.5], "b": np.float32(-np.inf)}
+    assert json.dumps(jsonable(data, finite=True)) == '{"a": [null, null, 1.5], "b": null}'
+    assert jsonable([math.nan])[0] != jsonable([math.nan])[0]  # kept without finite
