@@ -14,16 +14,9 @@ SB3 and torch are imported only by ``sb3``, ``train`` and the export side of
 ``policy``.
 """
 
-from pathlib import Path
-
-from pneumatic_env._numba_cache import LIBRARY_ROOT, invalidate_stale_numba_cache
-
-# their jitted functions inline the library's sub-models
-invalidate_stale_numba_cache(Path(__file__).resolve().parent, depends_on=(LIBRARY_ROOT,))
-
-from .base import Controller, ControllerContext, ZeroController  # noqa: E402
-from .pid import PIDController  # noqa: E402
-from .sliding_mode import SlidingModeController  # noqa: E402
+from .base import Controller, ControllerContext, ZeroController
+from .pid import PIDController
+from .sliding_mode import SlidingModeController
 
 __all__ = [
     "Controller",

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pneumatic_env.text_format import number_text
+
 from .suite import Suite
 
 METRIC_COLUMNS = (
@@ -39,13 +41,7 @@ CSV_COLUMNS = (
 
 
 def _fmt(value, digits=2) -> str:
-    if isinstance(value, str):
-        return value
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return ""
-    if isinstance(value, bool):
-        return "yes" if value else ""
-    return f"{value:.{digits}f}"
+    return number_text(value, digits, fixed=True, missing="", not_finite="")
 
 
 def _bandwidth_text(row, key: str = "bandwidth") -> str:

@@ -22,7 +22,13 @@ from typing import Any
 
 import yaml
 
-from pneumatic_env.config_files import ConfigError, config_dir, read_yaml  # YAML 1.2 floats, cached
+from pneumatic_env.config_files import (  # YAML 1.2 floats, cached; the entry rule
+    ConfigError,
+    check_entry,
+    config_dir,
+    is_entry,
+    read_yaml,
+)
 
 __all__ = [
     "ConfigError",
@@ -33,28 +39,10 @@ __all__ = [
     "is_entry",
 ]
 
-_ENTRY_KEYS = {"value", "unit", "source"}
-
-
-def is_entry(node: Any) -> bool:
-    """A mapping with a ``value`` key is an entry (value, unit, source)."""
-    return isinstance(node, Mapping) and "value" in node
-
 
 def _strip(node: Any, where: str) -> Any:
     if is_entry(node):
-        extra = sorted(set(map(str, node)) - _ENTRY_KEYS)
-        if extra:
-            raise ConfigError(
-                f"{where} has unknown key {extra[0]!r}; an entry has exactly the "
-                "keys value, unit, source"
-            )
-        for key in ("unit", "source"):
-            if not isinstance(node.get(key), str) or not node[key].strip():
-                raise ConfigError(
-                    f"{where} is missing {key!r}: every value needs a non-empty {key} string"
-                )
-        return node["value"]
+        return check_entry(where, node)["value"]
     if isinstance(node, Mapping):
         return {str(k): _strip(v, f"{where}.{k}") for k, v in node.items()}
     if isinstance(node, (bool, str)) or node is None:

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from pneumatic_env.ids import parse_env_id
+from pneumatic_env.text_format import jsonable
 
 from .config import ConfigError, agent_config_path, load_agent_config
 
@@ -197,7 +198,7 @@ def train(
         "command": command,
         "n_envs": int(cfg["n_envs"]),
         "episode_steps": episode,
-        "env_kwargs": _jsonable(kwargs),
+        "env_kwargs": jsonable(kwargs),
         "wall_s": wall,
         "env_time_s": base.env_time_s,
         "env_share": base.env_time_s / wall,
@@ -214,16 +215,6 @@ def train(
     _learning_curve(out, f"{algo} on {env_id} (seed {seed})")
     venv.close()
     return summary
-
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -30,7 +30,7 @@ import functools
 import json
 from pathlib import Path
 
-from pneumatic_env.config_files import read_yaml
+from pneumatic_env.config_files import make_entry, read_yaml
 
 from .config import ConfigError, agent_config_path, load_agent_config, write_agent_config
 
@@ -340,7 +340,7 @@ def write_best(spec: dict, params: dict, value: float, out: Path, name: str) -> 
         entry["source"] = (
             f"tuned: pneumatic-env tune, study {name!r} ({objective_name(spec)} {value:.3f})"
         )
-        node[leaf] = {k: entry[k] for k in ("value", "unit", "source")}
+        node[leaf] = make_entry(entry["value"], entry["unit"], entry["source"])
     path = out / "ppo_fast-tuned.yaml"
     write_agent_config(
         path,

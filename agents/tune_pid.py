@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pneumatic_env.config_files import read_yaml
+from pneumatic_env.config_files import make_entry, read_yaml
 from pneumatic_env.params import load_numerics
 
 from .base import ControllerContext
@@ -102,44 +102,35 @@ def tuned_config(
     gains = {}
     for name, value in zip(result["names"], best):
         e = section["grid"][name]
-        gains[name] = {
-            "value": value,
-            "unit": e["unit"],
-            "source": f"tuned: best of {e['value']} by `{command}` (configs/agents/tuning.yaml)",
-        }
+        how = f"tuned: best of {e['value']} by `{command}` (configs/agents/tuning.yaml)"
+        gains[name] = make_entry(value, e["unit"], how)
     for name, e in section["fixed"].items():
-        gains[name] = {
-            "value": e["value"],
-            "unit": e["unit"],
-            "source": f"fixed in configs/agents/tuning.yaml: {e['source']}",
-        }
+        gains[name] = make_entry(
+            e["value"], e["unit"], f"fixed in configs/agents/tuning.yaml: {e['source']}"
+        )
     order = np.argsort(result["score"])
     return {
         "controller": controller,
         "variant": variant,
-        "preview_steps": {
-            "value": raw["preview_steps"]["value"],
-            "unit": "control periods",
-            "source": "configs/agents/tuning.yaml preview_steps (observation layout "
+        "preview_steps": make_entry(
+            raw["preview_steps"]["value"],
+            "control periods",
+            "configs/agents/tuning.yaml preview_steps (observation layout "
             "the gains were tuned with)",
-        },
+        ),
         "gains": gains,
         "tuning": {
-            "objective": {
-                "value": round(float(result["score"][result["best"]]), 4),
-                "unit": "%",
-                "source": "J on the tuning set (configs/agents/tuning.yaml)",
-            },
-            "runner_up_objective": {
-                "value": round(float(result["score"][order[1]]), 4) if len(order) > 1 else None,
-                "unit": "%",
-                "source": "second-best J of the grid (how flat the optimum is)",
-            },
-            "combinations": {
-                "value": len(result["combos"]),
-                "unit": "-",
-                "source": "size of the grid searched",
-            },
+            "objective": make_entry(
+                round(float(result["score"][result["best"]]), 4),
+                "%",
+                "J on the tuning set (configs/agents/tuning.yaml)",
+            ),
+            "runner_up_objective": make_entry(
+                round(float(result["score"][order[1]]), 4) if len(order) > 1 else None,
+                "%",
+                "second-best J of the grid (how flat the optimum is)",
+            ),
+            "combinations": make_entry(len(result["combos"]), "-", "size of the grid searched"),
         },
     }
 

@@ -11,19 +11,19 @@ or free. Importing the package registers the environments listed by ``registered
                                                          "frequency_hz": 5}})
     venv = pneumatic_env.make_vec("ForceTrack", "Numatics", 2.0, num_envs=64)
 
-The public API (``__all__``):
+The public API (``__all__``), what a user needs:
 
-* ids: ``registered_ids``, ``env_id``, ``parse_env_id``, ``EnvId``, ``CYLINDER_IDS``,
-  ``TUBE_LENGTHS_M``, ``TASK_IDS``, ``EPISODE_STEPS``, ``ENV_PREVIEW_STEPS``
-  (module ``pneumatic_env.ids``);
-* environments: ``make``, ``make_vec``, ``PneumaticTrackingEnv``,
-  ``PneumaticTrackingVectorEnv``, ``TaskSpec``, ``EnvOptions``, ``TASKS``,
-  ``make_reference``, ``ReferenceSpec``;
-* parameters: ``load_parameters``, ``parameter_info``, ``save_parameters``,
-  ``ConfigError``;
-* recordings and replay: ``read_recording``, ``write_recording``, ``Recording``,
-  ``simulate_recording``;
+* environments: ``make``, ``make_vec``, ``registered_ids``, ``env_id``,
+  ``PneumaticTrackingEnv``, ``PneumaticTrackingVectorEnv``, ``make_reference``;
+* parameters: ``load_parameters``, ``save_parameters``, ``ConfigError``;
+* recordings and replay: ``read_recording``, ``write_recording``, ``simulate_recording``;
 * the simulator: ``BatchSimulator``.
+
+Everything else is imported from its module: the ids and constants from
+``pneumatic_env.ids`` (``parse_env_id``, ``TUBE_LENGTHS_M``, ...), the tasks from
+``pneumatic_env.envs.tasks``, ``parameter_info`` from ``pneumatic_env.params``, the
+``Recording`` class from ``pneumatic_env.recording``, ``ReferenceSpec`` from
+``pneumatic_env.references``.
 
 Only ``ids`` and Gymnasium load on import; the other names load their module on first use
 (NumPy, Numba, SciPy, PyYAML), and nothing here imports torch, Matplotlib or
@@ -38,62 +38,34 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 from gymnasium.envs.registration import register, registry
 
-from ._numba_cache import invalidate_stale_numba_cache
-from .ids import (
-    CYLINDER_IDS,
-    ENV_PREVIEW_STEPS,
-    EPISODE_STEPS,
-    TASK_IDS,
-    TUBE_LENGTHS_M,
-    EnvId,
-    env_id,
-    parse_env_id,
-    registered_ids,
-)
-
-invalidate_stale_numba_cache()  # before any jitted function is loaded from the cache
+from .ids import EPISODE_STEPS, env_id, parse_env_id, registered_ids
 
 if TYPE_CHECKING:
     from .envs.env import PneumaticTrackingEnv, PneumaticTrackingVectorEnv
-    from .envs.tasks import TASKS, EnvOptions, TaskSpec
-    from .params import ConfigError, load_parameters, parameter_info, save_parameters
-    from .recording import Recording, read_recording, write_recording
-    from .references import ReferenceSpec, make_reference
+    from .params import ConfigError, load_parameters, save_parameters
+    from .recording import read_recording, write_recording
+    from .references import make_reference
     from .replay import simulate_recording
     from .simulator import BatchSimulator
 
 __version__ = "0.1.0"
 
 __all__ = [
-    # ids
-    "registered_ids",
-    "env_id",
-    "parse_env_id",
-    "EnvId",
-    "CYLINDER_IDS",
-    "TUBE_LENGTHS_M",
-    "TASK_IDS",
-    "EPISODE_STEPS",
-    "ENV_PREVIEW_STEPS",
     # environments
     "make",
     "make_vec",
+    "registered_ids",
+    "env_id",
     "PneumaticTrackingEnv",
     "PneumaticTrackingVectorEnv",
-    "TaskSpec",
-    "EnvOptions",
-    "TASKS",
     "make_reference",
-    "ReferenceSpec",
     # parameters
     "load_parameters",
-    "parameter_info",
     "save_parameters",
     "ConfigError",
     # recordings and replay
     "read_recording",
     "write_recording",
-    "Recording",
     "simulate_recording",
     # simulator
     "BatchSimulator",
@@ -103,18 +75,12 @@ __all__ = [
 _LAZY = {
     "PneumaticTrackingEnv": "envs.env",
     "PneumaticTrackingVectorEnv": "envs.env",
-    "TaskSpec": "envs.tasks",
-    "EnvOptions": "envs.tasks",
-    "TASKS": "envs.tasks",
     "make_reference": "references",
-    "ReferenceSpec": "references",
     "load_parameters": "params",
-    "parameter_info": "params",
     "save_parameters": "params",
     "ConfigError": "params",
     "read_recording": "recording",
     "write_recording": "recording",
-    "Recording": "recording",
     "simulate_recording": "replay",
     "BatchSimulator": "simulator",
 }

@@ -42,6 +42,9 @@ COMMANDS: dict[str, Command] = {
     "rig": Command(
         "pneumatic_env.studies.virtual_rig", "write synthetic recordings from the virtual rig"
     ),
+    "clear-cache": Command(
+        "pneumatic_env.numba_cache", "delete Numba's cached code where the sources changed"
+    ),
 }
 
 

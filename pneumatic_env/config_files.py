@@ -4,7 +4,9 @@
 checkout's, or the copy shipped in the package); :func:`read_yaml` parses a file with
 YAML 1.2 floats (``1e-3`` is a float, which PyYAML alone reads as a string) and caches
 it until the file changes; :func:`resolve_cylinder` maps a cylinder's name or alias to
-its file under ``configs/cylinders/``. Errors are :class:`ConfigError`.
+its file under ``configs/cylinders/``. Every number in the configs is an *entry*
+``{value, unit, source}``: :func:`check_entry` reads one, :func:`make_entry` writes one.
+Errors are :class:`ConfigError`.
 """
 
 from __future__ import annotations
@@ -13,14 +15,26 @@ import functools
 import importlib.resources
 import os
 import re
+from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 from pneumatic_env.ids import CYLINDERS
+from pneumatic_env.text_format import value_text
 
-__all__ = ["CONFIG_DIR_ENV", "ConfigError", "config_dir", "read_yaml", "resolve_cylinder"]
+__all__ = [
+    "CONFIG_DIR_ENV",
+    "ENTRY_KEYS",
+    "ConfigError",
+    "check_entry",
+    "config_dir",
+    "is_entry",
+    "make_entry",
+    "read_yaml",
+    "resolve_cylinder",
+]
 
 CONFIG_DIR_ENV = "PNEUMATIC_ENV_CONFIG_DIR"
 
@@ -68,6 +82,48 @@ def read_yaml(path: Path) -> Any:
 
     Do not mutate the result."""
     return _parse_yaml_cached(*_stamp(path))
+
+
+# --------------------------------------------------------------------------- entries
+
+ENTRY_KEYS = ("value", "unit", "source")
+
+
+def is_entry(node: Any) -> bool:
+    """A mapping with a ``value`` key is an entry (value, unit, source)."""
+    return isinstance(node, Mapping) and "value" in node
+
+
+def check_entry(
+    where: str,
+    entry: Any,
+    keys: Collection[str] = ENTRY_KEYS,
+    required: Collection[str] = ENTRY_KEYS,
+) -> Mapping:
+    """``entry`` checked as a mapping with no key outside ``keys``, every key of
+    ``required``, and a ``unit`` and ``source`` (where given) that are non-empty strings.
+    Errors start with ``where`` (the file and the entry's name)."""
+    if not isinstance(entry, Mapping):
+        raise ConfigError(
+            f"{where} must be a mapping with keys {', '.join(required)}; got {value_text(entry)}"
+        )
+    unknown = sorted(set(map(str, entry)) - set(keys))
+    if unknown:
+        raise ConfigError(
+            f"{where} has unknown key {unknown[0]!r}; allowed keys: {', '.join(sorted(keys))}"
+        )
+    for key in required:
+        if key not in entry:
+            raise ConfigError(f"{where} is missing {key!r}")
+    for key in ("unit", "source"):
+        if key in entry and (not isinstance(entry[key], str) or not entry[key].strip()):
+            raise ConfigError(f"{where}: {key!r} must be a non-empty string")
+    return entry
+
+
+def make_entry(value: Any, unit: str, source: str, **more: Any) -> dict[str, Any]:
+    """An entry as the configs write it: ``{value, unit, source}`` and any ``more`` keys."""
+    return {"value": value, "unit": unit, "source": source, **more}
 
 
 # --------------------------------------------------------------------------- locations

@@ -5,34 +5,14 @@ base file) and names both values."""
 
 from __future__ import annotations
 
-import numbers
 from collections.abc import Callable
-from typing import Any
-
-import numpy as np
 
 from pneumatic_env.config_files import ConfigError
-
-
-def _is_number(x: Any) -> bool:
-    return isinstance(x, numbers.Real) and not isinstance(x, (bool, np.bool_))
-
-
-def _show(x: Any) -> str:
-    """A value as error messages print it: -3.0, 20, 'abc', nan, inf."""
-    if isinstance(x, numbers.Integral) and not isinstance(x, (bool, np.bool_)):
-        return str(int(x))
-    if _is_number(x):
-        return repr(float(x))
-    return repr(x)
+from pneumatic_env.text_format import number_text, value_text
 
 
 def _p_cr(k: float) -> float:
     return (2.0 / (k + 1.0)) ** (k / (k - 1.0))
-
-
-def _f(x: float) -> str:
-    return repr(float(x))
 
 
 # (a, b, holds(values), complaint about a, complaint about b): a violated rule is reported
@@ -44,15 +24,15 @@ _RULES: list[_Rule] = [
         "supply_pressure_pa",
         "ambient_pressure_pa",
         lambda v: v["supply_pressure_pa"] > v["ambient_pressure_pa"],
-        lambda v: f"greater than ambient_pressure_pa = {_f(v['ambient_pressure_pa'])} Pa",
-        lambda v: f"less than supply_pressure_pa = {_f(v['supply_pressure_pa'])} Pa",
+        lambda v: f"greater than ambient_pressure_pa = {number_text(v['ambient_pressure_pa'])} Pa",
+        lambda v: f"less than supply_pressure_pa = {number_text(v['supply_pressure_pa'])} Pa",
     ),
     (
         "rod_diameter_m",
         "bore_diameter_m",
         lambda v: v["rod_diameter_m"] < v["bore_diameter_m"],
-        lambda v: f"less than bore_diameter_m = {_f(v['bore_diameter_m'])} m",
-        lambda v: f"greater than rod_diameter_m = {_f(v['rod_diameter_m'])} m",
+        lambda v: f"less than bore_diameter_m = {number_text(v['bore_diameter_m'])} m",
+        lambda v: f"greater than rod_diameter_m = {number_text(v['rod_diameter_m'])} m",
     ),
 ]
 for _pos in ("fixed_position_m", "spring_rest_position_m"):
@@ -61,8 +41,8 @@ for _pos in ("fixed_position_m", "spring_rest_position_m"):
             _pos,
             "stroke_m",
             lambda v, p=_pos: abs(v[p]) <= v["stroke_m"] / 2.0,
-            lambda v: f"within +-stroke_m/2 = {_f(v['stroke_m'] / 2.0)} m",
-            lambda v, p=_pos: f"at least 2 |{p}| = {_f(2.0 * abs(v[p]))} m",
+            lambda v: f"within +-stroke_m/2 = {number_text(v['stroke_m'] / 2.0)} m",
+            lambda v, p=_pos: f"at least 2 |{p}| = {number_text(2.0 * abs(v[p]))} m",
         )
     )
 for _alpha in ("alpha_in", "alpha_out", "alpha_motion"):
@@ -71,8 +51,8 @@ for _alpha in ("alpha_in", "alpha_out", "alpha_motion"):
             _alpha,
             "heat_capacity_ratio",
             lambda v, a=_alpha: v[a] <= v["heat_capacity_ratio"],
-            lambda v: f"at most heat_capacity_ratio = {_f(v['heat_capacity_ratio'])}",
-            lambda v, a=_alpha: f"at least {a} = {_f(v[a])}",
+            lambda v: f"at most heat_capacity_ratio = {number_text(v['heat_capacity_ratio'])}",
+            lambda v, a=_alpha: f"at least {a} = {number_text(v[a])}",
         )
     )
 _RULES.append(
@@ -81,14 +61,14 @@ _RULES.append(
         "heat_capacity_ratio",
         lambda v: _p_cr(v["heat_capacity_ratio"]) < v["flow_linear_ratio"] < 1.0,
         lambda v: (
-            f"in (P_cr, 1) = ({_f(_p_cr(v['heat_capacity_ratio']))}, 1.0), P_cr the "
+            f"in (P_cr, 1) = ({number_text(_p_cr(v['heat_capacity_ratio']))}, 1.0), P_cr the "
             f"critical pressure ratio for heat_capacity_ratio = "
-            f"{_f(v['heat_capacity_ratio'])}"
+            f"{number_text(v['heat_capacity_ratio'])}"
         ),
         lambda v: (
             f"such that the critical pressure ratio P_cr (here "
-            f"{_f(_p_cr(v['heat_capacity_ratio']))}) is below flow_linear_ratio = "
-            f"{_f(v['flow_linear_ratio'])}"
+            f"{number_text(_p_cr(v['heat_capacity_ratio']))}) is below flow_linear_ratio = "
+            f"{number_text(v['flow_linear_ratio'])}"
         ),
     )
 )
@@ -114,7 +94,7 @@ for _other, _off, _why in (
             "tube_waves",
             lambda v, o=_other, off=_off: v["tube_waves"] == 0.0 or v[o] == off,
             lambda v, why=_why: f"{why} (tube_waves = 1)",
-            lambda v, o=_other: f"0 (off) while {o} = {_show(v[o])}",
+            lambda v, o=_other: f"0 (off) while {o} = {value_text(v[o])}",
         )
     )
 # The isothermal tube air is written for Eq. 14, not for the energy model's temperatures.
@@ -127,7 +107,7 @@ _RULES.append(
             "dead_volume (0): the isothermal tube air is not implemented with the energy "
             "model (wall_heat_transfer_w_per_k > 0)"
         ),
-        lambda v: f"0 (off) while tube_air_model = {_show(v['tube_air_model'])}",
+        lambda v: f"0 (off) while tube_air_model = {value_text(v['tube_air_model'])}",
     )
 )
 del _pos, _alpha, _other, _off, _why
@@ -138,6 +118,6 @@ def _check_relations(values: dict, origin: dict, level: dict) -> None:
         if holds(values):
             continue
         name, why = (a, about_a) if level[a] >= level[b] else (b, about_b)
-        raise ConfigError(
-            f"{origin[name]} {name!r} = {_show(values[name])} is not allowed: must be {why(values)}"
-        )
+        shown = value_text(values[name])
+        rule = why(values)
+        raise ConfigError(f"{origin[name]} {name!r} = {shown} is not allowed: must be {rule}")

@@ -40,21 +40,26 @@ import yaml
 
 from pneumatic_env.config_files import (
     CONFIG_DIR_ENV,
+    ENTRY_KEYS,
     ConfigError,
     _cylinder_path,
     _stamp,
+    check_entry,
     config_dir,
+    make_entry,
     read_yaml,
     resolve_cylinder,
 )
 from pneumatic_env.ids import CYLINDERS, DEFAULT_CYLINDER
-from pneumatic_env.param_rules import _check_relations, _is_number, _show
+from pneumatic_env.param_rules import _check_relations
 from pneumatic_env.physics.layout import (
     CYLINDER_PARAMETERS,
     DISCRETE_PARAMETERS,
     N_PARAMS,
+    PARAMETER_INDEX,
     PARAMETER_NAMES,
 )
+from pneumatic_env.text_format import is_number, value_text
 
 __all__ = [
     "CONFIG_DIR_ENV",
@@ -78,22 +83,20 @@ __all__ = [
 # aliases) and DEFAULT_CYLINDER: pneumatic_env.ids
 
 BASE_FILES = ("air.yaml", "valve.yaml", "tube.yaml", "load.yaml", "numerics.yaml", "effects.yaml")
-_PARAMETER_INDEX = {name: i for i, name in enumerate(PARAMETER_NAMES)}
 # Numerics settings in numerics.yaml that are not kernel parameter rows.
 NUMERICS_NAMES = ("control_dt_s", "substeps")
 
-_ENTRY_KEYS = {
-    "value",
-    "unit",
-    "source",
+# keys of an entry in the config files and in a file of save_parameters
+_CONFIG_ENTRY_KEYS = (
+    *ENTRY_KEYS,
     "min",
     "max",
     "min_exclusive",
     "max_exclusive",
     "allowed",
     "integer",
-}
-_PARAMS_ENTRY_KEYS = {"value", "unit", "source", "uncertainty"}
+)
+_PARAMS_ENTRY_KEYS = (*ENTRY_KEYS, "uncertainty")
 
 # How specific a value's origin is; a cross-field violation blames the more specific field.
 _LEVEL_BASE, _LEVEL_CYLINDER, _LEVEL_PARAMS, _LEVEL_OVERRIDE = range(4)
@@ -160,19 +163,19 @@ def _discrete_text(spec: _Spec) -> str:
 
 def _coerce(spec: _Spec, value: Any, source: str) -> float:
     """Validate one value against its spec and return it as a float."""
-    head = f"{source} {spec.name!r} = {_show(value)} is not allowed: must be "
+    head = f"{source} {spec.name!r} = {value_text(value)} is not allowed: must be "
     if spec.allowed is not None:
         if isinstance(value, str):
             key = value.strip().lower()
             for code, label in DISCRETE_PARAMETERS.get(spec.name, {}).items():
                 if label == key and code in spec.allowed:
                     return float(code)
-        elif _is_number(value):
+        elif is_number(value):
             v = float(value)
             if v.is_integer() and int(v) in spec.allowed:
                 return v
         raise ConfigError(head + _discrete_text(spec))
-    if not _is_number(value):
+    if not is_number(value):
         raise ConfigError(head + "a number in " + _range_text(spec))
     v = float(value)
     if not math.isfinite(v):
@@ -188,22 +191,7 @@ def _coerce(spec: _Spec, value: Any, source: str) -> float:
 
 def _parse_entry(path: str, name: str, entry: Any, level: int) -> _Spec:
     where = f"{path}: entry {name!r}"
-    if not isinstance(entry, Mapping):
-        raise ConfigError(
-            f"{where} must be a mapping with keys value, unit, source, "
-            f"min/max or allowed; got {_show(entry)}"
-        )
-    extra = sorted(set(map(str, entry)) - _ENTRY_KEYS)
-    if extra:
-        raise ConfigError(
-            f"{where} has unknown key {extra[0]!r}; allowed keys: {', '.join(sorted(_ENTRY_KEYS))}"
-        )
-    for key in ("value", "unit", "source"):
-        if key not in entry:
-            raise ConfigError(f"{where} is missing key {key!r}")
-    for key in ("unit", "source"):
-        if not isinstance(entry[key], str) or not entry[key].strip():
-            raise ConfigError(f"{where}: {key!r} must be a non-empty string")
+    check_entry(where, entry, keys=_CONFIG_ENTRY_KEYS)
     flags = {}
     for key in ("min_exclusive", "max_exclusive", "integer"):
         flags[key] = entry.get(key, False)
@@ -232,9 +220,9 @@ def _parse_entry(path: str, name: str, entry: Any, level: int) -> _Spec:
         for key in ("min", "max"):
             if key not in entry:
                 raise ConfigError(f"{where} is missing key {key!r} (or 'allowed')")
-            if not _is_number(entry[key]) or math.isnan(float(entry[key])):
+            if not is_number(entry[key]) or math.isnan(float(entry[key])):
                 raise ConfigError(
-                    f"{where}: {key!r} must be a number or .inf/-.inf, got {_show(entry[key])}"
+                    f"{where}: {key!r} must be a number or .inf/-.inf, got {value_text(entry[key])}"
                 )
         lo, hi = float(entry["min"]), float(entry["max"])
         if lo > hi:
@@ -353,14 +341,7 @@ def _params_items(params: Any, specs: Mapping[str, _Spec]) -> tuple[list, str]:
         if name not in specs:
             raise _unknown(source, name, PARAMETER_NAMES)
         if isinstance(entry, Mapping):
-            extra = sorted(set(map(str, entry)) - _PARAMS_ENTRY_KEYS)
-            if extra:
-                raise ConfigError(
-                    f"{source}: entry {name!r} has unknown key {extra[0]!r}; "
-                    f"allowed keys: {', '.join(sorted(_PARAMS_ENTRY_KEYS))}"
-                )
-            if "value" not in entry:
-                raise ConfigError(f"{source}: entry {name!r} is missing key 'value'")
+            check_entry(f"{source}: entry {name!r}", entry, _PARAMS_ENTRY_KEYS, ("value",))
             unit = entry.get("unit")
             if unit is not None and str(unit).strip() != specs[name].unit:
                 raise ConfigError(
@@ -420,20 +401,20 @@ def parameter_array(param_dicts: Mapping[str, float] | Sequence[Mapping[str, flo
         if not isinstance(d, Mapping):
             raise ConfigError(f"parameter set {j} is a {type(d).__name__}, not a mapping")
         for name in d:
-            if name not in _PARAMETER_INDEX:
+            if name not in PARAMETER_INDEX:
                 raise _unknown(f"parameter set {j}:", name, PARAMETER_NAMES)
-        for i, name in enumerate(PARAMETER_NAMES):
+        for name, row in PARAMETER_INDEX.items():
             if name not in d:
                 raise ConfigError(
                     f"parameter set {j}: {name!r} is missing "
                     f"(use load_parameters for a complete set)"
                 )
-            if not _is_number(d[name]):
+            if not is_number(d[name]):
                 raise ConfigError(
-                    f"parameter set {j}: {name!r} = {_show(d[name])} is not a "
+                    f"parameter set {j}: {name!r} = {value_text(d[name])} is not a "
                     f"number (use load_parameters to convert names)"
                 )
-            out[i, j] = d[name]
+            out[row, j] = d[name]
     return out
 
 
@@ -486,7 +467,7 @@ def _reference_cylinder(values: Mapping[str, Any]) -> str:
         score = sum(
             1
             for n in CYLINDER_PARAMETERS
-            if n in values and _is_number(values[n]) and float(values[n]) == specs[n].value
+            if n in values and is_number(values[n]) and float(values[n]) == specs[n].value
         )
         if score > best_score:
             best, best_score = canonical, score
@@ -516,9 +497,9 @@ def save_parameters(
     for name, u in uncertainties.items():
         if name not in values:
             raise ConfigError(f"uncertainties: {name!r} is not in values")
-        if not _is_number(u) or not float(u) >= 0.0:
+        if not is_number(u) or not float(u) >= 0.0:
             raise ConfigError(
-                f"uncertainties: {name!r} = {_show(u)} is not allowed: must be a number >= 0"
+                f"uncertainties: {name!r} = {value_text(u)} is not allowed: must be a number >= 0"
             )
     one_line = " ".join(notes.split())
     fitted = f"fitted: {one_line}" if one_line else "fitted"
@@ -527,14 +508,13 @@ def save_parameters(
         if name not in values:
             continue
         spec, v = specs[name], checked[name]
-        entry: dict[str, Any] = {
-            "value": int(v) if spec.allowed is not None else v,
-            "unit": spec.unit,
-            "source": spec.source if v == spec.value else fitted,
-        }
-        if name in uncertainties:
-            entry["uncertainty"] = float(uncertainties[name])
-        doc[name] = entry
+        more = {"uncertainty": float(uncertainties[name])} if name in uncertainties else {}
+        doc[name] = make_entry(
+            int(v) if spec.allowed is not None else v,
+            spec.unit,
+            spec.source if v == spec.value else fitted,
+            **more,
+        )
     header = [
         "# pneumatic_env parameter set (pneumatic_env.params.save_parameters)",
         f"# reference cylinder: {reference}",

@@ -39,13 +39,14 @@ from .recording_format import (
     REQUIRED_COLUMNS,
     RecordingError,
     RecordingWarning,
-    _fmt,
     _read_sidecar,
     _read_text,
     canonical_cylinder,
     rig_to_parameter_overrides,
     validate_rig,
 )
+from .text_format import jsonable
+from .text_format import number_text as _fmt  # exact float text
 
 # A plain decimal number: optional sign, digits with an optional '.', optional exponent.
 _NUMBER = r"[ \t]*[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?[ \t]*"
@@ -321,18 +322,6 @@ def read_recording(path) -> Recording:
 # --------------------------------------------------------------------------- writer
 
 
-def _jsonable(value):
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
 def write_recording(path, t, channels: dict, rig: dict, *, overwrite: bool = False) -> Path:
     """Write ``NAME.csv`` and ``NAME.json``; ``path`` is the stem, the .csv or the .json.
 
@@ -388,7 +377,7 @@ def write_recording(path, t, channels: dict, rig: dict, *, overwrite: bool = Fal
         cols[name] = y
     _check_time(t, lambda k, col: f"{cname}: channel {col!r} sample {k}")
 
-    rig = _jsonable(dict(rig))
+    rig = jsonable(dict(rig))
     for key, value in (("format", FORMAT_NAME), ("version", FORMAT_VERSION)):
         if rig.get(key, value) != value:
             raise RecordingError(

@@ -14,9 +14,9 @@ from .recording_format import (
     CLIP_MIN_RUN,
     DEFAULT_AMBIENT_PA,
     PRESSURE_COLUMNS,
-    _fmt,
-    _is_number,
 )
+from .text_format import is_number as _is_number
+from .text_format import number_text as _fmt  # exact float text
 
 #: Gauge data (0 Pa at ambient) at rest sit within this fraction of ambient around 0 Pa,
 #: where an absolute pressure cannot stay: a sealed chamber expanding against a spring

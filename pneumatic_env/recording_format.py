@@ -13,10 +13,10 @@ import math
 import numbers
 from pathlib import Path
 
-import numpy as np
-
 from pneumatic_env import ids
 from pneumatic_env.simulator import INITIAL_STATE_KEYS  # the sidecar's "initial" keys
+from pneumatic_env.text_format import is_number as _is_number
+from pneumatic_env.text_format import number_text as _fmt  # exact float text
 
 FORMAT_NAME = "pneumatic-measurement"
 FORMAT_VERSION = 1
@@ -75,15 +75,6 @@ class RecordingError(ValueError):
 
 class RecordingWarning(UserWarning):
     """A recording is valid but something in it looks wrong (units, clipping, ...)."""
-
-
-def _is_number(value) -> bool:
-    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
-
-
-def _fmt(value) -> str:
-    """Short, exact float text for messages."""
-    return repr(float(value))
 
 
 # --------------------------------------------------------------------------- sidecar

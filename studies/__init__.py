@@ -9,10 +9,3 @@ never imports them. ``pneumatic-env paper``, ``speed`` and ``rig`` run them.
 * ``virtual_rig`` (with ``segmented_line``): synthetic recordings with effects written
   independently of the candidates; ``identification_eval``: the confusion-matrix evaluation.
 """
-
-from pathlib import Path
-
-from pneumatic_env._numba_cache import LIBRARY_ROOT, invalidate_stale_numba_cache
-
-# their jitted functions inline the library's sub-models
-invalidate_stale_numba_cache(Path(__file__).resolve().parent, depends_on=(LIBRARY_ROOT,))

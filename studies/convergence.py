@@ -31,6 +31,7 @@ import numpy as np
 
 from pneumatic_env.params import load_numerics
 from pneumatic_env.replay import simulate_currents
+from pneumatic_env.text_format import number_text
 
 from .paper import (
     COUPLINGS,
@@ -190,7 +191,7 @@ def smallest_substeps(rows: list, tolerance: float = TOLERANCE_PERCENT) -> int |
 
 
 def _fmt(x: float) -> str:
-    return "0" if x == 0 else (f"{x:.4f}" if x >= 1e-4 else "<0.0001")
+    return "0" if x == 0 else (number_text(x, 4, fixed=True) if x >= 1e-4 else "<0.0001")
 
 
 def markdown(result: dict) -> str:

@@ -38,6 +38,7 @@ from pneumatic_env.physics.tube import (
 )
 from pneumatic_env.physics.valve import orifice_area, steady_spool_position
 from pneumatic_env.replay import simulate_currents
+from pneumatic_env.text_format import jsonable
 
 __all__ = [
     "CYLINDERS",
@@ -568,14 +569,6 @@ def _table_rows(table: dict) -> list[tuple[str, str, str, str]]:
     return rows
 
 
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (np.floating, np.integer)):
-        return x.item()
-    return x
-
-
 def reproduce(out_dir: str | Path, quick: bool = False, figures: bool = True) -> dict:
     """Run (a)-(d), write the PNGs and ``table.md`` / ``table.json`` to ``out_dir``.
 
@@ -611,7 +604,7 @@ def reproduce(out_dir: str | Path, quick: bool = False, figures: bool = True) ->
         from .paper_figures import write_figures  # matplotlib: the plots extra
 
         files += write_figures(params, step_runs, sine_runs, tube, out)
-    (out / "table.json").write_text(json.dumps(_jsonable(table), indent=2) + "\n")
+    (out / "table.json").write_text(json.dumps(jsonable(table), indent=2) + "\n")
     lines = ["| quantity | value | unit | paper / expected |", "|---|---|---|---|"]
     lines += [f"| {a} | {b} | {c} | {d} |" for a, b, c, d in _table_rows(table)]
     (out / "table.md").write_text("\n".join(lines) + "\n")

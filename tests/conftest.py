@@ -13,8 +13,14 @@ import numba
 import numpy as np
 import pytest
 
-from pneumatic_env.params import load_numerics, load_parameters, parameter_array
-from pneumatic_env.simulator import BatchSimulator
+from pneumatic_env.numba_cache import clear_stale_numba_cache
+
+# Numba does not see an edit of a jitted callee in another module: clear what is stale
+# before any jitted function is loaded from the cache (pneumatic_env.numba_cache).
+clear_stale_numba_cache()
+
+from pneumatic_env.params import load_numerics, load_parameters, parameter_array  # noqa: E402
+from pneumatic_env.simulator import BatchSimulator  # noqa: E402
 
 #: PID gains of the agents' tests (hand-set, not the benchmark's tuned ones)
 PID_TEST_GAINS = dict(

@@ -672,11 +672,11 @@ def test_env_id_and_parse_env_id_round_trip():
         (lambda: pneumatic_env.env_id("ForceTrack", "festo", 2), "cylinder = 'festo'"),
         (lambda: pneumatic_env.env_id("ForceTrack", "Numatics", 1.5), "tube = 1.5"),
         (
-            lambda: pneumatic_env.parse_env_id("pneumatic_env/ForceTrack-Numatics-2m-v1"),
+            lambda: pneumatic_env.ids.parse_env_id("pneumatic_env/ForceTrack-Numatics-2m-v1"),
             "env id = 'pneumatic_env/ForceTrack-Numatics-2m-v1'",
         ),
         (
-            lambda: pneumatic_env.parse_env_id("ForceTrack-Numatics-7m-v0"),
+            lambda: pneumatic_env.ids.parse_env_id("ForceTrack-Numatics-7m-v0"),
             "env id = 'ForceTrack-Numatics-7m-v0'",
         ),
     ],
@@ -698,19 +698,7 @@ def test_public_api_resolves_and_is_documented():
         is gym.make_vec(FORCE_ID, num_envs=2).unwrapped.__class__
     )
     text = pydoc.render_doc(pneumatic_env, renderer=pydoc.plaintext)
-    for name in (
-        "make",
-        "make_vec",
-        "env_id",
-        "parse_env_id",
-        "registered_ids",
-        "load_parameters",
-        "read_recording",
-        "simulate_recording",
-        "BatchSimulator",
-        "PneumaticTrackingEnv",
-        "TaskSpec",
-    ):
+    for name in pneumatic_env.__all__:
         assert f"\n    {name}(" in text or f"class {name}" in text, name
     with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
         pneumatic_env.nonexistent  # noqa: B018

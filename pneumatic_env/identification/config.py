@@ -17,7 +17,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pneumatic_env.config_files import ConfigError, config_dir, read_yaml
+from pneumatic_env.config_files import (
+    ConfigError,
+    check_entry,
+    config_dir,
+    is_entry,
+    read_yaml,
+)
+from pneumatic_env.text_format import is_number
 
 __all__ = ["CONFIG_FILE", "FitParameter", "IdentificationConfig", "load_config"]
 
@@ -79,10 +86,6 @@ class FitParameter:
         return self.to_u(self.lower), self.to_u(self.upper)
 
 
-def _is_number(x: Any) -> bool:
-    return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(float(x))
-
-
 def _is_infinity(x: Any) -> bool:
     return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isinf(float(x))
 
@@ -90,24 +93,8 @@ def _is_infinity(x: Any) -> bool:
 def _parse_parameter(
     where: str, name: str, entry: Any, kind: str, need_initial: bool
 ) -> FitParameter:
-    if not isinstance(entry, Mapping):
-        raise ConfigError(
-            f"{where}: entry {name!r} must be a mapping with keys "
-            f"{', '.join(_PARAM_REQUIRED)}; got {entry!r}"
-        )
-    extra = sorted(set(entry) - _PARAM_KEYS)
-    if extra:
-        raise ConfigError(
-            f"{where}: entry {name!r} has unknown key {extra[0]!r}; allowed keys: "
-            f"{', '.join(sorted(_PARAM_KEYS))}"
-        )
     required = _PARAM_REQUIRED + (("initial", "neutral") if need_initial else ())
-    for key in required:
-        if key not in entry:
-            raise ConfigError(f"{where}: entry {name!r} is missing key {key!r}")
-    for key in ("unit", "source"):
-        if not isinstance(entry[key], str) or not entry[key].strip():
-            raise ConfigError(f"{where}: entry {name!r}: {key!r} must be a non-empty string")
+    check_entry(f"{where}: entry {name!r}", entry, _PARAM_KEYS, required)
     nums = {}
     for key in (
         "lower",
@@ -127,7 +114,7 @@ def _parse_parameter(
                 # an effect that vanishes only in a limit (a rigid load cell: k -> inf)
                 nums[key] = float(entry[key])
                 continue
-            if not _is_number(entry[key]):
+            if not is_number(entry[key], finite=True):
                 allowed = (
                     (
                         "a finite number, .inf / -.inf for an effect that vanishes only "
@@ -226,12 +213,9 @@ class IdentificationConfig:
         entry = node.get(name) if isinstance(node, Mapping) else None
         if sub is not None:
             entry = entry.get(sub) if isinstance(entry, Mapping) else None
-        if not isinstance(entry, Mapping) or "value" not in entry:
+        if not is_entry(entry):
             raise ConfigError(f"{self.path}: entry {where} is missing (needs value, unit, source)")
-        for key in ("unit", "source"):
-            if key not in entry:
-                raise ConfigError(f"{self.path}: entry {where} is missing key {key!r}")
-        return entry["value"]
+        return check_entry(f"{self.path}: entry {where}", entry)["value"]
 
     def number(
         self,
@@ -245,7 +229,7 @@ class IdentificationConfig:
         """A finite numeric setting, checked."""
         v = self.value(section, name, sub)
         where = f"{section}.{name}" + (f".{sub}" if sub else "")
-        if not _is_number(v):
+        if not is_number(v, finite=True):
             raise ConfigError(
                 f"{self.path}: {where} = {v!r} is not allowed: must be a finite number"
             )
@@ -261,7 +245,7 @@ class IdentificationConfig:
     def positive_numbers(self, section: str, name: str) -> list[float]:
         """A list of finite numbers > 0 (possibly empty), checked."""
         v = self.value(section, name)
-        if not isinstance(v, list) or not all(_is_number(x) and x > 0 for x in v):
+        if not isinstance(v, list) or not all(is_number(x, finite=True) and x > 0 for x in v):
             raise ConfigError(
                 f"{self.path}: {section}.{name} = {v!r} is not allowed: must be "
                 "a list of finite numbers > 0"

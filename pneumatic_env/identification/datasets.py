@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pneumatic_env.params import ConfigError
-from pneumatic_env.physics.layout import PARAMETER_NAMES
+from pneumatic_env.physics.layout import PARAMETER_INDEX
 from pneumatic_env.recording import Recording
 from pneumatic_env.replay import PREDICTED_CHANNELS, recording_parameters, substeps_for
 
@@ -24,8 +24,6 @@ __all__ = [
     "dataset_overrides",
     "prepare_datasets",
 ]
-
-_ROW = {name: i for i, name in enumerate(PARAMETER_NAMES)}
 
 
 def kernel_name(key: str) -> str:
@@ -172,7 +170,7 @@ def dataset_overrides(
     out, scoped = {}, {}
     for key, v in overrides.items():
         name, _, modes = key.partition("@")
-        if name not in _ROW:
+        if name not in PARAMETER_INDEX:
             continue
         value = float(ds.values[v]) if isinstance(v, str) else float(v)
         if modes:

@@ -18,13 +18,14 @@ import numpy as np
 
 from pneumatic_env.ids import MODE_FIXED
 from pneumatic_env.params import ConfigError, parameter_array
+from pneumatic_env.physics.layout import PARAMETER_INDEX as _ROW  # name -> row
 from pneumatic_env.replay import PREDICTED_CHANNELS
 from pneumatic_env.simulator import BatchSimulator
 
 from . import progress
 from .candidates import SENSOR_NEUTRAL, apply_sensor_model
 from .config import FitParameter, IdentificationConfig, load_config
-from .datasets import _ROW, Dataset, dataset_overrides, kernel_name
+from .datasets import Dataset, dataset_overrides, kernel_name
 
 log = logging.getLogger("pneumatic_env.identification")
 PREDICTED_CHANNELS_ORDER = tuple(PREDICTED_CHANNELS)

@@ -22,7 +22,7 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-import numpy as np
+from pneumatic_env.text_format import jsonable, number_text
 
 from .diagnose import Diagnosis
 
@@ -33,11 +33,7 @@ _UNITS = {"p1": "Pa", "p2": "Pa", "f": "N", "x": "m", "v": "m/s", "x_s": "m"}
 
 
 def _fmt(x, digits: int = 4) -> str:
-    if x is None:
-        return "-"
-    if isinstance(x, float) and not math.isfinite(x):
-        return "inf" if x > 0 else ("-inf" if x < 0 else "nan")
-    return f"{x:.{digits}g}"
+    return number_text(x, digits)  # None: "-"
 
 
 def _check_outputs(out_dir: Path, inputs: Sequence[Path], names: Sequence[str]) -> None:
@@ -358,7 +354,7 @@ def _save_fit(diag: Diagnosis, fit, path: Path, notes: str) -> None:
 
 def diagnosis_json(diag: Diagnosis) -> dict:
     """The diagnosis as ``diagnosis.json`` holds it (plain JSON types, no NaN)."""
-    return _clean(diag.to_json())
+    return jsonable(diag.to_json(), finite=True)
 
 
 def write_report(diag: Diagnosis, out_dir: str | os.PathLike, plots: bool = True) -> dict:
@@ -395,20 +391,3 @@ def write_report(diag: Diagnosis, out_dir: str | os.PathLike, plots: bool = True
     written = _plots(diag, out_dir) if plots else []
     (out_dir / "report.md").write_text(_markdown(diag, data, written), encoding="utf-8")
     return data
-
-
-def _clean(x):
-    """Plain JSON values: numpy scalars to Python, non-finite floats to None."""
-    if isinstance(x, dict):
-        return {str(k): _clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _clean(x.tolist())
-    if isinstance(x, (np.bool_, bool)):
-        return bool(x)
-    if isinstance(x, (np.integer, int)):
-        return int(x)
-    if isinstance(x, (np.floating, float)):
-        return float(x) if math.isfinite(x) else None
-    return x

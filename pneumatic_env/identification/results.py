@@ -11,9 +11,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.stats import norm
 
+from pneumatic_env.physics.layout import PARAMETER_INDEX as _ROW  # name -> row
+
 from .candidates import SENSOR_NEUTRAL
 from .config import FitParameter
-from .datasets import _ROW, Dataset, dataset_overrides, kernel_name
+from .datasets import Dataset, dataset_overrides, kernel_name
 
 if TYPE_CHECKING:
     from .problem import FitProblem

@@ -11,6 +11,8 @@ import time
 
 import numpy as np
 
+from pneumatic_env.text_format import number_text
+
 from .ceiling import OPS, PAIR_BURSTS, VECTOR_LOOPS, VECTOR_OPS
 from .plan import (
     ACCURACY_FULL_SCALE,
@@ -32,11 +34,7 @@ from .plan import (
 
 
 def _fmt(x, digits=3) -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "n/a"
-    if abs(x) >= 1e3:
-        return f"{x:,.0f}"
-    return f"{x:.{digits}g}"
+    return number_text(x, digits, missing="n/a", not_finite="n/a", grouped_from=1e3)
 
 
 def _pct(shares) -> str:
