@@ -43,6 +43,7 @@ from .ids import (
     CYLINDER_IDS,
     ENV_PREVIEW_STEPS,
     EPISODE_STEPS,
+    PACKAGE_VERSION,
     TASK_IDS,
     TUBE_LENGTHS_M,
     EnvId,
@@ -62,7 +63,7 @@ if TYPE_CHECKING:
     from .replay import simulate_recording
     from .simulator import BatchSimulator
 
-__version__ = "0.1.0"
+__version__ = PACKAGE_VERSION
 
 __all__ = [
     # ids

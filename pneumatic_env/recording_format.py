@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pneumatic_env import ids
+import pneumatic_env.ids as ids
 from pneumatic_env.simulator import INITIAL_STATE_KEYS  # the sidecar's "initial" keys
 
 FORMAT_NAME = "pneumatic-measurement"
