@@ -73,6 +73,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -196,8 +197,58 @@ def run_rig(
     and expands one chamber below ambient (a physical sub-ambient pressure).
     ``own_forms``: the effects of :data:`.rig_forms.OWN_FORM_EFFECTS` in the rig's own form
     (default); False puts the kernel's parameter (the candidate's form) in the plant.
+
+    Stages: the rig (piston, perturbed parameters), the effect on its parameters, the
+    excitation and the coil drive, the plant, the sensors (:func:`_sensor_channels`).
     """
     cfg = config or load_config()
+    _check_rig_arguments(effect, strength, piston)
+    rng = np.random.default_rng(seed)
+    grid = _sample_grid(cfg, duration_s)
+    cylinder = canonical_cylinder(cylinder)
+    piston_rig, nominal = _nominal_rig(cylinder, tube_length_m, piston, spring_rest_position_m, cfg)
+    true = _perturbed(cylinder, nominal, rng, cfg) if perturb else dict(nominal)
+    if experiment is not None:
+        rng = np.random.default_rng([int(seed), int(experiment)])
+
+    i_c = excitation(excitation_kind, grid.n, grid.dt_s, rng, cfg)
+    ref = float(cfg.number("virtual_rig", "effects", effect)) if effect != "none" else 0.0
+    s = float(strength)
+    own = own_forms and effect in OWN_FORM_EFFECTS and s > 0.0
+    true, own_truth = _effect_parameters(effect, s, ref, true, own, cylinder, cfg)
+    truth_parameters = dict(true)
+    fine = _coil_drive(effect, s, ref, i_c, grid, true, truth_parameters, cfg)
+    rows, plant = _plant_rows(
+        effect, s, ref, fine, grid, true, truth_parameters, own, own_truth, cylinder, piston, cfg
+    )
+    t, channels = _sensor_channels(effect, s, ref, rows, i_c, grid, piston, rng, cfg)
+    rig = {
+        "cylinder": cylinder,
+        "tube_length_m": float(tube_length_m),
+        "supply_pressure_pa": float(nominal["supply_pressure_pa"]),
+        "ambient_pressure_pa": float(nominal["ambient_pressure_pa"]),
+        "temperature_k": float(nominal["temperature_k"]),
+        "piston": piston_rig,
+        "notes": "synthetic (virtual rig) recording made by pneumatic_env.studies.virtual_rig",
+    }
+    truth = {
+        "effect": effect,
+        "strength": s,
+        "seed": int(seed),
+        "experiment": experiment,
+        "excitation": excitation_kind,
+        "duration_s": grid.duration_s,
+        "perturbed": bool(perturb),
+        "effect_reference": ref,
+        "plant": plant,
+        "parameters": {k: float(v) for k, v in truth_parameters.items()},
+    }
+    return RigResult(t=t, channels=channels, rig=rig, truth=truth)
+
+
+def _check_rig_arguments(effect: str, strength: float, piston: str) -> None:
+    """Refuse, by name, an unknown effect, a bad strength or piston, or a pair the rig
+    cannot make."""
     if effect not in RIG_EFFECTS:
         raise ValueError(
             f"effect {effect!r} is not known to the virtual rig; allowed: {', '.join(RIG_EFFECTS)}"
@@ -220,7 +271,19 @@ def run_rig(
             f"effect {effect!r} needs the kernel parameter "
             f"{KERNEL_EFFECTS[effect][0]!r}, which this kernel does not have"
         )
-    rng = np.random.default_rng(seed)
+
+
+class _SampleGrid(NamedTuple):
+    """The recording's sample period, the plant's step and the number of samples."""
+
+    dt_s: float  # sample period
+    plant_dt_s: float  # the plant's step
+    plant_steps_per_sample: int
+    n: int  # samples, the first at t = 0
+    duration_s: float
+
+
+def _sample_grid(cfg: IdentificationConfig, duration_s: float | None) -> _SampleGrid:
     dt = cfg.number("virtual_rig", "sample_dt_s", positive=True)
     plant_dt = cfg.number("virtual_rig", "plant_dt_s", positive=True)
     ratio = int(round(dt / plant_dt))
@@ -229,11 +292,19 @@ def run_rig(
     duration = float(
         duration_s if duration_s is not None else cfg.number("virtual_rig", "duration_s")
     )
-    n = int(round(duration / dt)) + 1
-    cylinder = canonical_cylinder(cylinder)
+    return _SampleGrid(dt, plant_dt, ratio, int(round(duration / dt)) + 1, duration)
 
-    piston_rig = {"mode": piston}
-    overrides = {"tube_length_m": tube_length_m, "piston_mode": PISTON_MODES[piston][0]}
+
+def _nominal_rig(
+    cylinder: str,
+    tube_length_m: float,
+    piston: str,
+    spring_rest_position_m: float,
+    cfg: IdentificationConfig,
+) -> tuple[dict, dict]:
+    """(the sidecar's piston entry, the nominal parameters) of the rig's piston mode."""
+    piston_rig: dict = {"mode": piston}
+    overrides: dict = {"tube_length_m": tube_length_m, "piston_mode": PISTON_MODES[piston][0]}
     if piston == "fixed":
         piston_rig["position_m"] = 0.0
         overrides["fixed_position_m"] = 0.0
@@ -248,15 +319,20 @@ def run_rig(
         overrides.update(
             spring_stiffness_n_per_m=k_env, spring_rest_position_m=rest, load_mass_kg=m_env
         )
-    nominal = load_parameters(cylinder, **overrides)
-    true = _perturbed(cylinder, nominal, rng, cfg) if perturb else dict(nominal)
-    if experiment is not None:
-        rng = np.random.default_rng([int(seed), int(experiment)])
+    return piston_rig, load_parameters(cylinder, **overrides)
 
-    i_c = excitation(excitation_kind, n, dt, rng, cfg)
-    ref = float(cfg.number("virtual_rig", "effects", effect)) if effect != "none" else 0.0
-    s = float(strength)
-    own = own_forms and effect in OWN_FORM_EFFECTS and s > 0.0
+
+def _effect_parameters(
+    effect: str,
+    s: float,
+    ref: float,
+    true: dict,
+    own: bool,
+    cylinder: str,
+    cfg: IdentificationConfig,
+) -> tuple[dict, dict]:
+    """(the plant's parameters with a kernel-form effect or the load cell in them, the
+    nearest kernel form of the effect for the truth)."""
     own_truth: dict = {}
     if effect in KERNEL_EFFECTS:
         name, rule = KERNEL_EFFECTS[effect]
@@ -281,9 +357,24 @@ def run_rig(
             load_mass_kg=cfg.number("virtual_rig", "load_cell_moving_mass_kg", minimum=0.0),
         )
         true = load_parameters(cylinder, params=true)
+    return true, own_truth
 
-    fine = np.repeat(i_c[:-1], ratio)
-    truth_parameters = dict(true)
+
+def _coil_drive(
+    effect: str,
+    s: float,
+    ref: float,
+    i_c: np.ndarray,
+    grid: _SampleGrid,
+    true: dict,
+    truth_parameters: dict,
+    cfg: IdentificationConfig,
+) -> np.ndarray:
+    """The current the plant sees per plant step: the sampled command held, through the
+    coil's amplifier and lags or the spool's stick-slip if the effect is there (the
+    nearest kernel form goes into ``truth_parameters``)."""
+    plant_dt = grid.plant_dt_s
+    fine = np.repeat(i_c[:-1], grid.plant_steps_per_sample)
     if effect == "coil_lag" and s > 0.0:
         share = cfg.number("virtual_rig", "coil_force_lag_share", minimum=0.0)
         fine = _coil_plant(
@@ -300,6 +391,26 @@ def run_rig(
         band = s * ref / true["coil_force_n_per_a"]
         breakaway = cfg.number("virtual_rig", "spool_breakaway_ratio", minimum=1.0)
         fine = _stick_slip_play(fine, band, breakaway * band)
+    return fine
+
+
+def _plant_rows(
+    effect: str,
+    s: float,
+    ref: float,
+    fine: np.ndarray,
+    grid: _SampleGrid,
+    true: dict,
+    truth_parameters: dict,
+    own: bool,
+    own_truth: dict,
+    cylinder: str,
+    piston: str,
+    cfg: IdentificationConfig,
+) -> tuple[np.ndarray, str]:
+    """(the plant's outputs at every plant step from t = 0, the plant's description):
+    the kernel, the kernel with the rig's own form of the effect, or segmented lines."""
+    plant_dt = grid.plant_dt_s
     plant_substeps = int(cfg.number("virtual_rig", "plant_substeps", positive=True))
     form = None
     if s > 0.0 and effect in SPLIT_EFFECTS:
@@ -340,8 +451,10 @@ def run_rig(
         )
         rows = np.tile(first, (fine.size, 1))  # its velocity column is not recorded
         rows[:, [L.O_P1, L.O_P2, L.O_F, L.O_X]] = line[1:]
+        plant = f"segmented line, {segments} volumes per tube"
     elif form is None:
         rows = sim.rollout(fine[:, None])[:, :, 0]
+        plant = "kernel and the rig's own form" if own else "kernel"
     else:
         rows = np.empty((fine.size, L.N_OUTPUT))
         h = plant_dt / steps_per_plant_step
@@ -350,8 +463,24 @@ def run_rig(
                 form.before_step(sim, k, h)
                 rows[k] = sim.step(fine[k : k + 1])[:, 0]
             form.correct_output(rows[k])
-    rows = np.vstack([first[None, :], rows])  # rows[j] = state at j * plant_dt
+        plant = "kernel and the rig's own form" if own else "kernel"
+    return np.vstack([first[None, :], rows]), plant  # rows[j] = state at j * plant_dt
 
+
+def _sensor_channels(
+    effect: str,
+    s: float,
+    ref: float,
+    rows: np.ndarray,
+    i_c: np.ndarray,
+    grid: _SampleGrid,
+    piston: str,
+    rng: np.random.Generator,
+    cfg: IdentificationConfig,
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """(sample times, the recorded channels): the plant's outputs sampled, through the
+    sensor effects, with noise and quantisation."""
+    n, dt, plant_dt = grid.n, grid.dt_s, grid.plant_dt_s
     names = {"p1": L.O_P1, "p2": L.O_P2, "f": L.O_F, "x": L.O_X}
     measured = ("p1", "p2", "f") if piston == "fixed" else ("p1", "p2", "x")
     t = dt * np.arange(n)
@@ -361,7 +490,7 @@ def run_rig(
         y = rows[:, names[ch]].copy()
         if effect == "pressure_sensor_lag" and ch in ("p1", "p2"):
             y = _two_lags(y, s * ref, plant_dt)
-        idx = np.arange(n) * ratio - skew_steps
+        idx = np.arange(n) * grid.plant_steps_per_sample - skew_steps
         y = y[np.clip(idx, 0, None)]
         if effect == "pressure_sensor_offset" and ch in ("p1", "p2"):
             y = y + s * ref * (1.0 if ch == "p1" else -2.0 / 3.0) * (1.0 + 0.1 * t / t[-1])
@@ -371,35 +500,7 @@ def run_rig(
         if q > 0:
             y = q * np.round(y / q)
         channels[ch] = y
-
-    rig = {
-        "cylinder": cylinder,
-        "tube_length_m": float(tube_length_m),
-        "supply_pressure_pa": float(nominal["supply_pressure_pa"]),
-        "ambient_pressure_pa": float(nominal["ambient_pressure_pa"]),
-        "temperature_k": float(nominal["temperature_k"]),
-        "piston": piston_rig,
-        "notes": "synthetic (virtual rig) recording made by pneumatic_env.studies.virtual_rig",
-    }
-    truth = {
-        "effect": effect,
-        "strength": s,
-        "seed": int(seed),
-        "experiment": experiment,
-        "excitation": excitation_kind,
-        "duration_s": duration,
-        "perturbed": bool(perturb),
-        "effect_reference": ref,
-        "plant": (
-            f"segmented line, {segments} volumes per tube"
-            if effect in LINE_EFFECTS and s > 0.0
-            else "kernel and the rig's own form"
-            if own
-            else "kernel"
-        ),
-        "parameters": {k: float(v) for k, v in truth_parameters.items()},
-    }
-    return RigResult(t=t, channels=channels, rig=rig, truth=truth)
+    return t, channels
 
 
 def make_recording(out_dir, name: str | None = None, overwrite: bool = False, **kwargs) -> Path:
