@@ -9,6 +9,7 @@ one internal state (integrator, filters, predictor buffers) per row.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,6 +37,7 @@ __all__ = [
     "ControllerContext",
     "Controller",
     "ZeroController",
+    "ControllerSpec",
     "check_gain",
     "valve_currents",
 ]
@@ -198,3 +200,13 @@ class ZeroController(Controller):
 
     def _act(self, obs):
         return np.zeros(obs.shape[0])
+
+
+@dataclass
+class ControllerSpec:
+    """How to build a controller for a variant: env options first, then ``build(context)``."""
+
+    name: str
+    env_options: dict
+    build: Callable[[ControllerContext], Controller]
+    source: str = ""

@@ -34,7 +34,7 @@ from .bench_results import (
     read_results,
     write_results,
 )
-from .registry import resolve_controller
+from .registry import controller_names, resolve_controller
 from .suite import BenchTask, Suite, load_suite, parse_variant
 
 __all__ = [
@@ -305,8 +305,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.list:
-        from .registry import controller_names
-
         print("\n".join(controller_names()))
         return 0
     if args.leaderboard:

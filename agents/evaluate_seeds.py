@@ -34,6 +34,7 @@ import numpy as np
 from . import stats
 from .bench import run_suite
 from .bench_results import markdown_table
+from .learned import LearnedActor
 from .suite import Suite, load_suite
 
 __all__ = [
@@ -113,8 +114,6 @@ def evaluate_seeds(
     progress=None,
 ) -> dict:
     """Run the suite for every actor (seed) and the baseline; statistics per variant."""
-    from .learned import LearnedActor
-
     suite = suite or load_suite()
     if not variants:
         variants = [LearnedActor(actors[0]).meta["variant"]]

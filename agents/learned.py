@@ -40,7 +40,7 @@ from pneumatic_env.ids import parse_env_id
 from .base import Controller, ControllerContext, valve_currents
 from .generalist import PARAM_PREFIX, param_values
 from .policy import NumpyPolicy
-from .residual import RESIDUAL_COLUMNS, ResidualConfig, ResidualCore, make_base_controller
+from .residual import RESIDUAL_COLUMNS, ResidualConfig, ResidualCore
 
 __all__ = [
     "FORMAT",
@@ -48,8 +48,6 @@ __all__ = [
     "LearnedController",
     "pure_current",
     "is_learned",
-    "learned_spec",
-    "validate_actor",
     "policy_dir",
     "shipped_policies",
     "shipped_policy_path",
@@ -126,13 +124,17 @@ class LearnedActor(NumpyPolicy):
 class LearnedController(Controller):
     """A :class:`LearnedActor` as a benchmark controller: base observation in, current out.
 
-    ``variant``: whose classical gains a residual actor corrects (the benchmark passes the
-    variant it runs). The controller's env must give ``preview_steps`` of the actor.
+    ``base``: the classical controller a residual actor corrects, built for ``context``
+    (``agents.registry.make_base_controller``; the benchmark's gains of the variant it
+    runs); None for a pure actor. The controller's env must give ``preview_steps`` of the
+    actor.
     """
 
     name = "learned"
 
-    def __init__(self, context: ControllerContext, actor: LearnedActor, variant: str):
+    def __init__(
+        self, context: ControllerContext, actor: LearnedActor, base: Controller | None = None
+    ):
         super().__init__(context)
         opts = actor.meta["env_options"]
         if context.preview_steps != int(opts["preview_steps"]):
@@ -140,16 +142,17 @@ class LearnedController(Controller):
                 f"{actor.path}: trained with preview_steps = "
                 f"{opts['preview_steps']}, the env gives {context.preview_steps}"
             )
-        self.actor, self.variant = actor, variant
+        rc = actor.residual_config
+        if (rc is None) != (base is None):
+            raise ValueError(
+                f"{actor.path}: a {'pure' if rc is None else 'residual'} actor "
+                f"{'takes no' if rc is None else 'needs a'} base controller"
+            )
+        self.actor = actor
         self.name = actor.meta.get("name", actor.path.stem)
         self.features_config = actor.feature_config
         self.normalize = bool(opts["normalize_observation"])
-        rc = actor.residual_config
-        self.residual = (
-            None
-            if rc is None
-            else ResidualCore(make_base_controller(rc.base, context, variant), rc)
-        )
+        self.residual = None if rc is None or base is None else ResidualCore(base, rc)
         columns = observation_columns(context.preview_steps, self.features_config)
         columns += list(RESIDUAL_COLUMNS) if rc is not None else []
         # a generalist's plant columns (agents.generalist): nominal parameters it may know
@@ -225,51 +228,6 @@ class LearnedController(Controller):
             )
         self.last_current = u
         return u
-
-
-def learned_spec(path: str | Path, variant: str, name: str | None = None):
-    """Bench controller spec (``agents.registry.ControllerSpec``) of an actor file."""
-    from .registry import ControllerSpec
-
-    actor = LearnedActor(path)
-    opts = actor.meta["env_options"]
-    label = name or actor.meta.get("name") or Path(path).stem
-    return ControllerSpec(
-        label,
-        {"preview_steps": int(opts["preview_steps"]), "normalize_observation": False},
-        lambda ctx: LearnedController(ctx, actor, variant),
-        str(path),
-    )
-
-
-def validate_actor(actor_path: str | Path, variant: str, validation: list, n_steps: int) -> dict:
-    """Mean RMS error (% of the scale) and chatter of an actor on ``validation`` references
-    (``[{"seed": s, "reference": spec in scale units}, ...]``) over ``n_steps``, through the
-    benchmark's closed loop (``agents.bench.closed_loop``); model selection in training."""
-    from .bench import closed_loop, make_env, task_metrics
-
-    spec = learned_spec(actor_path, variant)
-    env = make_env(variant, len(validation), n_steps, **spec.env_options)
-    ctrl = spec.build(ControllerContext.from_env(env))
-    tr = closed_loop(
-        env, ctrl, [v["reference"] for v in validation], [v["seed"] for v in validation], n_steps
-    )
-    scale = env.unwrapped.reference_scale
-    env.close()
-    ms = [
-        task_metrics(
-            tr["force_n"][:, i],
-            tr["reference_n"][:, i],
-            tr["current_a"][:, i],
-            tr["exhaust_kg"][:, i],
-            scale,
-        )
-        for i in range(len(validation))
-    ]
-    return {
-        "val_rms_pct": float(np.mean([m["rms_error_pct"] for m in ms])),
-        "val_chatter_a": float(np.mean([m["chatter_rms_a"] for m in ms])),
-    }
 
 
 # --------------------------------------------------------------------------- shipped policies

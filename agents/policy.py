@@ -19,9 +19,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .base import Controller, ControllerContext
+from .base import Controller, ControllerContext, ControllerSpec
 
-__all__ = ["export_policy", "NumpyPolicy", "PolicyController", "load_policy_spec"]
+__all__ = [
+    "export_policy",
+    "actor_layers",
+    "NumpyPolicy",
+    "PolicyController",
+    "load_policy_spec",
+]
 
 _ACTIVATIONS = {
     "Tanh": np.tanh,
@@ -37,7 +43,7 @@ def _activation_name(module) -> str | None:
     return next((c.__name__ for c in type(module).__mro__ if c.__name__ in _ACTIVATIONS), None)
 
 
-def _layers(modules) -> list[tuple[np.ndarray, np.ndarray, str]]:
+def actor_layers(modules) -> list[tuple[np.ndarray, np.ndarray, str]]:
     """(W, b, activation after it) for a sequence of torch Linear/activation modules."""
     import torch.nn as nn
 
@@ -71,10 +77,10 @@ def _actor(model) -> tuple[list, str]:
     policy = model.policy
     if isinstance(model, PPO):
         modules = list(policy.mlp_extractor.policy_net) + [policy.action_net]
-        return _layers(modules), "clip"
+        return actor_layers(modules), "clip"
     if isinstance(model, SAC):
         modules = list(policy.actor.latent_pi) + [policy.actor.mu]
-        return _layers(modules), "tanh"
+        return actor_layers(modules), "tanh"
     raise ValueError(f"export_policy supports PPO and SAC models, got {type(model).__name__}")
 
 
@@ -207,10 +213,8 @@ class PolicyController(Controller):
         return self._held.copy()
 
 
-def load_policy_spec(path: str | Path):
+def load_policy_spec(path: str | Path) -> ControllerSpec:
     """Bench controller spec for ``model.npz`` or ``model.zip`` (uses the sibling ``.npz``)."""
-    from .registry import ControllerSpec
-
     path = Path(path)
     npz = path if path.suffix == ".npz" else path.with_suffix(".npz")
     if not npz.is_file():

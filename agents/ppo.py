@@ -37,10 +37,11 @@ import numpy as np
 import torch
 import torch.nn as nn
 
+from .actor_validation import validate_actor
 from .config import agent_config_path
 from .generalist import MixtureVectorEnv
-from .learned import FORMAT, pure_current, validate_actor
-from .policy import _layers
+from .learned import FORMAT, pure_current
+from .policy import actor_layers as _layers
 from .ppo_setup import (
     action_scale_a,
     deadband_smoothing,

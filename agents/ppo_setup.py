@@ -12,10 +12,12 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
+from pneumatic_env.envs.tasks import scale_spec
+
 from .base import valve_currents
 from .config import ConfigError, agent_config_path, load_agent_config
 from .generalist import MixtureVectorEnv
-from .residual import ResidualVectorWrapper
+from .residual_env import ResidualVectorWrapper
 
 __all__ = [
     "load_config",
@@ -112,8 +114,6 @@ def make_training_env(cfg: dict, env_id: str, seed: int = 0, num_envs: int | Non
     """The vector env of a config: features, training references, residual wrapper; with
     ``variants`` (a generalist) an ``agents.generalist.MixtureVectorEnv`` of one such env
     per variant id, ``num_envs`` split evenly, plant columns ``plant_inputs``."""
-    from .bench import scale_spec
-
     hp, tr = cfg["hyperparameters"], cfg["training"]
     n_envs = int(hp["num_envs"]) if num_envs is None else int(num_envs)
     variants = cfg.get("variants")

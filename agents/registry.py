@@ -3,35 +3,35 @@ for a variant from its name, its config under ``configs/agents/`` or a trained p
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 from pneumatic_env.params import ConfigError
 
-from .base import Controller, ControllerContext, ZeroController
+from .base import Controller, ControllerContext, ControllerSpec, ZeroController
 from .config import agent_config_path, load_agent_config
+from .learned import (
+    LearnedActor,
+    LearnedController,
+    is_learned,
+    shipped_policies,
+    shipped_policy_path,
+)
+from .pid import PIDController
+from .policy import load_policy_spec
+from .residual import BASE_CONTROLLERS
+from .sliding_mode import SlidingModeController
 from .suite import suite_preview_steps
 
 __all__ = [
-    "ControllerSpec",
     "resolve_controller",
+    "make_base_controller",
+    "learned_spec",
     "controller_names",
     "tuned_config_path",
     "CLASSICAL",
 ]
 
 CLASSICAL = ("pid", "sliding_mode", "zero")
-
-
-@dataclass
-class ControllerSpec:
-    """How to build a controller for a variant: env options first, then ``build(context)``."""
-
-    name: str
-    env_options: dict
-    build: Callable[[ControllerContext], Controller]
-    source: str = ""
 
 
 def tuned_config_path(name: str, variant: str) -> Path:
@@ -43,9 +43,6 @@ def tuned_config_path(name: str, variant: str) -> Path:
 def _classical(
     name: str, variant: str, config: str | None, preview_steps: int | None
 ) -> ControllerSpec:
-    from .pid import PIDController
-    from .sliding_mode import SlidingModeController
-
     classes = {"pid": PIDController, "sliding_mode": SlidingModeController}
     if config is None:
         per_variant = tuned_config_path(name, variant)
@@ -75,8 +72,6 @@ def _classical(
 def controller_names() -> list[str]:
     """Every name ``resolve_controller`` accepts besides file paths: the classical
     controllers, then the shipped policies (``agents/policies``)."""
-    from .learned import shipped_policies
-
     return list(CLASSICAL) + sorted(shipped_policies())
 
 
@@ -98,20 +93,42 @@ def resolve_controller(
         )
     path = Path(spec)
     if path.suffix in (".npz", ".zip"):
-        from .learned import is_learned, learned_spec
-
         if path.suffix == ".npz" and path.is_file() and is_learned(path):
             return learned_spec(path, variant)
-        from .policy import load_policy_spec
-
         return load_policy_spec(path)
     names = controller_names()
     if spec in names:
-        from .learned import learned_spec, shipped_policy_path
-
         return learned_spec(shipped_policy_path(spec, variant), variant, name=spec)
     raise ValueError(
         f"controller = {spec!r} is not allowed: use one of {names} or a path "
         "to a trained policy (.npz from pneumatic-env train or "
         "pneumatic_env.agents.policy.export_policy, or SB3 .zip)"
+    )
+
+
+def make_base_controller(name: str, context: ControllerContext, variant: str) -> Controller:
+    """The benchmark's ``name`` controller (one of ``residual.BASE_CONTROLLERS``) with the
+    gains of ``variant``, for ``context``: the base of a residual policy or a teacher."""
+    if name not in BASE_CONTROLLERS:
+        raise ValueError(f"base = {name!r} is not allowed: use one of {list(BASE_CONTROLLERS)}")
+    return resolve_controller(name, variant, preview_steps=context.preview_steps).build(context)
+
+
+def learned_spec(path: str | Path, variant: str, name: str | None = None) -> ControllerSpec:
+    """Bench controller spec of an actor file (``agents.learned``); a residual actor gets
+    the benchmark's base controller with the gains of ``variant``."""
+    actor = LearnedActor(path)
+    opts = actor.meta["env_options"]
+    label = name or actor.meta.get("name") or Path(path).stem
+    residual = actor.residual_config
+
+    def build(ctx: ControllerContext) -> Controller:
+        base = None if residual is None else make_base_controller(residual.base, ctx, variant)
+        return LearnedController(ctx, actor, base)
+
+    return ControllerSpec(
+        label,
+        {"preview_steps": int(opts["preview_steps"]), "normalize_observation": False},
+        build,
+        str(path),
     )

@@ -14,16 +14,9 @@ the reference scale: the sliding mode's predicted error ``f^(k+d) - r(k+lead)``,
 ``y - r(k)``). The sliding mode is told the applied current (``applied``), so its
 predictor knows the command in flight.
 
-Three ways in, all with the same numbers:
-
-* ``ResidualWrapper(gym.make(id, preview_steps=20), base="sliding_mode")``: a
-  ``gym.Wrapper`` for any single-env algorithm (SB3: ``make_vec_env`` over it);
-* ``ResidualVectorWrapper(gym.make_vec(id, num_envs=n, preview_steps=20))`` over the
-  native vector env (the final observation of a truncated episode gets its columns too);
-* registered ids: ``gym.make("pneumatic_env.agents.residual:pneumatic_env/ResidualForceTrack-
-  Numatics-2m-v0", correction_fraction=0.15)`` and the same id with ``gym.make_vec``
-  (the module prefix imports this module, which registers them); the residual keywords
-  (:class:`ResidualConfig`) and the env's are given together.
+The Gymnasium wrappers over an env and the registered ``Residual...`` ids are in
+:mod:`pneumatic_env.agents.residual_env`; this module is the batched core they and a
+learned residual controller (``agents.learned``) share, given a built base controller.
 """
 
 from __future__ import annotations
@@ -32,24 +25,18 @@ import copy
 import time
 from dataclasses import asdict, dataclass, fields
 
-import gymnasium as gym
 import numpy as np
-from gymnasium.vector.utils import batch_space
 
-from pneumatic_env import ids
 from pneumatic_env.envs.observation import OBS_F, OBS_REF, observation_dim
+from pneumatic_env.ids import variant_id
 
-from .base import Controller, ControllerContext
+from .base import Controller
 
 __all__ = [
     "ResidualConfig",
     "ResidualCore",
-    "ResidualWrapper",
-    "ResidualVectorWrapper",
     "residual_gate",
-    "make_base_controller",
     "env_variant",
-    "residual_env_id",
     "RESIDUAL_COLUMNS",
     "BASE_CONTROLLERS",
 ]
@@ -118,16 +105,7 @@ def residual_gate(
 def env_variant(env) -> str:
     """``"Numatics-2m"``: the cylinder and tube of an env (any wrappers, single or vector)."""
     core = env.unwrapped.core
-    return ids.variant_id(core.cylinder, core.base_params["tube_length_m"])
-
-
-def make_base_controller(name: str, context: ControllerContext, variant: str) -> Controller:
-    """The benchmark's ``name`` controller with the gains of ``variant``, for ``context``."""
-    from .registry import resolve_controller
-
-    if name not in BASE_CONTROLLERS:
-        raise ValueError(f"base = {name!r} is not allowed: use one of {list(BASE_CONTROLLERS)}")
-    return resolve_controller(name, variant, preview_steps=context.preview_steps).build(context)
+    return variant_id(core.cylinder, core.base_params["tube_length_m"])
 
 
 class ResidualCore:
@@ -209,136 +187,3 @@ class ResidualCore:
             error = self._plain_error(self.base.observation_si(o))
         self.base_time_s += time.perf_counter() - t0
         return self._columns(current, error)
-
-
-def _residual_core(env, base, config: ResidualConfig) -> ResidualCore:
-    ctx = ControllerContext.from_env(env)
-    if isinstance(base, Controller):
-        controller = base
-    else:
-        config = ResidualConfig(**{**config.as_dict(), "base": base})
-        config.validate()
-        controller = make_base_controller(base, ctx, config.variant or env_variant(env))
-    return ResidualCore(controller, config)
-
-
-def _box(dim: int) -> gym.spaces.Box:
-    return gym.spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float32)
-
-
-ACTION_SPACE = gym.spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
-
-
-class ResidualWrapper(gym.Wrapper):
-    """A single env with residual actions in [-1, 1] and the two residual columns.
-
-    ``base``: ``"sliding_mode"`` or ``"pid"`` (the benchmark's gains for the env's variant
-    or ``variant``) or a ``Controller``; the other keywords: :class:`ResidualConfig`.
-    ``info["base_current_a"]``: the classical controller's current of the step.
-    """
-
-    def __init__(self, env: gym.Env, base: str | Controller = "sliding_mode", **config):
-        super().__init__(env)
-        self.residual = _residual_core(env, base, ResidualConfig(**config))
-        self.action_space = ACTION_SPACE
-        self.observation_space = _box(env.observation_space.shape[0] + len(RESIDUAL_COLUMNS))
-
-    def reset(self, *, seed=None, options=None):
-        obs, info = self.env.reset(seed=seed, options=options)
-        self.residual.reset()
-        return self._observe(obs), info
-
-    def _observe(self, obs):
-        return np.concatenate([obs, self.residual.observe(obs[None])[0]])
-
-    def step(self, action):
-        u = self.residual.current(action)
-        self.residual.applied(u)
-        obs, reward, terminated, truncated, info = self.env.step(u)
-        info["base_current_a"] = float(self.residual.u_base[0])
-        return self._observe(obs), reward, terminated, truncated, info
-
-
-class ResidualVectorWrapper(gym.vector.VectorWrapper):
-    """The native vector env with residual actions (``(num_envs, 1)`` in [-1, 1]) and the
-    two residual columns; arguments as :class:`ResidualWrapper`. Needs same-step
-    autoreset (``info["final_obs"]`` gets the columns of the final observations)."""
-
-    def __init__(
-        self, env: gym.vector.VectorEnv, base: str | Controller = "sliding_mode", **config
-    ):
-        super().__init__(env)
-        self.residual = _residual_core(env, base, ResidualConfig(**config))
-        self.single_action_space = ACTION_SPACE
-        self.action_space = batch_space(ACTION_SPACE, env.num_envs)
-        self.single_observation_space = _box(
-            env.single_observation_space.shape[0] + len(RESIDUAL_COLUMNS)
-        )
-        self.observation_space = batch_space(self.single_observation_space, env.num_envs)
-
-    def reset(self, *, seed=None, options=None):
-        obs, info = self.env.reset(seed=seed, options=options)
-        self.residual.reset()
-        return np.concatenate([obs, self.residual.observe(obs)], axis=1), info
-
-    def step(self, actions):
-        u = self.residual.current(actions)
-        self.residual.applied(u)
-        obs, reward, terminated, truncated, info = self.env.step(u[:, None])
-        done = np.flatnonzero(np.logical_or(terminated, truncated))
-        if done.size:
-            final = info["final_obs"]
-            cols = self.residual.peek(np.stack([final[i] for i in done]), done)
-            final = final.copy()
-            for j, i in enumerate(done):
-                final[i] = np.concatenate([final[i], cols[j]])
-            info["final_obs"] = final
-            self.residual.reset(done)
-        info["base_current_a"] = self.residual.u_base.copy()
-        obs = np.concatenate([obs, self.residual.observe(obs)], axis=1)
-        return obs, reward, terminated, truncated, info
-
-
-# --------------------------------------------------------------------------- registered ids
-
-
-def residual_env_id(env_id: str) -> str:
-    """``pneumatic_env/ForceTrack-Numatics-2m-v0`` -> ``pneumatic_env/ResidualForceTrack-
-    Numatics-2m-v0`` (registered when this module is imported)."""
-    e = ids.parse_env_id(env_id)
-    return f"{ids.ENV_NAMESPACE}/Residual{e.task}-{e.variant}-v{ids.ENV_VERSION}"
-
-
-def _make_single(env_id: str, **kwargs) -> gym.Env:
-    config, env_kwargs = ResidualConfig.split(kwargs)
-    env_kwargs.pop("max_episode_steps", None)  # gym.make's TimeLimit wraps the outside
-    return ResidualWrapper(gym.make(env_id, **env_kwargs).unwrapped, **config.as_dict())
-
-
-def _make_vector(env_id: str, num_envs: int = 1, **kwargs) -> gym.vector.VectorEnv:
-    config, env_kwargs = ResidualConfig.split(kwargs)
-    return ResidualVectorWrapper(
-        gym.make_vec(env_id, num_envs=num_envs, **env_kwargs), **config.as_dict()
-    )
-
-
-def _register() -> None:
-    from .suite import suite_preview_steps
-
-    preview = suite_preview_steps()
-    for env_id in ids.registered_ids():
-        if ids.parse_env_id(env_id).task != ids.FORCE_TRACK:
-            continue
-        rid = residual_env_id(env_id)
-        if rid in gym.registry:
-            continue
-        gym.register(
-            rid,
-            entry_point=f"{__name__}:_make_single",
-            vector_entry_point=f"{__name__}:_make_vector",
-            max_episode_steps=ids.EPISODE_STEPS,
-            kwargs={"env_id": env_id, "preview_steps": preview},
-        )
-
-
-_register()

@@ -19,7 +19,8 @@ import numpy as np
 
 from .generalist import MixtureVectorEnv
 from .registry import tuned_config_path
-from .residual import ResidualConfig, _residual_core, env_variant
+from .residual import ResidualConfig, env_variant
+from .residual_env import residual_core as _residual_core
 
 __all__ = ["TeacherConfig", "Teacher", "pure_action_for_current", "has_tuned_gains"]
 

@@ -32,6 +32,7 @@ from pneumatic_env.ids import parse_env_id
 from pneumatic_env.text_format import jsonable
 
 from .config import ConfigError, agent_config_path, load_agent_config
+from .policy import NumpyPolicy, export_policy
 
 __all__ = ["train", "evaluate", "add_arguments", "run"]
 
@@ -124,8 +125,7 @@ def train(
     from stable_baselines3.common.utils import set_random_seed
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
-    from .policy import NumpyPolicy, export_policy
-    from .sb3 import make_sb3_vec_env
+    from .sb3 import make_sb3_vec_env  # imports Stable-Baselines3, like the lines above
 
     if algo not in ALGOS:
         raise ValueError(f"algo = {algo!r} is not allowed: use one of {list(ALGOS)}")
@@ -260,7 +260,7 @@ def run(args: argparse.Namespace) -> int:
             f"--env {args.env!r} is not registered: use one of {pneumatic_env.registered_ids()}"
         )
     if args.algo == "ppo_fast":
-        from .ppo import run_fast
+        from .ppo import run_fast  # imports torch: only when ppo_fast runs
 
         return run_fast(args)
     variant = _variant_of(args.env)

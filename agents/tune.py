@@ -33,6 +33,7 @@ from pathlib import Path
 from pneumatic_env.config_files import make_entry, read_yaml
 
 from .config import ConfigError, agent_config_path, load_agent_config, write_agent_config
+from .ppo_setup import load_config
 
 __all__ = [
     "load_space",
@@ -133,7 +134,7 @@ def _train_trial(
     With ``steps`` the trial ends after that many env steps and evaluates every
     ``steps / slices`` (``minutes`` is then only a cap), so a loaded machine does not
     change what a trial learns; else it runs ``minutes`` and evaluates by wall time."""
-    from .ppo import train
+    from .ppo import train  # imports torch: only when a trial runs
 
     slices = int(spec["budget"]["slices"])
     if steps:
@@ -380,8 +381,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     spec = load_space(args.space)
-    from .ppo_setup import load_config
-
     env_id = args.env or load_config(agent_config_path(spec["base_config"]))["env"]
     trials = int(args.trials if args.trials is not None else spec["budget"]["trials"])
     minutes = float(args.minutes_per_trial or spec["budget"]["minutes_per_trial"])

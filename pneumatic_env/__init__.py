@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 from gymnasium.envs.registration import register, registry
 
-from .ids import EPISODE_STEPS, env_id, parse_env_id, registered_ids
+from .ids import EPISODE_STEPS, PACKAGE_VERSION, env_id, parse_env_id, registered_ids
 
 if TYPE_CHECKING:
     from .envs.env import PneumaticTrackingEnv, PneumaticTrackingVectorEnv
@@ -48,7 +48,7 @@ if TYPE_CHECKING:
     from .replay import simulate_recording
     from .simulator import BatchSimulator
 
-__version__ = "0.1.0"
+__version__ = PACKAGE_VERSION
 
 __all__ = [
     # environments

@@ -34,13 +34,13 @@ COMMANDS: dict[str, Command] = {
         "train",
     ),
     "paper": Command(
-        "pneumatic_env.studies.paper",
+        "pneumatic_env.studies.paper_report",
         "reproduce the paper's experiments (figures + table)",
         "plots",
     ),
     "speed": Command("pneumatic_env.studies.speed", "measure simulation speed against yardsticks"),
     "rig": Command(
-        "pneumatic_env.studies.virtual_rig", "write synthetic recordings from the virtual rig"
+        "pneumatic_env.studies.rig_campaign", "write synthetic recordings from the virtual rig"
     ),
     "clear-cache": Command(
         "pneumatic_env.numba_cache", "delete Numba's cached code where the sources changed"

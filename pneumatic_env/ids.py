@@ -16,6 +16,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 __all__ = [
+    "PACKAGE_VERSION",
     "CYLINDER_IDS",
     "CYLINDERS",
     "CYLINDER_ALIASES",
@@ -42,6 +43,10 @@ __all__ = [
     "cylinder_name",
     "tube_name",
 ]
+
+#: the package's version (``pneumatic_env.__version__``; written into the notes of a
+#: simulated recording)
+PACKAGE_VERSION = "0.1.0"
 
 # --------------------------------------------------------------------------- cylinders
 

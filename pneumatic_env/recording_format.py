@@ -13,7 +13,7 @@ import math
 import numbers
 from pathlib import Path
 
-from pneumatic_env import ids
+import pneumatic_env.ids as ids
 from pneumatic_env.simulator import INITIAL_STATE_KEYS  # the sidecar's "initial" keys
 from pneumatic_env.text_format import is_number as _is_number
 from pneumatic_env.text_format import number_text as _fmt  # exact float text

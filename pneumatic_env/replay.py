@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .ids import PACKAGE_VERSION
 from .params import load_numerics, load_parameters, parameter_array
 from .physics import layout as L
 from .recording import (
@@ -201,8 +202,6 @@ def predict_to_recording(
     input's files (even with ``overwrite=True``); other existing files are kept unless
     ``overwrite``. Returns (CSV path written, predicted channels, input recording).
     """
-    from . import __version__
-
     if not isinstance(recording, Recording):
         recording = read_recording(recording)
     if recording.path is None:
@@ -215,7 +214,7 @@ def predict_to_recording(
     channels = {"i_c": recording.i_c}
     channels.update((name, predicted[name]) for name in PREDICTED_CHANNELS)
     rig = dict(recording.rig)
-    notes = f"simulated by pneumatic_env {__version__} from {recording.path}"
+    notes = f"simulated by pneumatic_env {PACKAGE_VERSION} from {recording.path}"
     if params is not None:
         notes += f" with parameters {params}"
     rig["notes"] = notes

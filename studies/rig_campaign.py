@@ -10,17 +10,24 @@ excitation and noise draws (``run_rig(experiment=k)``).
 An effect the rig can only make with the rod clamped (the load cell's compliance) is left
 out of the moving-rod experiments, and a friction effect (``stribeck``, ``lugre``) shows
 only where the rod moves; the truth file of each experiment states what it had.
+
+``pneumatic-env rig`` (:func:`add_arguments`, :func:`run`) writes one recording
+(:func:`.virtual_rig.make_recording`) or, with ``--campaign``, a campaign.
 """
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import NamedTuple
 
-from .virtual_rig import MOVING_EFFECTS, make_recording
+from pneumatic_env.recording import PISTON_MODES
 
-__all__ = ["CAMPAIGNS", "Experiment", "make_campaign"]
+from .rig_excitation import EXCITATIONS
+from .virtual_rig import MOVING_EFFECTS, RIG_EFFECTS, make_recording
+
+__all__ = ["CAMPAIGNS", "Experiment", "make_campaign", "add_arguments", "run"]
 
 
 class Experiment(NamedTuple):
@@ -108,3 +115,100 @@ def make_campaign(
             )
         )
     return paths
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+def add_arguments(p) -> None:
+    p.add_argument(
+        "--effect",
+        default="none",
+        choices=RIG_EFFECTS,
+        help="extra effect in the plant (default: none)",
+    )
+    p.add_argument(
+        "--strength",
+        type=float,
+        default=1.0,
+        help="effect strength; 1 = the realistic value of configs/identification.yaml",
+    )
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p.add_argument("--seed", type=int, default=0, help="seed of perturbation, excitation and noise")
+    p.add_argument("--name", default=None, help="recording name (default: rig_EFFECT_sS_seedN)")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="recording length in s (default: virtual_rig.duration_s)",
+    )
+    p.add_argument("--cylinder", default="numatics")
+    p.add_argument("--tube-length", type=float, default=0.5, metavar="M")
+    p.add_argument("--piston", default="fixed", choices=tuple(PISTON_MODES))
+    p.add_argument("--excitation", default="identification", choices=EXCITATIONS)
+    p.add_argument(
+        "--no-perturb", action="store_true", help="use the configs' default base parameters exactly"
+    )
+    p.add_argument(
+        "--kernel-form",
+        action="store_true",
+        help="put the kernel's own form of valve_null_leak, tube_volume, "
+        "iso_flow_law, exhaust_discharge or stribeck in the plant (the "
+        "candidate's form; default: the rig's own, studies/rig_forms.py)",
+    )
+    p.add_argument(
+        "--campaign",
+        default=None,
+        metavar="NAME",
+        help="record a campaign of experiments on this rig instead of one "
+        "recording (studies/rig_campaign.py: standard, clamped, small)",
+    )
+    p.add_argument("--overwrite", action="store_true")
+
+
+def run(args) -> int:
+    try:
+        if args.campaign:
+            paths = make_campaign(
+                args.out,
+                effect=args.effect,
+                strength=args.strength,
+                seed=args.seed,
+                campaign=args.campaign,
+                prefix=f"{args.name}_" if args.name else "",
+                overwrite=args.overwrite,
+                cylinder=args.cylinder,
+                tube_length_m=args.tube_length,
+                perturb=not args.no_perturb,
+                own_forms=not args.kernel_form,
+            )
+            for path in paths:
+                print(
+                    f"{path}: synthetic (virtual rig) recording, campaign {args.campaign}, "
+                    f"effect {args.effect} strength {args.strength:g}, seed {args.seed}"
+                )
+            return 0
+        path = make_recording(
+            args.out,
+            name=args.name,
+            overwrite=args.overwrite,
+            effect=args.effect,
+            strength=args.strength,
+            seed=args.seed,
+            duration_s=args.duration,
+            cylinder=args.cylinder,
+            tube_length_m=args.tube_length,
+            piston=args.piston,
+            excitation_kind=args.excitation,
+            perturb=not args.no_perturb,
+            own_forms=not args.kernel_form,
+        )
+    except (FileExistsError, ValueError) as exc:
+        print(f"pneumatic-env rig: {exc}", file=sys.stderr)
+        return 2
+    print(
+        f"{path}: synthetic (virtual rig) recording, effect {args.effect} "
+        f"strength {args.strength:g}, seed {args.seed}"
+    )
+    return 0

@@ -73,6 +73,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -82,7 +83,7 @@ from pneumatic_env.physics import layout as L
 from pneumatic_env.recording import PISTON_MODES, canonical_cylinder, write_recording
 from pneumatic_env.simulator import BatchSimulator
 
-from .rig_excitation import EXCITATIONS, excitation
+from .rig_excitation import excitation
 from .rig_forms import OWN_FORM_EFFECTS, own_form
 from .rig_plants import _coil_plant, _plant_form, _stick_slip_play, _two_lags
 from .segmented_line import line_constants, segmented_line_rollout
@@ -94,10 +95,8 @@ __all__ = [
     "RIG_EFFECTS",
     "SPLIT_EFFECTS",
     "RigResult",
-    "add_arguments",
     "excitation",
     "make_recording",
-    "run",
     "run_rig",
 ]
 
@@ -198,8 +197,58 @@ def run_rig(
     and expands one chamber below ambient (a physical sub-ambient pressure).
     ``own_forms``: the effects of :data:`.rig_forms.OWN_FORM_EFFECTS` in the rig's own form
     (default); False puts the kernel's parameter (the candidate's form) in the plant.
+
+    Stages: the rig (piston, perturbed parameters), the effect on its parameters, the
+    excitation and the coil drive, the plant, the sensors (:func:`_sensor_channels`).
     """
     cfg = config or load_config()
+    _check_rig_arguments(effect, strength, piston)
+    rng = np.random.default_rng(seed)
+    grid = _sample_grid(cfg, duration_s)
+    cylinder = canonical_cylinder(cylinder)
+    piston_rig, nominal = _nominal_rig(cylinder, tube_length_m, piston, spring_rest_position_m, cfg)
+    true = _perturbed(cylinder, nominal, rng, cfg) if perturb else dict(nominal)
+    if experiment is not None:
+        rng = np.random.default_rng([int(seed), int(experiment)])
+
+    i_c = excitation(excitation_kind, grid.n, grid.dt_s, rng, cfg)
+    ref = float(cfg.number("virtual_rig", "effects", effect)) if effect != "none" else 0.0
+    s = float(strength)
+    own = own_forms and effect in OWN_FORM_EFFECTS and s > 0.0
+    true, own_truth = _effect_parameters(effect, s, ref, true, own, cylinder, cfg)
+    truth_parameters = dict(true)
+    fine = _coil_drive(effect, s, ref, i_c, grid, true, truth_parameters, cfg)
+    rows, plant = _plant_rows(
+        effect, s, ref, fine, grid, true, truth_parameters, own, own_truth, cylinder, piston, cfg
+    )
+    t, channels = _sensor_channels(effect, s, ref, rows, i_c, grid, piston, rng, cfg)
+    rig = {
+        "cylinder": cylinder,
+        "tube_length_m": float(tube_length_m),
+        "supply_pressure_pa": float(nominal["supply_pressure_pa"]),
+        "ambient_pressure_pa": float(nominal["ambient_pressure_pa"]),
+        "temperature_k": float(nominal["temperature_k"]),
+        "piston": piston_rig,
+        "notes": "synthetic (virtual rig) recording made by pneumatic_env.studies.virtual_rig",
+    }
+    truth = {
+        "effect": effect,
+        "strength": s,
+        "seed": int(seed),
+        "experiment": experiment,
+        "excitation": excitation_kind,
+        "duration_s": grid.duration_s,
+        "perturbed": bool(perturb),
+        "effect_reference": ref,
+        "plant": plant,
+        "parameters": {k: float(v) for k, v in truth_parameters.items()},
+    }
+    return RigResult(t=t, channels=channels, rig=rig, truth=truth)
+
+
+def _check_rig_arguments(effect: str, strength: float, piston: str) -> None:
+    """Refuse, by name, an unknown effect, a bad strength or piston, or a pair the rig
+    cannot make."""
     if effect not in RIG_EFFECTS:
         raise ValueError(
             f"effect {effect!r} is not known to the virtual rig; allowed: {', '.join(RIG_EFFECTS)}"
@@ -222,7 +271,19 @@ def run_rig(
             f"effect {effect!r} needs the kernel parameter "
             f"{KERNEL_EFFECTS[effect][0]!r}, which this kernel does not have"
         )
-    rng = np.random.default_rng(seed)
+
+
+class _SampleGrid(NamedTuple):
+    """The recording's sample period, the plant's step and the number of samples."""
+
+    dt_s: float  # sample period
+    plant_dt_s: float  # the plant's step
+    plant_steps_per_sample: int
+    n: int  # samples, the first at t = 0
+    duration_s: float
+
+
+def _sample_grid(cfg: IdentificationConfig, duration_s: float | None) -> _SampleGrid:
     dt = cfg.number("virtual_rig", "sample_dt_s", positive=True)
     plant_dt = cfg.number("virtual_rig", "plant_dt_s", positive=True)
     ratio = int(round(dt / plant_dt))
@@ -231,11 +292,19 @@ def run_rig(
     duration = float(
         duration_s if duration_s is not None else cfg.number("virtual_rig", "duration_s")
     )
-    n = int(round(duration / dt)) + 1
-    cylinder = canonical_cylinder(cylinder)
+    return _SampleGrid(dt, plant_dt, ratio, int(round(duration / dt)) + 1, duration)
 
-    piston_rig = {"mode": piston}
-    overrides = {"tube_length_m": tube_length_m, "piston_mode": PISTON_MODES[piston][0]}
+
+def _nominal_rig(
+    cylinder: str,
+    tube_length_m: float,
+    piston: str,
+    spring_rest_position_m: float,
+    cfg: IdentificationConfig,
+) -> tuple[dict, dict]:
+    """(the sidecar's piston entry, the nominal parameters) of the rig's piston mode."""
+    piston_rig: dict = {"mode": piston}
+    overrides: dict = {"tube_length_m": tube_length_m, "piston_mode": PISTON_MODES[piston][0]}
     if piston == "fixed":
         piston_rig["position_m"] = 0.0
         overrides["fixed_position_m"] = 0.0
@@ -250,15 +319,20 @@ def run_rig(
         overrides.update(
             spring_stiffness_n_per_m=k_env, spring_rest_position_m=rest, load_mass_kg=m_env
         )
-    nominal = load_parameters(cylinder, **overrides)
-    true = _perturbed(cylinder, nominal, rng, cfg) if perturb else dict(nominal)
-    if experiment is not None:
-        rng = np.random.default_rng([int(seed), int(experiment)])
+    return piston_rig, load_parameters(cylinder, **overrides)
 
-    i_c = excitation(excitation_kind, n, dt, rng, cfg)
-    ref = float(cfg.number("virtual_rig", "effects", effect)) if effect != "none" else 0.0
-    s = float(strength)
-    own = own_forms and effect in OWN_FORM_EFFECTS and s > 0.0
+
+def _effect_parameters(
+    effect: str,
+    s: float,
+    ref: float,
+    true: dict,
+    own: bool,
+    cylinder: str,
+    cfg: IdentificationConfig,
+) -> tuple[dict, dict]:
+    """(the plant's parameters with a kernel-form effect or the load cell in them, the
+    nearest kernel form of the effect for the truth)."""
     own_truth: dict = {}
     if effect in KERNEL_EFFECTS:
         name, rule = KERNEL_EFFECTS[effect]
@@ -283,9 +357,24 @@ def run_rig(
             load_mass_kg=cfg.number("virtual_rig", "load_cell_moving_mass_kg", minimum=0.0),
         )
         true = load_parameters(cylinder, params=true)
+    return true, own_truth
 
-    fine = np.repeat(i_c[:-1], ratio)
-    truth_parameters = dict(true)
+
+def _coil_drive(
+    effect: str,
+    s: float,
+    ref: float,
+    i_c: np.ndarray,
+    grid: _SampleGrid,
+    true: dict,
+    truth_parameters: dict,
+    cfg: IdentificationConfig,
+) -> np.ndarray:
+    """The current the plant sees per plant step: the sampled command held, through the
+    coil's amplifier and lags or the spool's stick-slip if the effect is there (the
+    nearest kernel form goes into ``truth_parameters``)."""
+    plant_dt = grid.plant_dt_s
+    fine = np.repeat(i_c[:-1], grid.plant_steps_per_sample)
     if effect == "coil_lag" and s > 0.0:
         share = cfg.number("virtual_rig", "coil_force_lag_share", minimum=0.0)
         fine = _coil_plant(
@@ -302,6 +391,26 @@ def run_rig(
         band = s * ref / true["coil_force_n_per_a"]
         breakaway = cfg.number("virtual_rig", "spool_breakaway_ratio", minimum=1.0)
         fine = _stick_slip_play(fine, band, breakaway * band)
+    return fine
+
+
+def _plant_rows(
+    effect: str,
+    s: float,
+    ref: float,
+    fine: np.ndarray,
+    grid: _SampleGrid,
+    true: dict,
+    truth_parameters: dict,
+    own: bool,
+    own_truth: dict,
+    cylinder: str,
+    piston: str,
+    cfg: IdentificationConfig,
+) -> tuple[np.ndarray, str]:
+    """(the plant's outputs at every plant step from t = 0, the plant's description):
+    the kernel, the kernel with the rig's own form of the effect, or segmented lines."""
+    plant_dt = grid.plant_dt_s
     plant_substeps = int(cfg.number("virtual_rig", "plant_substeps", positive=True))
     form = None
     if s > 0.0 and effect in SPLIT_EFFECTS:
@@ -342,8 +451,10 @@ def run_rig(
         )
         rows = np.tile(first, (fine.size, 1))  # its velocity column is not recorded
         rows[:, [L.O_P1, L.O_P2, L.O_F, L.O_X]] = line[1:]
+        plant = f"segmented line, {segments} volumes per tube"
     elif form is None:
         rows = sim.rollout(fine[:, None])[:, :, 0]
+        plant = "kernel and the rig's own form" if own else "kernel"
     else:
         rows = np.empty((fine.size, L.N_OUTPUT))
         h = plant_dt / steps_per_plant_step
@@ -352,8 +463,24 @@ def run_rig(
                 form.before_step(sim, k, h)
                 rows[k] = sim.step(fine[k : k + 1])[:, 0]
             form.correct_output(rows[k])
-    rows = np.vstack([first[None, :], rows])  # rows[j] = state at j * plant_dt
+        plant = "kernel and the rig's own form" if own else "kernel"
+    return np.vstack([first[None, :], rows]), plant  # rows[j] = state at j * plant_dt
 
+
+def _sensor_channels(
+    effect: str,
+    s: float,
+    ref: float,
+    rows: np.ndarray,
+    i_c: np.ndarray,
+    grid: _SampleGrid,
+    piston: str,
+    rng: np.random.Generator,
+    cfg: IdentificationConfig,
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """(sample times, the recorded channels): the plant's outputs sampled, through the
+    sensor effects, with noise and quantisation."""
+    n, dt, plant_dt = grid.n, grid.dt_s, grid.plant_dt_s
     names = {"p1": L.O_P1, "p2": L.O_P2, "f": L.O_F, "x": L.O_X}
     measured = ("p1", "p2", "f") if piston == "fixed" else ("p1", "p2", "x")
     t = dt * np.arange(n)
@@ -363,7 +490,7 @@ def run_rig(
         y = rows[:, names[ch]].copy()
         if effect == "pressure_sensor_lag" and ch in ("p1", "p2"):
             y = _two_lags(y, s * ref, plant_dt)
-        idx = np.arange(n) * ratio - skew_steps
+        idx = np.arange(n) * grid.plant_steps_per_sample - skew_steps
         y = y[np.clip(idx, 0, None)]
         if effect == "pressure_sensor_offset" and ch in ("p1", "p2"):
             y = y + s * ref * (1.0 if ch == "p1" else -2.0 / 3.0) * (1.0 + 0.1 * t / t[-1])
@@ -373,35 +500,7 @@ def run_rig(
         if q > 0:
             y = q * np.round(y / q)
         channels[ch] = y
-
-    rig = {
-        "cylinder": cylinder,
-        "tube_length_m": float(tube_length_m),
-        "supply_pressure_pa": float(nominal["supply_pressure_pa"]),
-        "ambient_pressure_pa": float(nominal["ambient_pressure_pa"]),
-        "temperature_k": float(nominal["temperature_k"]),
-        "piston": piston_rig,
-        "notes": "synthetic (virtual rig) recording made by pneumatic_env.studies.virtual_rig",
-    }
-    truth = {
-        "effect": effect,
-        "strength": s,
-        "seed": int(seed),
-        "experiment": experiment,
-        "excitation": excitation_kind,
-        "duration_s": duration,
-        "perturbed": bool(perturb),
-        "effect_reference": ref,
-        "plant": (
-            f"segmented line, {segments} volumes per tube"
-            if effect in LINE_EFFECTS and s > 0.0
-            else "kernel and the rig's own form"
-            if own
-            else "kernel"
-        ),
-        "parameters": {k: float(v) for k, v in truth_parameters.items()},
-    }
-    return RigResult(t=t, channels=channels, rig=rig, truth=truth)
+    return t, channels
 
 
 def make_recording(out_dir, name: str | None = None, overwrite: bool = False, **kwargs) -> Path:
@@ -420,104 +519,3 @@ def make_recording(out_dir, name: str | None = None, overwrite: bool = False, **
         raise FileExistsError(f"{truth_path} exists; pass overwrite=True to replace it")
     truth_path.write_text(json.dumps(result.truth, indent=2) + "\n", encoding="utf-8")
     return path
-
-
-# --------------------------------------------------------------------------- CLI
-
-
-def add_arguments(p) -> None:
-    p.add_argument(
-        "--effect",
-        default="none",
-        choices=RIG_EFFECTS,
-        help="extra effect in the plant (default: none)",
-    )
-    p.add_argument(
-        "--strength",
-        type=float,
-        default=1.0,
-        help="effect strength; 1 = the realistic value of configs/identification.yaml",
-    )
-    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
-    p.add_argument("--seed", type=int, default=0, help="seed of perturbation, excitation and noise")
-    p.add_argument("--name", default=None, help="recording name (default: rig_EFFECT_sS_seedN)")
-    p.add_argument(
-        "--duration",
-        type=float,
-        default=None,
-        metavar="S",
-        help="recording length in s (default: virtual_rig.duration_s)",
-    )
-    p.add_argument("--cylinder", default="numatics")
-    p.add_argument("--tube-length", type=float, default=0.5, metavar="M")
-    p.add_argument("--piston", default="fixed", choices=tuple(PISTON_MODES))
-    p.add_argument("--excitation", default="identification", choices=EXCITATIONS)
-    p.add_argument(
-        "--no-perturb", action="store_true", help="use the configs' default base parameters exactly"
-    )
-    p.add_argument(
-        "--kernel-form",
-        action="store_true",
-        help="put the kernel's own form of valve_null_leak, tube_volume, "
-        "iso_flow_law, exhaust_discharge or stribeck in the plant (the "
-        "candidate's form; default: the rig's own, studies/rig_forms.py)",
-    )
-    p.add_argument(
-        "--campaign",
-        default=None,
-        metavar="NAME",
-        help="record a campaign of experiments on this rig instead of one "
-        "recording (studies/rig_campaign.py: standard, clamped, small)",
-    )
-    p.add_argument("--overwrite", action="store_true")
-
-
-def run(args) -> int:
-    import sys
-
-    try:
-        if args.campaign:
-            from .rig_campaign import make_campaign
-
-            paths = make_campaign(
-                args.out,
-                effect=args.effect,
-                strength=args.strength,
-                seed=args.seed,
-                campaign=args.campaign,
-                prefix=f"{args.name}_" if args.name else "",
-                overwrite=args.overwrite,
-                cylinder=args.cylinder,
-                tube_length_m=args.tube_length,
-                perturb=not args.no_perturb,
-                own_forms=not args.kernel_form,
-            )
-            for path in paths:
-                print(
-                    f"{path}: synthetic (virtual rig) recording, campaign {args.campaign}, "
-                    f"effect {args.effect} strength {args.strength:g}, seed {args.seed}"
-                )
-            return 0
-        path = make_recording(
-            args.out,
-            name=args.name,
-            overwrite=args.overwrite,
-            effect=args.effect,
-            strength=args.strength,
-            seed=args.seed,
-            duration_s=args.duration,
-            cylinder=args.cylinder,
-            tube_length_m=args.tube_length,
-            piston=args.piston,
-            excitation_kind=args.excitation,
-            perturb=not args.no_perturb,
-            own_forms=not args.kernel_form,
-        )
-    except (FileExistsError, ValueError) as exc:
-        print(f"pneumatic-env rig: {exc}", file=sys.stderr)
-        return 2
-    print(
-        f"{path}: synthetic (virtual rig) recording, effect {args.effect} "
-        f"strength {args.strength:g}, seed {args.seed}"
-    )
-    return 0

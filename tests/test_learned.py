@@ -189,7 +189,7 @@ def test_start_step_option_shifts_the_episode():
 
 @pytest.mark.parametrize("base", ["sliding_mode", "pid"])
 def test_zero_correction_is_the_classical_controller_bit_for_bit(base):
-    from pneumatic_env.agents.residual import ResidualVectorWrapper
+    from pneumatic_env.agents.residual_env import ResidualVectorWrapper
 
     kw = dict(preview_steps=PREVIEW, max_episode_steps=40)
     venv = gym.make_vec(ID, num_envs=3, **kw)
@@ -216,7 +216,7 @@ def test_zero_correction_is_the_classical_controller_bit_for_bit(base):
 
 
 def test_single_residual_wrapper_and_registered_ids():
-    from pneumatic_env.agents.residual import ResidualWrapper, residual_env_id
+    from pneumatic_env.agents.residual_env import ResidualWrapper, residual_env_id
 
     env = gym.make(ID, preview_steps=PREVIEW)
     ctrl = resolve_controller("sliding_mode", "Numatics-2m").build(ControllerContext.from_env(env))
@@ -237,10 +237,10 @@ def test_single_residual_wrapper_and_registered_ids():
     assert info["coil_current_a"] == pytest.approx(np.clip(info["base_current_a"] + 0.2, -2, 2))
     rid = residual_env_id(ID)
     assert rid == "pneumatic_env/ResidualForceTrack-Numatics-2m-v0"
-    single = gym.make(f"pneumatic_env.agents.residual:{rid}", correction_fraction=0.1)
+    single = gym.make(f"pneumatic_env.agents.residual_env:{rid}", correction_fraction=0.1)
     assert single.observation_space.shape == (observation_dim(PREVIEW) + 2,)
     assert single.action_space == gym.spaces.Box(-1, 1, (1,), np.float32)
-    vec = gym.make_vec(f"pneumatic_env.agents.residual:{rid}", num_envs=2)
+    vec = gym.make_vec(f"pneumatic_env.agents.residual_env:{rid}", num_envs=2)
     assert vec.reset(seed=0)[0].shape == (2, observation_dim(PREVIEW) + 2)
     with pytest.raises(ValueError) as err:
         ResidualWrapper(gym.make(ID, preview_steps=PREVIEW), base="lqr")
@@ -251,10 +251,10 @@ def test_residual_envs_work_with_stable_baselines3():
     from stable_baselines3 import PPO
     from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
-    from pneumatic_env.agents.residual import ResidualVectorWrapper, residual_env_id
+    from pneumatic_env.agents.residual_env import ResidualVectorWrapper, residual_env_id
     from pneumatic_env.agents.sb3 import SB3VecEnv
 
-    sb3_check_env(gym.make(f"pneumatic_env.agents.residual:{residual_env_id(ID)}"))
+    sb3_check_env(gym.make(f"pneumatic_env.agents.residual_env:{residual_env_id(ID)}"))
     venv = SB3VecEnv(
         ResidualVectorWrapper(
             gym.make_vec(ID, num_envs=4, max_episode_steps=16, preview_steps=PREVIEW)
@@ -381,7 +381,7 @@ def test_numpy_actor_equals_the_torch_actor(fast_run):
 def test_numpy_tanh_equals_torch_tanh_in_value_and_gradient():
     import torch
 
-    from pneumatic_env.agents.policy import _layers
+    from pneumatic_env.agents.policy import actor_layers
     from pneumatic_env.agents.ppo import NumpyTanh, mlp
 
     for dtype, tol in ((torch.float32, 1e-6), (torch.float64, 1e-15)):
@@ -397,7 +397,11 @@ def test_numpy_tanh_equals_torch_tanh_in_value_and_gradient():
     x = torch.randn(7, 4, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(NumpyTanh(), (x,))
     # the exported actor names it Tanh, which agents.learned evaluates with np.tanh
-    assert [a for _, _, a in _layers(list(mlp(4, [8, 8], 1, 0.01)))] == ["Tanh", "Tanh", "Identity"]
+    assert [a for _, _, a in actor_layers(list(mlp(4, [8, 8], 1, 0.01)))] == [
+        "Tanh",
+        "Tanh",
+        "Identity",
+    ]
 
 
 def test_learned_controller_rebuilds_the_training_observation(fast_run):
@@ -405,7 +409,8 @@ def test_learned_controller_rebuilds_the_training_observation(fast_run):
     observation (features and residual columns) and acts as the policy on it, bit for bit
     (here with SI base columns, so that the env and the controller see the same floats)."""
     from pneumatic_env.agents.learned import LearnedActor, LearnedController
-    from pneumatic_env.agents.residual import ResidualVectorWrapper
+    from pneumatic_env.agents.registry import make_base_controller
+    from pneumatic_env.agents.residual_env import ResidualVectorWrapper
 
     out, _ = fast_run
     actor = LearnedActor(out / "actor.npz")
@@ -413,7 +418,9 @@ def test_learned_controller_rebuilds_the_training_observation(fast_run):
     env = ResidualVectorWrapper(
         gym.make_vec(ID, num_envs=2, **actor.meta["env_options"]), **actor.meta["residual"]
     )
-    ctrl = LearnedController(ControllerContext.from_env(env), actor, "Numatics-2m")
+    context = ControllerContext.from_env(env)
+    base = make_base_controller(actor.residual_config.base, context, "Numatics-2m")
+    ctrl = LearnedController(context, actor, base)
     obs, _ = env.reset(seed=0)
     ctrl.reset()
     base_dim = observation_dim(PREVIEW)

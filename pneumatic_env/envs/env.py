@@ -16,7 +16,8 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
-from .. import ids
+import pneumatic_env.ids as ids
+
 from ..references import ReferenceSpec
 from .features import observation_columns
 from .observation import ObservationScales

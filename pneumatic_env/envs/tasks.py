@@ -16,8 +16,9 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-from .. import ids
-from .. import params as P
+import pneumatic_env.ids as ids
+import pneumatic_env.params as P
+
 from ..physics import layout as L
 from ..physics.derived import force_scale_n
 from ..references import ArrayReference, ReferenceSpec, make_reference

@@ -4,13 +4,19 @@ integration, the result of an event-stopped integration and the location of a ro
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 from scipy.optimize import brentq
 
-if TYPE_CHECKING:
-    from .hybrid import _HybridSimulation
+
+class SwitchingSurfaces(Protocol):
+    """What an event set evaluates: the simulation's switching surfaces and its piston-mode
+    event functions (``hybrid._HybridSimulation``)."""
+
+    def surfaces(self, t: float, y: np.ndarray) -> np.ndarray: ...
+
+    def piston_event_values(self, y: np.ndarray, actions: list) -> list[float]: ...
 
 
 class _EventSet:
@@ -19,7 +25,7 @@ class _EventSet:
 
     def __init__(
         self,
-        sim: _HybridSimulation,
+        sim: SwitchingSurfaces,
         surface_index: np.ndarray,
         directions: np.ndarray,
         actions: list,
