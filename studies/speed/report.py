@@ -4,12 +4,7 @@ and the tables of every measurement, as Markdown."""
 from __future__ import annotations
 
 import math
-import os
-import platform
-import subprocess
 import time
-
-import numpy as np
 
 from .ceiling import OPS, PAIR_BURSTS, VECTOR_LOOPS, VECTOR_OPS
 from .plan import (
@@ -47,32 +42,6 @@ def _table(headers, rows) -> list[str]:
     lines = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
     lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
     return lines
-
-
-def machine_description() -> dict:
-    import gymnasium
-    import numba
-    import scipy
-
-    model = platform.processor() or platform.machine()
-    try:
-        text = subprocess.run(["lscpu"], capture_output=True, text=True, timeout=10).stdout
-        for line in text.splitlines():
-            if line.startswith("Model name:"):
-                model = line.split(":", 1)[1].strip()
-    except (OSError, subprocess.SubprocessError):
-        pass
-    return {
-        "cpu": model,
-        "cores": os.cpu_count(),
-        "numba_threads": numba.config.NUMBA_NUM_THREADS,
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "numba": numba.__version__,
-        "gymnasium": gymnasium.__version__,
-        "scipy": scipy.__version__,
-        "os": platform.platform(),
-    }
 
 
 def _paired_ratio(numerators, denominators) -> float:
