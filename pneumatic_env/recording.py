@@ -192,6 +192,7 @@ def _check_time(t: np.ndarray, where) -> None:
 
 
 def _read_csv(csv_path: Path) -> tuple[np.ndarray, dict[str, np.ndarray], list[str]]:
+    """(t, channels, warnings) of a recording's CSV file; raises on a broken one."""
     name = csv_path.name
     if not csv_path.is_file():
         raise RecordingError(f"{name}: file not found: {csv_path}", file=name)
@@ -202,72 +203,89 @@ def _read_csv(csv_path: Path) -> tuple[np.ndarray, dict[str, np.ndarray], list[s
         lines.pop()
     if not lines:
         raise RecordingError(f"{name}: empty file (the first line must be the header)", file=name)
-    warn: list[str] = []
+    header, warn = _csv_header(name, lines[0])
+    if len(lines) >= 3 and all(h in COLUMNS for h in header):
+        fast = _clean_table(lines[1:], header)
+        if fast is not None:
+            return _finish_csv(name, fast, warn)
+    return _finish_csv(name, _csv_rows(name, lines[1:], header), warn)
 
-    def err(line, message, column=None):
-        where = f"{name} line {line}" + (f", column {column!r}" if column is not None else "")
-        return RecordingError(f"{where}: {message}", file=name, line=line, column=column)
 
-    header = [h.strip() for h in next(csv.reader([lines[0]]))]
+def _csv_error(name: str, line: int, message: str, column=None) -> RecordingError:
+    """The :class:`RecordingError` of ``line`` (and ``column``) of CSV file ``name``."""
+    where = f"{name} line {line}" + (f", column {column!r}" if column is not None else "")
+    return RecordingError(f"{where}: {message}", file=name, line=line, column=column)
+
+
+def _csv_header(name: str, first_line: str) -> tuple[list[str], list[str]]:
+    """The header's column names, checked, and a warning per unknown column."""
+    header = [h.strip() for h in next(csv.reader([first_line]))]
     if not any(header):
-        raise err(1, "empty line: the first line must be the header (column names)")
+        raise _csv_error(name, 1, "empty line: the first line must be the header (column names)")
     if len(header) == 1 and (";" in header[0] or "\t" in header[0]):
-        raise err(1, f"the header {lines[0]!r} has a single column: the separator must be ','")
+        raise _csv_error(
+            name, 1, f"the header {first_line!r} has a single column: the separator must be ','"
+        )
     if all(_NUMBER_RE.fullmatch(h) for h in header):
-        raise err(
-            1, f"the first line must be the header (column names), found numbers {lines[0]!r}"
+        raise _csv_error(
+            name,
+            1,
+            f"the first line must be the header (column names), found numbers {first_line!r}",
         )
     for j, h in enumerate(header):
         if h == "":
-            raise err(1, f"empty column name (column {j + 1} of the header)")
+            raise _csv_error(name, 1, f"empty column name (column {j + 1} of the header)")
     seen = set()
     for h in header:
         if h in seen:
-            raise err(1, f"duplicate column {h!r}", column=h)
+            raise _csv_error(name, 1, f"duplicate column {h!r}", column=h)
         seen.add(h)
     for req in REQUIRED_COLUMNS:
         if req not in seen:
-            raise err(1, f"missing required column {req!r}", column=req)
+            raise _csv_error(name, 1, f"missing required column {req!r}", column=req)
     if not any(c in seen for c in OUTPUT_COLUMNS):
-        raise err(1, "needs at least one of the columns 'p1', 'p2', 'x', 'f'")
+        raise _csv_error(name, 1, "needs at least one of the columns 'p1', 'p2', 'x', 'f'")
+    warn = []
     for h in header:
         if h not in COLUMNS:
             hint = f" (did you mean {h.lower()!r}?)" if h.lower() in COLUMNS else ""
             warn.append(
                 f"{name}: unknown column {h!r} ignored{hint}; known columns: " + ", ".join(COLUMNS)
             )
+    return header, warn
 
+
+def _clean_table(body: list[str], header: list[str]) -> dict[str, np.ndarray] | None:
+    """Fast path for clean files: numpy's C parser on plain numeric text. Any
+    irregularity (blank line, quote, odd character, bad cell) gives None: the row-by-row
+    reader (:func:`_csv_rows`) locates it exactly."""
+    if _ODD_BODY_RE.search("\n".join(body)):
+        return None
+    try:
+        table = np.loadtxt(body, delimiter=",", dtype=np.float64, comments=None, ndmin=2)
+    except ValueError:
+        return None
+    if table.shape == (len(body), len(header)) and np.all(np.isfinite(table)):
+        return {h: np.ascontiguousarray(table[:, j]) for j, h in enumerate(header)}
+    return None
+
+
+def _csv_rows(name: str, body: list[str], header: list[str]) -> dict[str, np.ndarray]:
+    """The known columns of the data rows ``body``, row by row; raises at the first
+    broken row or cell."""
     ncol = len(header)
-    if len(lines) >= 3 and all(h in COLUMNS for h in header):
-        # Fast path for clean files: numpy's C parser on plain numeric text. Any
-        # irregularity (blank line, quote, odd character, bad cell) falls through to
-        # the row-by-row reader below, which locates it exactly.
-        body = lines[1:]
-        if not _ODD_BODY_RE.search("\n".join(body)):
-            try:
-                table = np.loadtxt(body, delimiter=",", dtype=np.float64, comments=None, ndmin=2)
-            except ValueError:
-                table = None
-            if (
-                table is not None
-                and table.shape == (len(body), ncol)
-                and np.all(np.isfinite(table))
-            ):
-                fast = {h: np.ascontiguousarray(table[:, j]) for j, h in enumerate(header)}
-                return _finish_csv(name, fast, warn)
-    rows = list(csv.reader(lines[1:]))
+    rows = list(csv.reader(body))
     for k, row in enumerate(rows):
         if len(row) != ncol:
             if not row or (len(row) == 1 and row[0].strip() == ""):
-                raise err(k + 2, "empty line (every row must hold one sample)")
-            raise err(k + 2, f"{len(row)} cells, the header has {ncol} columns")
+                raise _csv_error(name, k + 2, "empty line (every row must hold one sample)")
+            raise _csv_error(name, k + 2, f"{len(row)} cells, the header has {ncol} columns")
     if len(rows) < 2:
         raise RecordingError(
             f"{name}: {len(rows)} data row{'s' if len(rows) != 1 else ''}; "
             "a recording needs at least 2",
             file=name,
         )
-
     data: dict[str, np.ndarray] = {}
     columns = list(zip(*rows))
     for j, h in enumerate(header):
@@ -286,12 +304,11 @@ def _read_csv(csv_path: Path) -> tuple[np.ndarray, dict[str, np.ndarray], list[s
                 continue
         for k, c in enumerate(cells):  # slow path: find the first bad cell
             if not _NUMBER_RE.fullmatch(c) or not math.isfinite(float(c)):
-                raise err(k + 2, _cell_problem(c), column=h)
+                raise _csv_error(name, k + 2, _cell_problem(c), column=h)
         raise AssertionError(
             f"{name}: column {h!r} failed to parse but no bad cell found"
         )  # pragma: no cover
-
-    return _finish_csv(name, data, warn)
+    return data
 
 
 def _finish_csv(name, data, warn):
@@ -333,8 +350,33 @@ def write_recording(path, t, channels: dict, rig: dict, *, overwrite: bool = Fal
     Returns the path of the CSV file.
     """
     csv_path, json_path = recording_paths(path)
-    cname = csv_path.name
     t = np.asarray(t, dtype=float)
+    cols = _checked_columns(csv_path.name, t, channels)
+    json_text = _sidecar_text(rig, json_path.name)
+    if not overwrite:
+        for p in (csv_path, json_path):
+            if p.exists():
+                raise FileExistsError(f"{p} exists; pass overwrite=True to replace it")
+
+    names = ["t", *cols]
+    columns = [list(map(repr, c.tolist())) for c in (t, *cols.values())]
+    csv_text = ",".join(names) + "\n" + "\n".join(map(",".join, zip(*columns))) + "\n"
+
+    for p, content in ((csv_path, csv_text), (json_path, json_text)):
+        tmp = p.parent / f".{p.name}.tmp{os.getpid()}"
+        try:
+            with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+                fh.write(content)
+            os.replace(tmp, p)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+    return csv_path
+
+
+def _checked_columns(cname: str, t: np.ndarray, channels: dict) -> dict[str, np.ndarray]:
+    """``channels`` as float arrays in the spec's column order, each checked against
+    the format and ``t`` (``cname``: the CSV file's name, for the errors)."""
     if t.ndim != 1:
         raise RecordingError(
             f"{cname}: t must be one-dimensional, has shape {t.shape}", file=cname, column="t"
@@ -376,37 +418,22 @@ def write_recording(path, t, channels: dict, rig: dict, *, overwrite: bool = Fal
             )
         cols[name] = y
     _check_time(t, lambda k, col: f"{cname}: channel {col!r} sample {k}")
+    return cols
 
+
+def _sidecar_text(rig: dict, jname: str) -> str:
+    """The sidecar's JSON text with ``format`` and ``version`` filled in, validated
+    (its plausibility warnings issued to :func:`write_recording`'s caller)."""
     rig = jsonable(dict(rig))
     for key, value in (("format", FORMAT_NAME), ("version", FORMAT_VERSION)):
         if rig.get(key, value) != value:
             raise RecordingError(
-                f"{json_path.name}: key {key!r} is {rig[key]!r}, must be {value!r}",
-                file=json_path.name,
+                f"{jname}: key {key!r} is {rig[key]!r}, must be {value!r}",
+                file=jname,
                 column=key,
             )
     sidecar = {"format": FORMAT_NAME, "version": FORMAT_VERSION}
     sidecar.update((k, v) for k, v in rig.items() if k not in sidecar)
-    for message in validate_rig(sidecar, json_path.name):
-        warnings.warn(message, RecordingWarning, stacklevel=2)
-    json_text = json.dumps(sidecar, indent=2, allow_nan=False) + "\n"
-
-    if not overwrite:
-        for p in (csv_path, json_path):
-            if p.exists():
-                raise FileExistsError(f"{p} exists; pass overwrite=True to replace it")
-
-    names = ["t", *cols]
-    columns = [list(map(repr, c.tolist())) for c in (t, *cols.values())]
-    csv_text = ",".join(names) + "\n" + "\n".join(map(",".join, zip(*columns))) + "\n"
-
-    for p, content in ((csv_path, csv_text), (json_path, json_text)):
-        tmp = p.parent / f".{p.name}.tmp{os.getpid()}"
-        try:
-            with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
-                fh.write(content)
-            os.replace(tmp, p)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
-    return csv_path
+    for message in validate_rig(sidecar, jname):
+        warnings.warn(message, RecordingWarning, stacklevel=3)
+    return json.dumps(sidecar, indent=2, allow_nan=False) + "\n"

@@ -108,25 +108,62 @@ def validate_rig(rig, source: str = "rig") -> list[str]:
     Raises :class:`RecordingError` naming ``source`` (the JSON file) and the key.
     Does not emit the warnings: the caller does.
     """
-    out: list[str] = []
-
-    def fail(key, text):
-        raise RecordingError(f"{source}: key {key!r} {text}", file=source, column=key)
-
-    def number(key, value, *, positive=False, nonnegative=False):
-        if not _is_number(value) or not math.isfinite(value):
-            kind = "a positive number" if positive else "a finite number"
-            fail(key, f"must be {kind}, found {value!r}")
-        if positive and not value > 0:
-            fail(key, f"must be a positive number, found {value!r}")
-        if nonnegative and value < 0:
-            fail(key, f"must be a non-negative number, found {value!r}")
-        return float(value)
-
     if not isinstance(rig, dict):
         raise RecordingError(
             f"{source}: the sidecar must be a JSON object, found {type(rig).__name__}", file=source
         )
+    out = _rig_top_warnings(rig, source)
+    out += _rig_value_warnings(rig, source)
+    out += _piston_warnings(rig["piston"], source)
+    if "initial" in rig:
+        initial = rig["initial"]
+        if not isinstance(initial, dict):
+            _fail(
+                source,
+                "initial",
+                f"must be an object with keys among {', '.join(INITIAL_STATE_KEYS)}, "
+                f"found {initial!r}",
+            )
+        for key, value in initial.items():
+            if key not in INITIAL_STATE_KEYS:
+                _fail(
+                    source,
+                    f"initial.{key}",
+                    f"is not allowed; allowed: {', '.join(INITIAL_STATE_KEYS)}",
+                )
+            _number(source, f"initial.{key}", value)
+    if "notes" in rig and not isinstance(rig["notes"], str):
+        _fail(source, "notes", f"must be a string, found {rig['notes']!r}")
+    for key in rig:
+        if key not in _KNOWN_TOP_KEYS:
+            out.append(
+                f"{source}: unknown key {key!r} ignored (known: "
+                + ", ".join([*_REQUIRED_TOP_KEYS, *_OPTIONAL_POSITIVE_KEYS, "initial", "notes"])
+                + ")"
+            )
+    return out
+
+
+def _fail(source: str, key: str, text: str) -> None:
+    """Raise (always) the :class:`RecordingError` of sidecar ``source``'s ``key``."""
+    raise RecordingError(f"{source}: key {key!r} {text}", file=source, column=key)
+
+
+def _number(source: str, key: str, value, *, positive=False, nonnegative=False) -> float:
+    """``value`` of sidecar key ``key`` as a float, refused unless finite (and positive
+    or non-negative when asked)."""
+    if not _is_number(value) or not math.isfinite(value):
+        kind = "a positive number" if positive else "a finite number"
+        _fail(source, key, f"must be {kind}, found {value!r}")
+    if positive and not value > 0:
+        _fail(source, key, f"must be a positive number, found {value!r}")
+    if nonnegative and value < 0:
+        _fail(source, key, f"must be a non-negative number, found {value!r}")
+    return float(value)
+
+
+def _rig_top_warnings(rig: dict, source: str) -> list[str]:
+    """The required top-level keys checked: format, version, cylinder, tube length."""
     hints = {
         "format": f'(must be "{FORMAT_NAME}")',
         "version": f"(must be {FORMAT_VERSION})",
@@ -140,28 +177,34 @@ def validate_rig(rig, source: str = "rig") -> list[str]:
                 f"{source}: missing required key {key!r} {hints[key]}", file=source, column=key
             )
     if rig["format"] != FORMAT_NAME:
-        fail("format", f'is {rig["format"]!r}, must be "{FORMAT_NAME}"')
+        _fail(source, "format", f'is {rig["format"]!r}, must be "{FORMAT_NAME}"')
     version = rig["version"]
     if not (
         _is_number(version) and isinstance(version, numbers.Integral) and version == FORMAT_VERSION
     ):
-        fail(
+        _fail(
+            source,
             "version",
             f"is {version!r}, must be {FORMAT_VERSION} (the only version this package reads)",
         )
     cyl = rig["cylinder"]
     if not (isinstance(cyl, str) and cyl.strip().lower() in _CYLINDER_ALIASES):
-        fail("cylinder", f"is {cyl!r}, allowed: {_allowed_cylinders()}")
-    tube_length = number("tube_length_m", rig["tube_length_m"], positive=True)
+        _fail(source, "cylinder", f"is {cyl!r}, allowed: {_allowed_cylinders()}")
+    tube_length = _number(source, "tube_length_m", rig["tube_length_m"], positive=True)
     if tube_length > 50:
-        out.append(
+        return [
             f"{source}: tube_length_m {_fmt(tube_length)} looks like millimetres; "
             "the format wants metres"
-        )
+        ]
+    return []
 
+
+def _rig_value_warnings(rig: dict, source: str) -> list[str]:
+    """The optional positive keys checked; values that look like the wrong unit."""
+    out: list[str] = []
     for key in _OPTIONAL_POSITIVE_KEYS:
         if key in rig:
-            number(key, rig[key], positive=True)
+            _number(source, key, rig[key], positive=True)
     ambient = float(rig.get("ambient_pressure_pa", DEFAULT_AMBIENT_PA))
     for key in ("supply_pressure_pa", "ambient_pressure_pa"):
         if key in rig:
@@ -181,10 +224,15 @@ def validate_rig(rig, source: str = "rig") -> list[str]:
             f"{source}: tube_inner_diameter_m {_fmt(rig['tube_inner_diameter_m'])} looks like "
             "millimetres; the format wants metres"
         )
+    return out
 
-    piston = rig["piston"]
+
+def _piston_warnings(piston, source: str) -> list[str]:
+    """The ``piston`` object checked: its mode and the keys the mode needs."""
+    out: list[str] = []
     if not isinstance(piston, dict):
-        fail(
+        _fail(
+            source,
             "piston",
             f'must be an object with "mode": "fixed", "free" or "spring", found {piston!r}',
         )
@@ -196,7 +244,7 @@ def validate_rig(rig, source: str = "rig") -> list[str]:
         )
     mode = piston["mode"]
     if mode not in PISTON_MODES:
-        fail("piston.mode", f'is {mode!r}, allowed: "fixed", "free", "spring"')
+        _fail(source, "piston.mode", f'is {mode!r}, allowed: "fixed", "free", "spring"')
     required = PISTON_MODES[mode][1]
     for key in required:
         if key not in piston:
@@ -207,7 +255,7 @@ def validate_rig(rig, source: str = "rig") -> list[str]:
                 file=source,
                 column=f"piston.{key}",
             )
-        number(f"piston.{key}", piston[key], nonnegative=key in _NONNEGATIVE_PISTON_KEYS)
+        _number(source, f"piston.{key}", piston[key], nonnegative=key in _NONNEGATIVE_PISTON_KEYS)
     for key in piston:
         if key == "mode" or key in required:
             continue
@@ -224,28 +272,6 @@ def validate_rig(rig, source: str = "rig") -> list[str]:
             out.append(
                 f"{source}: piston.{key} {_fmt(piston[key])} looks like millimetres; "
                 "the format wants metres"
-            )
-
-    if "initial" in rig:
-        initial = rig["initial"]
-        if not isinstance(initial, dict):
-            fail(
-                "initial",
-                f"must be an object with keys among {', '.join(INITIAL_STATE_KEYS)}, "
-                f"found {initial!r}",
-            )
-        for key, value in initial.items():
-            if key not in INITIAL_STATE_KEYS:
-                fail(f"initial.{key}", f"is not allowed; allowed: {', '.join(INITIAL_STATE_KEYS)}")
-            number(f"initial.{key}", value)
-    if "notes" in rig and not isinstance(rig["notes"], str):
-        fail("notes", f"must be a string, found {rig['notes']!r}")
-    for key in rig:
-        if key not in _KNOWN_TOP_KEYS:
-            out.append(
-                f"{source}: unknown key {key!r} ignored (known: "
-                + ", ".join([*_REQUIRED_TOP_KEYS, *_OPTIONAL_POSITIVE_KEYS, "initial", "notes"])
-                + ")"
             )
     return out
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 
 from pneumatic_env.physics import layout as L
+from pneumatic_env.physics.derived import circle_area_m2
 
 from .rig_plants import _orifice_flow, _valve_path
 from .rig_plants import _PlantForm as PlantForm
@@ -93,7 +94,7 @@ class _TubeVolumes(PlantForm):
     def __init__(self, true: dict, fraction: float, thermal_time_constant_s: float):
         super().__init__(true)
         d, length = true["tube_inner_diameter_m"], true["tube_length_m"]
-        self.tube_volume = fraction * 0.25 * math.pi * d * d * length
+        self.tube_volume = fraction * circle_area_m2(d) * length
         # Hagen-Poiseuille: mass flow = rho pi d^4 / (128 mu L) dp, rho = p / (R T)
         self.conductance_per_pa = (
             math.pi * d**4 / (128.0 * true["air_viscosity_pa_s"] * length * self.gas_rt)

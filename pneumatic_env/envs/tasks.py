@@ -254,6 +254,13 @@ class TaskCore:
         self.i_max = base["coil_current_max_a"]
         self.pa, self.ps = base["ambient_pressure_pa"], base["supply_pressure_pa"]
         self.half_stroke = 0.5 * base["stroke_m"]
+        self._init_episode_arrays(n_envs, control_dt)
+        self._init_observation(task, n_envs, control_dt, base)
+        self._init_step_arguments()
+
+    def _init_episode_arrays(self, n_envs: int, control_dt: float) -> None:
+        """The per-env arrays of the episodes (references, counters, measurements, the
+        last step's outputs) and the sensor model's noise and lag."""
         # Generated per episode for `reference_steps` (not the episode length, which a single
         # env under gym.make cannot see), so single and vector envs draw alike.
         self.references = np.zeros(
@@ -275,6 +282,9 @@ class TaskCore:
             if self.options.sensor_lag_s > 0
             else 0.0
         )
+
+    def _init_observation(self, task: TaskSpec, n_envs: int, control_dt: float, base) -> None:
+        """The observation's channel rows, scales and optional features."""
         self._out_rows = np.array([_CHANNEL_OUTPUT[c] for c in OBSERVED_CHANNELS])
         self._tracked_row = _CHANNEL_OUTPUT[task.tracked]
         self.base_obs_dim = observation_dim(self.options.preview_steps)
@@ -296,6 +306,9 @@ class TaskCore:
         )
         self.obs_dim = self.base_obs_dim + (self.features.dim if self.features else 0)
         self._si_scales = self.observation_scales._replace(normalize=False)
+
+    def _init_step_arguments(self) -> None:
+        """The task step's fixed arguments and outputs, views of the arrays above."""
         self._task_params = task_kernel.TaskParams(
             float(self.i_max),
             float(self.options.effort_weight),

@@ -202,55 +202,14 @@ def run_fit(
         and any(ds.moving for ds in problem.datasets)
     )
     if problem.free:
-        notes = []
-        if search and start is not None:
-            u0, cost0 = _friction_search(problem, u0)
-            problem.cost_history.append(cost0)
-        if basin_search and any(ds.moving for ds in problem.datasets):
-            u0, cost0 = _basin_search(problem, u0, basin_search)
-            problem.cost_history.append(cost0)
-        sol = _least_squares(problem, u0, max_nfev, tolerance)
-        nfev = int(sol.nfev)
-        u, cost = sol.x, float(sol.cost)
-        message = str(sol.message)
-        searches = int(cfg.number("fit", "friction_searches", minimum=0)) if search else 0
-        for k in range(searches):
-            u_next, cost_next = _friction_search(problem, u, joint=True)
-            if not cost_next < cost:
-                notes.append(f"friction search {k + 1}: no better stick-event basin")
-                break
-            problem.cost_history.append(cost_next)
-            try:
-                sol = _least_squares(problem, u_next, max_nfev, tolerance)
-            except (ValueError, FloatingPointError) as exc:  # a start the kernel rejects
-                notes.append(f"friction search {k + 1}: refit failed ({exc})")
-                u, cost = u_next, cost_next
-                break
-            nfev += int(sol.nfev)
-            u, cost, message = sol.x, float(sol.cost), str(sol.message)
-            notes.append(f"friction search {k + 1}: a better basin, refitted")
-        if notes:
-            message = message + " (" + "; ".join(notes) + ")"
+        u, nfev, message = _fit_free(problem, u0, start, max_nfev, search, tolerance, basin_search)
     else:
         u, nfev, message = u0, 1, "nothing to fit"
     r = problem.residual(u)
     if problem.free:
         stats = _statistics(problem, u, r, problem.jacobian(u))
     else:
-        rho = min(
-            max(pooled_lag1(r, problem.blocks), 0.0), cfg.number("fit", "max_autocorrelation")
-        )
-        stats = {
-            "std": {},
-            "ci": {},
-            "identified": {},
-            "plausible": {},
-            "flags": {},
-            "correlations": [],
-            "condition_number": 1.0,
-            "rho1": rho,
-            "n_eff": r.size * (1 - rho) / (1 + rho),
-        }
+        stats = _statistics_of_nothing_free(problem, r)
     log.info(
         "%s: done after %d evaluations, %d Jacobians (%s), cost %.6g",
         problem.label,
@@ -282,6 +241,69 @@ def run_fit(
         cost_history=list(problem.cost_history),
         n_jacobians=problem.n_jacobians,
     )
+
+
+def _fit_free(
+    problem: FitProblem,
+    u0: np.ndarray,
+    start: Mapping[str, float] | None,
+    max_nfev: int,
+    search: bool,
+    tolerance: float | None,
+    basin_search: Sequence[str],
+) -> tuple[np.ndarray, int, str]:
+    """:func:`run_fit`'s searches and least-squares fits: the optimum, the number of
+    evaluations and why it stopped (``search``: bracket by friction searches)."""
+    notes = []
+    if search and start is not None:
+        u0, cost0 = _friction_search(problem, u0)
+        problem.cost_history.append(cost0)
+    if basin_search and any(ds.moving for ds in problem.datasets):
+        u0, cost0 = _basin_search(problem, u0, basin_search)
+        problem.cost_history.append(cost0)
+    sol = _least_squares(problem, u0, max_nfev, tolerance)
+    nfev = int(sol.nfev)
+    u, cost = sol.x, float(sol.cost)
+    message = str(sol.message)
+    searches = int(problem.config.number("fit", "friction_searches", minimum=0)) if search else 0
+    for k in range(searches):
+        u_next, cost_next = _friction_search(problem, u, joint=True)
+        if not cost_next < cost:
+            notes.append(f"friction search {k + 1}: no better stick-event basin")
+            break
+        problem.cost_history.append(cost_next)
+        try:
+            sol = _least_squares(problem, u_next, max_nfev, tolerance)
+        except (ValueError, FloatingPointError) as exc:  # a start the kernel rejects
+            notes.append(f"friction search {k + 1}: refit failed ({exc})")
+            u, cost = u_next, cost_next
+            break
+        nfev += int(sol.nfev)
+        u, cost, message = sol.x, float(sol.cost), str(sol.message)
+        notes.append(f"friction search {k + 1}: a better basin, refitted")
+    if notes:
+        message = message + " (" + "; ".join(notes) + ")"
+    return u, nfev, message
+
+
+def _statistics_of_nothing_free(problem: FitProblem, r: np.ndarray) -> dict:
+    """:func:`_statistics`'s keys when nothing is free: the residual's lag-1
+    autocorrelation and effective sample size only."""
+    rho = min(
+        max(pooled_lag1(r, problem.blocks), 0.0),
+        problem.config.number("fit", "max_autocorrelation"),
+    )
+    return {
+        "std": {},
+        "ci": {},
+        "identified": {},
+        "plausible": {},
+        "flags": {},
+        "correlations": [],
+        "condition_number": 1.0,
+        "rho1": rho,
+        "n_eff": r.size * (1 - rho) / (1 + rho),
+    }
 
 
 def channel_nrmse(

@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.signal import lfilter
@@ -128,87 +129,95 @@ def candidate_table(config: IdentificationConfig | None = None) -> dict[str, Can
     out = {}
     where = f"{config.path}: candidates"
     for name, entry in config.raw["candidates"].items():
-        if not isinstance(entry, Mapping):
-            raise ConfigError(f"{where}.{name} must be a mapping")
-        extra = sorted(set(entry) - _CANDIDATE_KEYS)
-        if extra:
-            raise ConfigError(
-                f"{where}.{name} has unknown key {extra[0]!r}; allowed keys: "
-                f"{', '.join(sorted(_CANDIDATE_KEYS))}"
-            )
-        kind = entry.get("kind")
-        if kind not in _KINDS:
-            raise ConfigError(
-                f"{where}.{name}.kind = {kind!r} is not allowed: must be one of {list(_KINDS)}"
-            )
-        params = entry.get("parameters")
-        if not isinstance(params, Mapping) or not params:
-            raise ConfigError(f"{where}.{name}.parameters must be a non-empty mapping")
-        fitted = tuple(
-            _parse_parameter(f"{where}.{name}.parameters", p, e, kind, True)
-            for p, e in params.items()
-        )
-        if kind == "sensor":
-            for p in fitted:
-                if p.name not in SENSOR_NEUTRAL:
-                    raise ConfigError(
-                        f"{where}.{name}: sensor parameter {p.name!r} is not "
-                        f"known; known: {', '.join(SENSOR_PARAMETERS)}"
-                    )
-        fixed = entry.get("set") or {}
-        if not isinstance(fixed, Mapping):
-            raise ConfigError(
-                f"{where}.{name}.set must be a mapping of kernel parameter -> "
-                "number or kernel parameter name"
-            )
-        set_values: dict[str, float | str] = {}
-        for key, v in fixed.items():
-            if isinstance(v, str):
-                if v not in PARAMETER_NAMES:
-                    raise ConfigError(
-                        f"{where}.{name}.set.{key} = {v!r} is not allowed: a "
-                        "text value must name a kernel parameter (its value in "
-                        "each recording's set is used)"
-                    )
-                set_values[key] = v
-            elif isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
-                set_values[key] = float(v)
-            else:
-                raise ConfigError(
-                    f"{where}.{name}.set.{key} = {v!r} is not allowed: must be a "
-                    "finite number or the name of a kernel parameter"
-                )
-        channels = tuple(entry.get("requires_any_channel") or ())
-        rod_modes = entry.get("rod_modes") or []
-        if not isinstance(rod_modes, list) or any(m not in PISTON_MODES for m in rod_modes):
-            raise ConfigError(
-                f"{where}.{name}.rod_modes = {rod_modes!r} is not allowed: must "
-                f"be a list of {list(PISTON_MODES)}"
-            )
-        if rod_modes and kind != "plant":
-            raise ConfigError(f"{where}.{name}.rod_modes is only allowed for kind 'plant'")
-        refit_base = entry.get("refit_base") or []
-        if not isinstance(refit_base, list):
-            raise ConfigError(f"{where}.{name}.refit_base must be a list of base parameter names")
-        for b in refit_base:
-            if b not in config.base_parameters:
-                raise ConfigError(
-                    f"{where}.{name}.refit_base names {b!r}, which has no entry "
-                    f"under base_parameters; allowed: "
-                    f"{', '.join(config.base_parameters)}"
-                )
-        out[name] = Candidate(
-            name=name,
-            kind=kind,
-            description=str(entry.get("description", "")),
-            parameters=fitted,
-            set=set_values,
-            requires_motion=bool(entry.get("requires_motion", False)),
-            requires_any_channel=channels,
-            rod_modes=tuple(rod_modes),
-            refit_base=tuple(config.base_parameters[b] for b in refit_base),
-        )
+        out[name] = _parse_candidate(where, name, entry, config)
     return out
+
+
+def _parse_candidate(where: str, name: str, entry: Any, config: IdentificationConfig) -> Candidate:
+    """One candidate's config entry, checked."""
+    if not isinstance(entry, Mapping):
+        raise ConfigError(f"{where}.{name} must be a mapping")
+    extra = sorted(set(entry) - _CANDIDATE_KEYS)
+    if extra:
+        raise ConfigError(
+            f"{where}.{name} has unknown key {extra[0]!r}; allowed keys: "
+            f"{', '.join(sorted(_CANDIDATE_KEYS))}"
+        )
+    kind = entry.get("kind")
+    if kind not in _KINDS:
+        raise ConfigError(
+            f"{where}.{name}.kind = {kind!r} is not allowed: must be one of {list(_KINDS)}"
+        )
+    params = entry.get("parameters")
+    if not isinstance(params, Mapping) or not params:
+        raise ConfigError(f"{where}.{name}.parameters must be a non-empty mapping")
+    fitted = tuple(
+        _parse_parameter(f"{where}.{name}.parameters", p, e, kind, True) for p, e in params.items()
+    )
+    if kind == "sensor":
+        for p in fitted:
+            if p.name not in SENSOR_NEUTRAL:
+                raise ConfigError(
+                    f"{where}.{name}: sensor parameter {p.name!r} is not "
+                    f"known; known: {', '.join(SENSOR_PARAMETERS)}"
+                )
+    set_values = _set_values(f"{where}.{name}.set", entry.get("set") or {})
+    channels = tuple(entry.get("requires_any_channel") or ())
+    rod_modes = entry.get("rod_modes") or []
+    if not isinstance(rod_modes, list) or any(m not in PISTON_MODES for m in rod_modes):
+        raise ConfigError(
+            f"{where}.{name}.rod_modes = {rod_modes!r} is not allowed: must "
+            f"be a list of {list(PISTON_MODES)}"
+        )
+    if rod_modes and kind != "plant":
+        raise ConfigError(f"{where}.{name}.rod_modes is only allowed for kind 'plant'")
+    refit_base = entry.get("refit_base") or []
+    if not isinstance(refit_base, list):
+        raise ConfigError(f"{where}.{name}.refit_base must be a list of base parameter names")
+    for b in refit_base:
+        if b not in config.base_parameters:
+            raise ConfigError(
+                f"{where}.{name}.refit_base names {b!r}, which has no entry "
+                f"under base_parameters; allowed: "
+                f"{', '.join(config.base_parameters)}"
+            )
+    return Candidate(
+        name=name,
+        kind=kind,
+        description=str(entry.get("description", "")),
+        parameters=fitted,
+        set=set_values,
+        requires_motion=bool(entry.get("requires_motion", False)),
+        requires_any_channel=channels,
+        rod_modes=tuple(rod_modes),
+        refit_base=tuple(config.base_parameters[b] for b in refit_base),
+    )
+
+
+def _set_values(where: str, fixed: Any) -> dict[str, float | str]:
+    """A candidate's ``set``: kernel parameter -> a number or another parameter's name."""
+    if not isinstance(fixed, Mapping):
+        raise ConfigError(
+            f"{where} must be a mapping of kernel parameter -> number or kernel parameter name"
+        )
+    set_values: dict[str, float | str] = {}
+    for key, v in fixed.items():
+        if isinstance(v, str):
+            if v not in PARAMETER_NAMES:
+                raise ConfigError(
+                    f"{where}.{key} = {v!r} is not allowed: a "
+                    "text value must name a kernel parameter (its value in "
+                    "each recording's set is used)"
+                )
+            set_values[key] = v
+        elif isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
+            set_values[key] = float(v)
+        else:
+            raise ConfigError(
+                f"{where}.{key} = {v!r} is not allowed: must be a "
+                "finite number or the name of a kernel parameter"
+            )
+    return set_values
 
 
 def available_candidates(

@@ -25,11 +25,12 @@ code               severity  what
 from __future__ import annotations
 
 import warnings
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from pneumatic_env.physics.derived import valve_currents_a
 from pneumatic_env.recording import (
     CLIP_MIN_RUN,
     OUTPUT_COLUMNS,
@@ -136,6 +137,17 @@ def usable_masks(
     return out
 
 
+def dead_band_current(values: Mapping[str, float]) -> float:
+    """Coil current at which the valve starts to open (Eqs. 43, 46; physics.derived)."""
+    dead_band_a, _ = valve_currents_a(
+        values["spool_half_width_m"],
+        values["hole_radius_m"],
+        values["spool_spring_n_per_m"],
+        max(values["coil_force_n_per_a"], 1e-12),
+    )
+    return float(dead_band_a)
+
+
 def check_recording(
     rec: Recording, params: dict | None = None, config: IdentificationConfig | None = None
 ) -> list[DataIssue]:
@@ -143,42 +155,7 @@ def check_recording(
     config = config or load_config()
     min_samples = int(config.number("checks", "min_samples", minimum=2))
     name = _name(rec)
-    issues: list[DataIssue] = []
-    for message in rec.warnings:
-        low = message.lower()
-        channel = _channel_in(message, rec)
-        if any(p in low for p in _UNIT_PHRASES):
-            issues.append(
-                DataIssue(
-                    "error",
-                    "units",
-                    name,
-                    f"{message} (convert to SI/absolute before fitting)",
-                    channel,
-                )
-            )
-        elif "looks clipped" in low:
-            issues.append(
-                DataIssue(
-                    "warning",
-                    "clipped",
-                    name,
-                    f"{message}; the clipped samples are left out of the fit",
-                    channel,
-                )
-            )
-        elif "is constant" in low:
-            issues.append(
-                DataIssue(
-                    "warning",
-                    "constant",
-                    name,
-                    f"{message}; the channel is left out of the fit",
-                    channel,
-                )
-            )
-        else:
-            issues.append(DataIssue("warning", "format", name, message, channel))
+    issues = [_reader_issue(message, rec, name) for message in rec.warnings]
     if rec.n_samples < min_samples:
         issues.append(
             DataIssue(
@@ -189,8 +166,52 @@ def check_recording(
                 f"{min_samples} (checks.min_samples)",
             )
         )
+    issues += _output_issues(rec, name, {i.channel for i in issues if i.code == "constant"})
+    if params is not None:
+        dead_band_a = dead_band_current(params)
+        peak = float(np.max(np.abs(rec.i_c)))
+        if peak <= dead_band_a:
+            issues.append(
+                DataIssue(
+                    "error",
+                    "no_excitation",
+                    name,
+                    f"{name}: |i_c| never exceeds {peak:.4g} A, inside the valve's "
+                    f"dead band (+-{dead_band_a:.4g} A by Eqs. 43, 46): the valve "
+                    "never opens, nothing to fit",
+                )
+            )
+    return issues
+
+
+def _reader_issue(message: str, rec: Recording, name: str) -> DataIssue:
+    """One of the reader's warnings classified (units, clipped, constant or format)."""
+    low = message.lower()
+    channel = _channel_in(message, rec)
+    if any(p in low for p in _UNIT_PHRASES):
+        return DataIssue(
+            "error", "units", name, f"{message} (convert to SI/absolute before fitting)", channel
+        )
+    if "looks clipped" in low:
+        return DataIssue(
+            "warning",
+            "clipped",
+            name,
+            f"{message}; the clipped samples are left out of the fit",
+            channel,
+        )
+    if "is constant" in low:
+        return DataIssue(
+            "warning", "constant", name, f"{message}; the channel is left out of the fit", channel
+        )
+    return DataIssue("warning", "format", name, message, channel)
+
+
+def _output_issues(rec: Recording, name: str, constant: set) -> list[DataIssue]:
+    """No usable output channel (``constant``: channels that never change), or a moving
+    piston whose position is not measured."""
+    issues = []
     mode = rec.rig.get("piston", {}).get("mode")
-    constant = {i.channel for i in issues if i.code == "constant"}
     usable = [
         c
         for c in FITTED_CHANNELS
@@ -217,26 +238,6 @@ def check_recording(
                 "the friction parameters are not fitted",
             )
         )
-    if params is not None:
-        overlap = params["spool_half_width_m"] - params["hole_radius_m"]
-        dead_band_a = (
-            max(overlap, 0.0)
-            * 2.0
-            * params["spool_spring_n_per_m"]
-            / max(params["coil_force_n_per_a"], 1e-12)
-        )
-        peak = float(np.max(np.abs(rec.i_c)))
-        if peak <= dead_band_a:
-            issues.append(
-                DataIssue(
-                    "error",
-                    "no_excitation",
-                    name,
-                    f"{name}: |i_c| never exceeds {peak:.4g} A, inside the valve's "
-                    f"dead band (+-{dead_band_a:.4g} A by Eqs. 43, 46): the valve "
-                    "never opens, nothing to fit",
-                )
-            )
     return issues
 
 

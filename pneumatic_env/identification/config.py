@@ -93,8 +93,33 @@ def _is_infinity(x: Any) -> bool:
 def _parse_parameter(
     where: str, name: str, entry: Any, kind: str, need_initial: bool
 ) -> FitParameter:
+    """One fitted parameter's entry, its keys and numbers checked."""
     required = _PARAM_REQUIRED + (("initial", "neutral") if need_initial else ())
     check_entry(f"{where}: entry {name!r}", entry, _PARAM_KEYS, required)
+    nums = _entry_numbers(where, name, entry)
+    log = entry.get("log", False)
+    if not isinstance(log, bool):
+        raise ConfigError(f"{where}: entry {name!r}: 'log' must be true or false")
+    _check_entry_ranges(where, name, nums, log)
+    return FitParameter(
+        name=name,
+        kind=kind,
+        unit=entry["unit"].strip(),
+        source=entry["source"],
+        lower=nums["lower"],
+        upper=nums["upper"],
+        plausible_min=nums["plausible_min"],
+        plausible_max=nums["plausible_max"],
+        scale=nums["scale"],
+        initial=nums.get("initial"),
+        neutral=nums.get("neutral"),
+        log=log,
+        fd_step=nums.get("fd_step"),
+    )
+
+
+def _entry_numbers(where: str, name: str, entry: Mapping) -> dict[str, float]:
+    """The entry's numeric keys as floats (a neutral value may be infinite or null)."""
     nums = {}
     for key in (
         "lower",
@@ -128,9 +153,11 @@ def _parse_parameter(
                     f"allowed: must be {allowed}"
                 )
             nums[key] = float(entry[key])
-    log = entry.get("log", False)
-    if not isinstance(log, bool):
-        raise ConfigError(f"{where}: entry {name!r}: 'log' must be true or false")
+    return nums
+
+
+def _check_entry_ranges(where: str, name: str, nums: Mapping[str, float], log: bool) -> None:
+    """Bounds in order, positive scale and steps, the initial value within the bounds."""
     if not nums["lower"] < nums["upper"]:
         raise ConfigError(
             f"{where}: entry {name!r}: 'lower' {nums['lower']!r} must be less than "
@@ -152,21 +179,6 @@ def _parse_parameter(
         raise ConfigError(
             f"{where}: entry {name!r}: 'plausible_min' must not exceed 'plausible_max'"
         )
-    return FitParameter(
-        name=name,
-        kind=kind,
-        unit=entry["unit"].strip(),
-        source=entry["source"],
-        lower=nums["lower"],
-        upper=nums["upper"],
-        plausible_min=nums["plausible_min"],
-        plausible_max=nums["plausible_max"],
-        scale=nums["scale"],
-        initial=nums.get("initial"),
-        neutral=nums.get("neutral"),
-        log=log,
-        fd_step=nums.get("fd_step"),
-    )
 
 
 class IdentificationConfig:

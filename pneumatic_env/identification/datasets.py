@@ -3,13 +3,13 @@ and the parameter overrides that reach each recording (scoped by rod mode)."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from pneumatic_env.params import ConfigError
+from pneumatic_env.physics.derived import circle_area_m2
 from pneumatic_env.physics.layout import PARAMETER_INDEX
 from pneumatic_env.recording import Recording
 from pneumatic_env.replay import PREDICTED_CHANNELS, recording_parameters, substeps_for
@@ -63,7 +63,7 @@ def channel_scale(channel: str, values: Mapping[str, float], config: Identificat
     if channel in ("p1", "p2"):
         return span
     if channel == "f":
-        return span * math.pi * values["bore_diameter_m"] ** 2 / 4.0
+        return span * circle_area_m2(values["bore_diameter_m"])
     if channel == "x":
         return config.number("channel_scales", "x", positive=True) * values["stroke_m"]
     if channel == "x_s":

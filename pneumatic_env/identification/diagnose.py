@@ -31,7 +31,6 @@ facts of their sidecars (never the notes).
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -51,23 +50,28 @@ from .candidates import (
     applicable,
     available_candidates,
     candidate_table,
-    separating_experiment,
 )
+from .checks import dead_band_current
 from .config import IdentificationConfig, load_config
 from .holdout import Holdout
-from .later_effects import fit_freer_form, freer_form_check, second_effect_support
 from .problem import FitProblem
-from .residuals import PHASES, dead_band_current, phase_masks, residual_analysis
+from .residuals import PHASES, phase_masks, residual_analysis
 from .scoring import (
     CandidateScore,
     conflicts,
     improvement_is_the_basin,
     mean_nrmse,
     score,
-    score_many,
     unique,
 )
-from .screening import screen_candidates
+from .selection import (
+    RoundContext,
+    Selection,
+    Settings,
+    WorkPlan,
+    selection_round,
+    winner_and_runner_up,
+)
 
 __all__ = [
     "PHASES",
@@ -186,6 +190,79 @@ def _size_issue(
     )
 
 
+def _settings(cfg: IdentificationConfig, max_effects: int | None, jobs: int | None) -> Settings:
+    """:class:`Settings` from ``cfg``, ``max_effects`` and ``jobs`` overriding it."""
+    min_rel = cfg.diagnosis("min_relative_improvement")
+    min_ic = cfg.diagnosis("min_ic_drop")
+    max_effects = int(max_effects if max_effects is not None else cfg.diagnosis("max_effects"))
+    nfev = int(cfg.number("fit", "diagnosis_max_nfev", positive=True))
+    top_k = int(cfg.number("screening", "refit_top", positive=True))
+    min_pred = cfg.number("screening", "min_predicted_improvement", minimum=0.0)
+    jobs = int(jobs if jobs is not None else cfg.number("screening", "jobs", positive=True))
+    thresholds = {
+        "min_relative_improvement": min_rel,
+        "min_ic_drop": min_ic,
+        "median_from_recordings": int(cfg.diagnosis("median_from_recordings")),
+        "max_effects": max_effects,
+        "refit_top": top_k,
+        "min_predicted_improvement": min_pred,
+    }
+    tolerance = cfg.number("fit", "diagnosis_tolerance", positive=True)
+    return Settings(
+        min_rel, min_ic, max_effects, nfev, top_k, min_pred, jobs, tolerance, thresholds
+    )
+
+
+def _candidate_pool(
+    datasets: Sequence[Dataset], candidates: Sequence[str] | None, cfg: IdentificationConfig
+) -> tuple[list[Candidate], dict[str, str]]:
+    """The candidates the data can show, and why each other one is skipped."""
+    channels = {c for ds in datasets for c in ds.channels}
+    moving = any(ds.moving for ds in datasets)
+    rod_modes = {ds.rod_mode for ds in datasets}
+    pool, skipped = [], {}
+    for cand in available_candidates(candidates, cfg):
+        why = applicable(cand, channels, moving, rod_modes)
+        if why:
+            skipped[cand.name] = why
+        else:
+            pool.append(cand)
+    if candidates is None:
+        for name, cand in candidate_table(cfg).items():
+            if not cand.available:
+                skipped[name] = "its kernel parameters are not in this version of the kernel"
+    return pool, skipped
+
+
+def _plan_work(
+    datasets: Sequence[Dataset],
+    split: Holdout,
+    base_params: Sequence,
+    refit: Sequence,
+    pool: Sequence[Candidate],
+    cfg: IdentificationConfig,
+    settings: Settings,
+    quick: bool,
+    issues: list,
+) -> WorkPlan:
+    """Estimate the work, time one simulation of the data, and add the size notice."""
+    w_train, w_all = _work(split.train, split.train_n), _work(datasets)
+    n_screen = len(refit) + 1 + sum(1 + len(c.parameters) for c in pool if c.kind == "plant")
+    plan_base = w_train * (len(base_params) + 1) * 0.8 * cfg.number("fit", "max_nfev")
+    refit_work = w_train * (len(refit) + 3) * 12  # about 12 Jacobians per refit
+    plan_round = w_all * n_screen + (0 if quick else settings.top_k * refit_work)
+    progress.stage("timing a simulation of the data", w_all + plan_base + plan_round)
+    t_probe = time.monotonic()
+    FitProblem(datasets, [], config=cfg, label="probe").residual([])
+    per_column = (time.monotonic() - t_probe) / max(w_all, 1.0)
+    issue = _size_issue(datasets, cfg, per_column, plan_base + plan_round)
+    if issue is not None:
+        issues.append(issue)
+        log.warning("%s", issue.message)
+    progress.restart_clock()  # the first simulation may have compiled the kernel
+    return WorkPlan(plan_base, plan_round, refit_work)
+
+
 def diagnose(
     recordings: Sequence[Recording],
     params=None,
@@ -213,266 +290,25 @@ def diagnose(
     refit = (
         base_params if refit_names == ["all"] else [p for p in base_params if p.name in refit_names]
     )
-    min_rel = cfg.diagnosis("min_relative_improvement")
-    min_ic = cfg.diagnosis("min_ic_drop")
-    max_effects = int(max_effects if max_effects is not None else cfg.diagnosis("max_effects"))
-    nfev = int(cfg.number("fit", "diagnosis_max_nfev", positive=True))
-    top_k = int(cfg.number("screening", "refit_top", positive=True))
-    min_pred = cfg.number("screening", "min_predicted_improvement", minimum=0.0)
-    jobs = int(jobs if jobs is not None else cfg.number("screening", "jobs", positive=True))
-    thresholds = {
-        "min_relative_improvement": min_rel,
-        "min_ic_drop": min_ic,
-        "median_from_recordings": int(cfg.diagnosis("median_from_recordings")),
-        "max_effects": max_effects,
-        "refit_top": top_k,
-        "min_predicted_improvement": min_pred,
-    }
-
-    channels = {c for ds in datasets for c in ds.channels}
-    moving = any(ds.moving for ds in datasets)
-    rod_modes = {ds.rod_mode for ds in datasets}
-    pool, skipped = [], {}
-    for cand in available_candidates(candidates, cfg):
-        why = applicable(cand, channels, moving, rod_modes)
-        if why:
-            skipped[cand.name] = why
-        else:
-            pool.append(cand)
-    if candidates is None:
-        for name, cand in candidate_table(cfg).items():
-            if not cand.available:
-                skipped[name] = "its kernel parameters are not in this version of the kernel"
-
-    # the work ahead, in simulated samples x substeps (progress and the size notice)
-    w_train, w_all = _work(split.train, split.train_n), _work(datasets)
-    n_screen = len(refit) + 1 + sum(1 + len(c.parameters) for c in pool if c.kind == "plant")
-    plan_base = w_train * (len(base_params) + 1) * 0.8 * cfg.number("fit", "max_nfev")
-    refit_work = w_train * (len(refit) + 3) * 12  # about 12 Jacobians per refit
-    plan_round = w_all * n_screen + (0 if quick else top_k * refit_work)
-    progress.stage("timing a simulation of the data", w_all + plan_base + plan_round)
-    t_probe = time.monotonic()
-    FitProblem(datasets, [], config=cfg, label="probe").residual([])
-    per_column = (time.monotonic() - t_probe) / max(w_all, 1.0)
-    issue = _size_issue(datasets, cfg, per_column, plan_base + plan_round)
-    if issue is not None:
-        issues.append(issue)
-        log.warning("%s", issue.message)
-    progress.restart_clock()  # the first simulation may have compiled the kernel
-    progress.stage("base fit", plan_base + plan_round)
-    log.info(
-        "diagnosis: calibrating the base model (%s) on the training data",
-        ", ".join(p.name for p in base_params),
-    )
-    base_problem = FitProblem(
-        split.train, base_params, n_samples=split.train_n, config=cfg, label="base"
-    )
-    tolerance = cfg.number("fit", "diagnosis_tolerance", positive=True)
-    base = run_fit(base_problem, tolerance=tolerance)
+    settings = _settings(cfg, max_effects, jobs)
+    pool, skipped = _candidate_pool(datasets, candidates, cfg)
+    plan = _plan_work(datasets, split, base_params, refit, pool, cfg, settings, quick, issues)
+    base = _fit_base(split, base_params, cfg, settings, plan)
     timings = {"base_fit": time.monotonic() - t0}
     baseline_nrmse, base_preds = split.heldout_nrmse(base)
-    baseline_res = residual_analysis(
-        split.held,
-        base_preds,
-        split.held_masks,
-        [base.dataset_values(ds) for ds in split.held],
-        cfg,
-    )
     base_per = split.per_recording(base_preds)
-    n_res, n_eff = base.n_residuals, base.n_eff
-
-    current, current_mean = base, mean_nrmse(baseline_nrmse)
-    current_per = {k: mean_nrmse(v) for k, v in base_per.items()}
-    selected: list[Candidate] = []
-    scores: list[CandidateScore] = []
-    screening, confidence, freer_forms = [], [], []
-    over_freer: dict[str, float] = {}
-    for rnd in range(1, max_effects + 1):
-        eligible = [c for c in pool if c not in selected and not conflicts(c, selected)]
-        if not eligible:
-            break
-        t_round = time.monotonic()
-        progress.stage(f"screening {len(eligible)} candidates (round {rnd})", plan_round)
-        free_now = list(current.parameters)
-        screens = screen_candidates(
-            eligible,
-            current,
-            free_now,
-            datasets,
-            split.train,
-            split.train_n,
-            split.held,
-            split.held_masks,
-            cfg,
-        )
-        screening.append({"round": rnd, "ranking": [s.to_dict() for s in screens]})
-        timings[f"screening_round_{rnd}"] = time.monotonic() - t_round
-        top = [] if quick else screens[:top_k]
-        progress.stage(f"refitting {len(top)} candidates (round {rnd})", len(top) * refit_work)
-        t_refit = time.monotonic()
-        # a refit starts from the config's warm start (starting from the screening's step
-        # alone was tried: it left a heat-transfer refit at its bound, 10 W/K, and a coil
-        # lag's shape unidentified, where the warm start found both); from the step as well
-        # only when the first refit falls short of the screening's prediction
-        args = [
-            (
-                s.candidate,
-                rnd,
-                current,
-                current_mean,
-                refit,
-                selected,
-                split,
-                n_res,
-                n_eff,
-                min_rel,
-                min_ic,
-                nfev,
-                cfg,
-                current_per,
-                s.values,
-                s.predicted_train,
-            )
-            for s in top
-        ]
-        round_scores = score_many(args, jobs, refit_work)
-        for sc, s in zip(round_scores, top):
-            sc.screening = s.to_dict()
-        for s in screens:
-            if all(s is not t for t in top):
-                why = (
-                    "quick mode: screening only"
-                    if quick
-                    else f"not refitted: below the screening's top {top_k} (predicted BIC "
-                    f"change {s.predicted_delta_ic:.1f}, training error "
-                    f"{100 * s.predicted_train:.1f} % lower)"
-                )
-                round_scores.append(
-                    CandidateScore(
-                        s.candidate,
-                        rnd,
-                        None,
-                        {},
-                        math.nan,
-                        s.predicted_heldout,
-                        math.nan,
-                        False,
-                        False,
-                        False,
-                        [why],
-                        per_recording=dict(s.per_recording),
-                        screening=s.to_dict(),
-                        refitted=False,
-                    )
-                )
-        scores.extend(round_scores)
-        timings[f"refits_round_{rnd}"] = time.monotonic() - t_refit
-        accepted = sorted(
-            (s for s in round_scores if s.accepted), key=lambda s: -s.relative_improvement
-        )
-        if moving:  # stick-event basins: the effect itself must make the improvement
-            for sc in accepted:
-                if not improvement_is_the_basin(sc, current, min_rel, split, cfg):
-                    break
-            accepted = [s for s in accepted if s.accepted]
-        if rnd > 1:  # supported on held-out data the effects before did not explain
-            for sc in accepted:
-                second_effect_support(sc, min_rel, split.acted_on(sc.candidate))
-            accepted = [s for s in accepted if s.accepted]
-            if accepted:  # ... and not the effects before in a freer form (.later_effects)
-                t_freer = time.monotonic()
-                what = f"refitting the selected effects per experiment (round {rnd})"
-                progress.stage(what, refit_work)
-                freer = fit_freer_form(selected, current, refit, split, nfev, cfg)
-                timings[f"freer_form_round_{rnd}"] = time.monotonic() - t_freer
-                if freer is not None:
-                    freer_forms.append({"round": rnd, **freer.to_dict()})
-                    for sc in accepted:
-                        over_freer[sc.name] = freer_form_check(
-                            sc, freer, current_per, min_rel, split.acted_on(sc.candidate)
-                        )
-                    accepted = [s for s in accepted if s.accepted]
-        if not accepted:
-            break
-        best = accepted[0]
-        selected.append(best.candidate)
-        confidence.append(_confidence(best, round_scores, min_rel, split.acted_on(best.candidate)))
-        confidence[-1]["margin_over_freer_form"] = over_freer.get(best.name)
-        # Re-converge base + selected effects with the full budget, so the next round
-        # compares against a converged model (not against a refit stopped by its budget).
-        free = unique(
-            list(base_params) + [p for c in selected for p in (*c.refit_base, *c.parameters)]
-        )
-        fixed = {k: v for k, v in best.fit.all_values().items() if k not in {p.name for p in free}}
-        polish = split.training_problem(
-            free, fixed, f"model with {', '.join(c.name for c in selected)}", best.fit.scopes
-        )
-        current = run_fit(
-            polish,
-            start=best.fit.all_values(),
-            tolerance=tolerance,
-            friction_restarts=any(c.requires_motion for c in selected),
-        )
-        nrmse_now, preds_now = split.heldout_nrmse(current)
-        current_mean = mean_nrmse(nrmse_now)
-        current_per = {k: mean_nrmse(v) for k, v in split.per_recording(preds_now).items()}
-        log.info(
-            "diagnosis: accepted %s (held-out NRMSE %.4g, %.1f %% better)",
-            best.name,
-            best.heldout_mean,
-            100 * best.relative_improvement,
-        )
-
-    # refitted candidates first: a screened-out one carries only the screening's linear
-    # prediction, which is no score to compare with
-    first = sorted(
-        (s for s in scores if s.round == 1), key=lambda s: (not s.refitted, -s.relative_improvement)
+    ctx = RoundContext(
+        cfg, settings, datasets, split, base_params, refit, plan, quick, base, timings
     )
-    winner = selected[0].name if selected else None
-    runner_up, suggestion = None, None
-    if first:
-        others = [s for s in first if s.name != winner]
-        if others:
-            runner_up = others[0].name
-        if winner and others:
-            w = next(s for s in first if s.name == winner)
-            r = others[0]
-            if (
-                r.relative_improvement
-                >= cfg.diagnosis("runner_up_close_ratio") * w.relative_improvement
-                and r.relative_improvement > 0
-            ):
-                suggestion = separating_experiment(winner, r.name, cfg)
-        elif not winner and not quick and first[0].relative_improvement >= min_rel:
-            suggestion = (
-                "the best candidate (" + first[0].name + ") improves the held-out "
-                "error but is not accepted ("
-                + "; ".join(first[0].reasons)
-                + "): "
-                + cfg.default_experiment()
-            )
-    after_nrmse, after_preds = split.heldout_nrmse(current)
-    after_res = residual_analysis(
-        split.held,
-        after_preds,
-        split.held_masks,
-        [current.dataset_values(ds) for ds in split.held],
-        cfg,
+    state = Selection(
+        base, mean_nrmse(baseline_nrmse), {k: mean_nrmse(v) for k, v in base_per.items()}
     )
+    for rnd in range(1, settings.max_effects + 1):
+        if not selection_round(ctx, state, pool, rnd):
+            break
+    winner, runner_up, suggestion = winner_and_runner_up(state, cfg, settings.min_rel, quick)
+    after_nrmse, after_preds = split.heldout_nrmse(state.current)
     after_per = split.per_recording(after_preds)
-    per_recording = {
-        name: {
-            "before": base_per[name],
-            "after": after_per[name],
-            "before_mean": mean_nrmse(base_per[name]),
-            "after_mean": mean_nrmse(after_per[name]),
-        }
-        for name in base_per
-    }
-    predictions = {
-        "before": split.predict(base, datasets),
-        "after": split.predict(current, datasets),
-    }
     timings["total"] = time.monotonic() - t0
     progress.stage("done", 0.0)
     return Diagnosis(
@@ -481,58 +317,63 @@ def diagnose(
         issues=issues,
         base=base,
         baseline_nrmse=baseline_nrmse,
-        baseline_residuals=baseline_res,
-        scores=scores,
+        baseline_residuals=_heldout_residuals(split, base, base_preds, cfg),
+        scores=state.scores,
         skipped=skipped,
-        selected=[c.name for c in selected],
-        final=current,
+        selected=[c.name for c in state.selected],
+        final=state.current,
         after_nrmse=after_nrmse,
-        after_residuals=after_res,
+        after_residuals=_heldout_residuals(split, state.current, after_preds, cfg),
         winner=winner,
         runner_up=runner_up,
         suggestion=suggestion,
-        thresholds=thresholds,
-        predictions=predictions,
-        screening=screening,
-        confidence=confidence,
-        freer_forms=freer_forms,
-        per_recording=per_recording,
+        thresholds=settings.thresholds,
+        predictions={
+            "before": split.predict(base, datasets),
+            "after": split.predict(state.current, datasets),
+        },
+        screening=state.screening,
+        confidence=state.confidence,
+        freer_forms=state.freer_forms,
+        per_recording=_per_recording_before_after(base_per, after_per),
         quick=quick,
         timings=timings,
     )
 
 
-def _confidence(
-    best: CandidateScore,
-    round_scores: Sequence[CandidateScore],
-    min_rel: float,
-    acts_on: set[str],
-) -> dict:
-    """How sure the selection is of ``best``: its margin over the round's runner-up and
-    over no effect, which held-out recordings support it, and whether it holds on every
-    one of them and on every one it can act on (``acts_on``, :meth:`.Holdout.acted_on`)."""
-    others = sorted(
-        (s for s in round_scores if s is not best),
-        key=lambda s: (not s.refitted, -s.relative_improvement),
+def _fit_base(
+    split: Holdout,
+    base_params: Sequence,
+    cfg: IdentificationConfig,
+    settings: Settings,
+    plan: WorkPlan,
+) -> FitResult:
+    """Calibrate the base model on the training data."""
+    progress.stage("base fit", plan.base + plan.round)
+    log.info(
+        "diagnosis: calibrating the base model (%s) on the training data",
+        ", ".join(p.name for p in base_params),
     )
-    runner = others[0] if others else None
-    per = {k: v for k, v in best.per_recording.items() if math.isfinite(v)}
-    where = sorted(acts_on & set(per))
+    base_problem = FitProblem(
+        split.train, base_params, n_samples=split.train_n, config=cfg, label="base"
+    )
+    return run_fit(base_problem, tolerance=settings.tolerance)
+
+
+def _heldout_residuals(split: Holdout, fit: FitResult, preds, cfg: IdentificationConfig) -> dict:
+    """:func:`.residual_analysis` of ``fit``'s predictions on the held-out data."""
+    values = [fit.dataset_values(ds) for ds in split.held]
+    return residual_analysis(split.held, preds, split.held_masks, values, cfg)
+
+
+def _per_recording_before_after(base_per: dict, after_per: dict) -> dict:
+    """Held-out NRMSE per recording and channel before and after, with their means."""
     return {
-        "effect": best.name,
-        "round": best.round,
-        "heldout_improvement": best.relative_improvement,
-        "margin_over_none": best.relative_improvement,
-        "delta_ic": best.delta_ic,
-        "runner_up": runner.name if runner else None,
-        "runner_up_improvement": runner.relative_improvement if runner else None,
-        "runner_up_refitted": runner.refitted if runner else None,
-        "margin_over_runner_up": (
-            best.relative_improvement - runner.relative_improvement if runner else None
-        ),
-        "heldout_improvement_per_recording": per,
-        "supported_by": [k for k, v in per.items() if v >= min_rel],
-        "holds_on_every_heldout_recording": bool(per) and all(v > 0 for v in per.values()),
-        "acts_on": where,
-        "holds_where_it_acts": bool(where) and all(per[k] > 0 for k in where),
+        name: {
+            "before": base_per[name],
+            "after": after_per[name],
+            "before_mean": mean_nrmse(base_per[name]),
+            "after_mean": mean_nrmse(after_per[name]),
+        }
+        for name in base_per
     }

@@ -112,6 +112,7 @@ def _plots(diag: Diagnosis, out_dir: Path) -> list[str]:
 
 
 def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
+    """``report.md``: the result, how sure, the candidates, the base fit, the residuals."""
     lines = [
         "# Identification report",
         "",
@@ -121,7 +122,22 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
     ]
     if data["issues"]:
         lines += ["## Data issues", ""] + [f"- {i}" for i in data["issues"]] + [""]
-    lines += ["## Result", ""]
+    lines += _result_lines(data) + _nrmse_lines(data)
+    lines += _confidence_lines(data) + _per_recording_lines(data) + _screening_lines(data)
+    lines += _candidate_lines(data) + _calibration_lines(data) + _residual_lines(data)
+    lines += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots]
+    lines += [
+        "",
+        "Fitted parameter sets: `fitted_base.yaml` (calibrated base), `fitted_final.yaml` "
+        "(with the selected plant effects; sensor-side values are in `diagnosis.json`).",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _result_lines(data: dict) -> list[str]:
+    """The selected effects (or none), a suggested experiment, what stays unexplained."""
+    lines = ["## Result", ""]
     if data["quick"]:
         lines.append(
             "Quick mode: the candidates were screened (one Gauss-Newton step each), "
@@ -149,7 +165,12 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
             + " (Ljung-Box): part of the error is systematic "
             "and no accepted candidate explains it."
         )
-    lines += [
+    return lines
+
+
+def _nrmse_lines(data: dict) -> list[str]:
+    """The mean held-out NRMSE before and after, per channel."""
+    lines = [
         "",
         "Mean held-out NRMSE: before "
         + _fmt(data["baseline_nrmse_mean"])
@@ -165,9 +186,13 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
         lines.append(
             f"| {c} | {_fmt(data['baseline_nrmse'][c])} | {_fmt(data['after_nrmse'].get(c))} |"
         )
-    lines += _confidence_lines(data) + _per_recording_lines(data) + _screening_lines(data)
+    return lines
+
+
+def _candidate_lines(data: dict) -> list[str]:
+    """The acceptance rules and every candidate's score, parameters and verdict."""
     th = data["thresholds"]
-    lines += [
+    lines = [
         "",
         "## Candidates",
         "",
@@ -200,8 +225,13 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
         )
     if data["skipped"]:
         lines += ["", "Not tried: " + "; ".join(f"{k} ({v})" for k, v in data["skipped"].items())]
+    return lines
+
+
+def _calibration_lines(data: dict) -> list[str]:
+    """The calibrated base parameters, their confidence and correlations."""
     cal = data["calibration"]
-    lines += [
+    lines = [
         "",
         "## Calibrated base parameters",
         "",
@@ -225,7 +255,12 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
             + "; ".join(f"{a} / {b} ({r:+.3f})" for a, b, r in cal["correlations"])
             + ".",
         ]
-    lines += [
+    return lines
+
+
+def _residual_lines(data: dict) -> list[str]:
+    """The held-out residual analysis per channel, before and after."""
+    lines = [
         "",
         "## Residual analysis (held-out data)",
         "",
@@ -246,14 +281,7 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
                 + f" | {'yes' if r['whiteness']['white'] else 'no'}"
                 f" | {_fmt(xc['max_abs'], 3)} ({_fmt(xc['bound'], 2)}) |"
             )
-    lines += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots]
-    lines += [
-        "",
-        "Fitted parameter sets: `fitted_base.yaml` (calibrated base), `fitted_final.yaml` "
-        "(with the selected plant effects; sensor-side values are in `diagnosis.json`).",
-        "",
-    ]
-    return "\n".join(lines)
+    return lines
 
 
 def _pct(x) -> str:

@@ -9,25 +9,13 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from scipy.stats import chi2, norm
 
-from pneumatic_env.physics.derived import valve_currents_a
-
 from .calibrate import Dataset
+from .checks import dead_band_current
 from .config import IdentificationConfig
 
-__all__ = ["PHASES", "dead_band_current", "phase_masks", "residual_analysis"]
+__all__ = ["PHASES", "phase_masks", "residual_analysis"]
 
 PHASES = ("flow", "after_flow", "rest", "reversal")
-
-
-def dead_band_current(values: Mapping[str, float]) -> float:
-    """Coil current at which the valve starts to open (Eqs. 43, 46; physics.derived)."""
-    dead_band_a, _ = valve_currents_a(
-        values["spool_half_width_m"],
-        values["hole_radius_m"],
-        values["spool_spring_n_per_m"],
-        max(values["coil_force_n_per_a"], 1e-12),
-    )
-    return float(dead_band_a)
 
 
 def phase_masks(

@@ -298,48 +298,15 @@ def score(
     score's ``per_recording`` is the candidate's relative improvement on each. The refit
     starts from the config's warm start, and from the screening's ``step`` as well when
     it falls short of ``predicted_train`` (:func:`refit_with_restart`)."""
-    free = unique(
-        list(refit)
-        + [p for c in selected for p in (*c.refit_base, *c.parameters)]
-        + list(cand.refit_base)
-        + list(cand.parameters)
-    )
-    fixed = {k: v for k, v in current.all_values().items() if k not in {p.name for p in free}}
-    fixed.update(cand.scoped_set())
-    start = {p.name: current.all_values()[p.name] for p in free if p.name in current.all_values()}
-    problem = split.training_problem(
-        free, fixed, f"{cand.name} (round {rnd})", {**current.scopes, **cand.scopes()}
-    )
     # parameters the candidate adds to the current model (its own and the base parameters
     # it makes observable that the current model did not fit)
     current_free = {p.name for p in current.parameters}
     n_extra = len(cand.parameters) + sum(p.name not in current_free for p in cand.refit_base)
-    # a candidate that changes the piston's friction law moves the static friction's
-    # stick-event basins: it gets the restarts the base calibration had; the others
-    # start from the calibrated base's basin
-    tolerance = cfg.number("fit", "diagnosis_tolerance", positive=True)
-
-    def run(u: Mapping[str, float]) -> FitResult:
-        return run_fit(
-            problem,
-            start=u,
-            max_nfev=nfev,
-            friction_restarts=cand.requires_motion,
-            tolerance=tolerance,
-            basin_search=cand.parameter_names if cand.requires_motion else (),
-        )
-
     try:
-        fit, restarted = refit_with_restart(
-            run,
-            start,
-            step or {},
-            predicted_train,
-            current.rss,
-            cfg,
-            cand.name,
+        fit, restarted = _refit(
+            cand, rnd, current, refit, selected, split, nfev, cfg, step, predicted_train
         )
-    except (ValueError, FloatingPointError) as exc:  # e.g. a parameter set the kernel rejects
+    except _FitFailed as exc:
         return CandidateScore(
             cand,
             rnd,
@@ -364,25 +331,7 @@ def score(
     rel, how = heldout_improvement(per, pooled, cfg, split.acted_on(cand))
     # BIC(candidate) - BIC(current): N_eff ln(RSS_c / RSS_m) + (extra parameters) ln(N_eff)
     delta_ic = _ic(fit.rss, n_res, n_eff, n_extra) - _ic(current.rss, n_res, n_eff, 0)
-    plausible = all(fit.plausible[p.name] for p in cand.parameters)
-    identified = True
-    reasons = []
-    for p in cand.parameters:
-        lo, hi = fit.ci[p.name]
-        if not fit.identified[p.name]:
-            identified = False
-            reasons.append(f"{p.name} not identified ({'; '.join(fit.flags[p.name])})")
-        elif p.neutral is not None and lo <= p.neutral <= hi:
-            identified = False
-            reasons.append(
-                f"{p.name}: its confidence interval [{lo:.3g}, {hi:.3g}] contains the "
-                f"neutral value {p.neutral:g} (effect off)"
-            )
-        if not fit.plausible[p.name]:
-            reasons.append(
-                f"{p.name} = {fit.values[p.name]:.4g} {p.unit} is outside the plausible "
-                f"range [{p.plausible_min:g}, {p.plausible_max:g}]"
-            )
+    plausible, identified, reasons = _parameter_verdict(cand, fit)
     if rel < min_rel:
         reasons.append(f"held-out improvement ({how}) {100 * rel:.1f} % < {100 * min_rel:.0f} %")
     if delta_ic > -min_ic:
@@ -404,6 +353,84 @@ def score(
         per_recording_nrmse=per_nrmse,
         restarted=restarted,
     )
+
+
+def _refit(
+    cand: Candidate,
+    rnd: int,
+    current: FitResult,
+    refit: Sequence[FitParameter],
+    selected: Sequence[Candidate],
+    split: Holdout,
+    nfev: int,
+    cfg: IdentificationConfig,
+    step: Mapping[str, float] | None,
+    predicted_train: float,
+) -> tuple[FitResult, bool]:
+    """``cand``'s parameters refitted with ``current``'s on the training data, and whether
+    the refit was repeated from the screening's step (:func:`refit_with_restart`)."""
+    free = unique(
+        list(refit)
+        + [p for c in selected for p in (*c.refit_base, *c.parameters)]
+        + list(cand.refit_base)
+        + list(cand.parameters)
+    )
+    fixed = {k: v for k, v in current.all_values().items() if k not in {p.name for p in free}}
+    fixed.update(cand.scoped_set())
+    start = {p.name: current.all_values()[p.name] for p in free if p.name in current.all_values()}
+    problem = split.training_problem(
+        free, fixed, f"{cand.name} (round {rnd})", {**current.scopes, **cand.scopes()}
+    )
+    # a candidate that changes the piston's friction law moves the static friction's
+    # stick-event basins: it gets the restarts the base calibration had; the others
+    # start from the calibrated base's basin
+    tolerance = cfg.number("fit", "diagnosis_tolerance", positive=True)
+
+    def run(u: Mapping[str, float]) -> FitResult:
+        return run_fit(
+            problem,
+            start=u,
+            max_nfev=nfev,
+            friction_restarts=cand.requires_motion,
+            tolerance=tolerance,
+            basin_search=cand.parameter_names if cand.requires_motion else (),
+        )
+
+    try:
+        return refit_with_restart(
+            run, start, step or {}, predicted_train, current.rss, cfg, cand.name
+        )
+    except (ValueError, FloatingPointError) as exc:  # e.g. a parameter set the kernel rejects
+        raise _FitFailed(str(exc)) from exc
+
+
+class _FitFailed(Exception):
+    """A candidate's refit failed (its message says why)."""
+
+
+def _parameter_verdict(cand: Candidate, fit: FitResult) -> tuple[bool, bool, list[str]]:
+    """Whether ``cand``'s fitted parameters are plausible and identified (confidence
+    interval excluding the neutral value), and the reasons where not."""
+    plausible = all(fit.plausible[p.name] for p in cand.parameters)
+    identified = True
+    reasons = []
+    for p in cand.parameters:
+        lo, hi = fit.ci[p.name]
+        if not fit.identified[p.name]:
+            identified = False
+            reasons.append(f"{p.name} not identified ({'; '.join(fit.flags[p.name])})")
+        elif p.neutral is not None and lo <= p.neutral <= hi:
+            identified = False
+            reasons.append(
+                f"{p.name}: its confidence interval [{lo:.3g}, {hi:.3g}] contains the "
+                f"neutral value {p.neutral:g} (effect off)"
+            )
+        if not fit.plausible[p.name]:
+            reasons.append(
+                f"{p.name} = {fit.values[p.name]:.4g} {p.unit} is outside the plausible "
+                f"range [{p.plausible_min:g}, {p.plausible_max:g}]"
+            )
+    return plausible, identified, reasons
 
 
 def _score_job(args: tuple) -> CandidateScore:

@@ -186,6 +186,82 @@ def _spec(cand: Candidate, params: Sequence[FitParameter], start: dict, fd: floa
     return cand, list(params), start, steps, perturbed
 
 
+def _coarse_datasets(
+    datasets: Sequence[Dataset],
+    train: Sequence[Dataset],
+    held: Sequence[Dataset],
+    config: IdentificationConfig,
+) -> tuple[list[Dataset], list[Dataset], list[Dataset]]:
+    """``datasets``, ``train`` and ``held`` with the screening's coarser substep for a
+    moving rod (a ranking: the current model and every candidate see the same model)."""
+    coarse = config.number("screening", "max_substep_moving_s", positive=True)
+    screen_ds = [
+        replace(
+            ds,
+            substeps=substeps_for(ds.dt_s, coarse)
+            if ds.moving or ds.rod_mode != "fixed"
+            else ds.substeps,
+            substeps_moving=substeps_for(ds.dt_s, coarse),
+        )
+        for ds in datasets
+    ]
+    train = [screen_ds[index_of(ds, datasets)] for ds in train]
+    held = [screen_ds[index_of(ds, datasets)] for ds in held]
+    return screen_ds, train, held
+
+
+def _starts(cand: Candidate, params: Sequence[FitParameter], values: dict, ds0, log_starts):
+    """A candidate's starting points: the warm start; where every parameter has a neutral
+    value it can be differentiated at (finite, not fitted in log10), the neutral point
+    (the score test: the current model with the effect off); for log10 parameters, the
+    warm start times each of ``log_starts``."""
+    starts = [{p.name: _start_value(p, values, ds0) for p in params}]
+    if all(
+        p.neutral is not None
+        and math.isfinite(p.neutral)
+        and not p.log
+        and p.lower <= p.neutral <= p.upper
+        for p in cand.parameters
+    ):
+        starts.append({**starts[0], **{p.name: p.neutral for p in cand.parameters}})
+    logs = [p for p in cand.parameters if p.log]
+    for factor in log_starts if logs else ():
+        starts.append(
+            {
+                **starts[0],
+                **{p.name: min(max(starts[0][p.name] * factor, p.lower), p.upper) for p in logs},
+            }
+        )
+    return starts
+
+
+def _simulate_columns(
+    ds: Dataset, specs: Sequence[tuple], base_sim: dict, plant_now: dict, sensor_now: dict, scopes
+) -> dict:
+    """Predictions on ``ds`` of every spec's start and perturbed columns (one batch
+    simulation of the plant columns; a sensor candidate reuses ``base_sim``)."""
+    plant_cols, plant_scopes, sensor_cols, owner = [], [], [], []
+    sensor_parts = []
+    for cand, params, start, _, perturbed in specs:
+        variants = [dict(start)] + [{**start, p.name: v} for p, v in zip(params, perturbed)]
+        for var in variants:
+            if cand.kind == "plant":
+                plant_cols.append({**plant_now, **cand.scoped_set(), **var})
+                plant_scopes.append({**scopes, **cand.scopes()})
+                sensor_cols.append(dict(sensor_now))
+                owner.append(("plant", len(plant_cols) - 1))
+            else:
+                sensor_parts.append({**sensor_now, **var})
+                owner.append(("sensor", len(sensor_parts) - 1))
+    sims = simulate_unique(ds, plant_cols, ds.n_samples, plant_scopes) if plant_cols else {}
+    merged = {}
+    for c in ds.channels:
+        cols = [sims[c][:, j] if kind == "plant" else base_sim[c][:, 0] for kind, j in owner]
+        merged[c] = np.stack(cols, axis=1)
+    sensors = [sensor_cols[j] if kind == "plant" else sensor_parts[j] for kind, j in owner]
+    return apply_sensor_model(merged, sensors, ds.dt_s)
+
+
 def screen_candidates(
     candidates: Sequence[Candidate],
     current: FitResult,
@@ -202,23 +278,8 @@ def screen_candidates(
     ``free`` are the current model's refitted parameters; ``train``/``train_n`` the
     training recordings and samples, ``held``/``held_masks`` the held-out ones.
     """
-    # the screening's model of a moving rod uses a coarser substep (a ranking: the current
-    # model and every candidate see the same model)
-    coarse = config.number("screening", "max_substep_moving_s", positive=True)
-    screen_ds = [
-        replace(
-            ds,
-            substeps=substeps_for(ds.dt_s, coarse)
-            if ds.moving or ds.rod_mode != "fixed"
-            else ds.substeps,
-            substeps_moving=substeps_for(ds.dt_s, coarse),
-        )
-        for ds in datasets
-    ]
     train_n = [train_n[k] for k in range(len(train))]
-    train = [screen_ds[index_of(ds, datasets)] for ds in train]
-    held = [screen_ds[index_of(ds, datasets)] for ds in held]
-    datasets = screen_ds
+    datasets, train, held = _coarse_datasets(datasets, train, held, config)
     # the piston's friction stays at the current fit's values: its free-run derivative is
     # a staircase (stick events), so a linear step in it extrapolates wildly held out
     # (a leak's prediction fell from +93 % on the training rows to -142 % held out)
@@ -237,68 +298,49 @@ def screen_candidates(
     plant_now, sensor_now = problem._split(problem.values(u0))
 
     # per candidate and starting point: the columns to simulate (the start, then one per
-    # parameter); the points are the warm start and, where every parameter has a neutral
-    # value it can be differentiated at (finite, not fitted in log10), the neutral point
-    # (the score test: the current model with the effect off)
+    # parameter)
     log_starts = config.positive_numbers("screening", "log_start_factors")
     specs = []
     for cand in candidates:
         extra = [p for p in cand.refit_base if p.name not in names]
         params = list(cand.parameters) + extra
-        starts = [{p.name: _start_value(p, values, datasets[0]) for p in params}]
-        if all(
-            p.neutral is not None
-            and math.isfinite(p.neutral)
-            and not p.log
-            and p.lower <= p.neutral <= p.upper
-            for p in cand.parameters
-        ):
-            starts.append({**starts[0], **{p.name: p.neutral for p in cand.parameters}})
-        logs = [p for p in cand.parameters if p.log]
-        for factor in log_starts if logs else ():
-            starts.append(
-                {
-                    **starts[0],
-                    **{
-                        p.name: min(max(starts[0][p.name] * factor, p.lower), p.upper) for p in logs
-                    },
-                }
-            )
-        for start in starts:
+        for start in _starts(cand, params, values, datasets[0], log_starts):
             specs.append(_spec(cand, params, start, fd))
-
-    preds = []
-    for ds in datasets:
-        plant_cols, plant_scopes, sensor_cols, owner = [], [], [], []
-        base_sim = problem._plant(u0)[index_of(ds, datasets)]
-        sensor_parts = []
-        for cand, params, start, _, perturbed in specs:
-            variants = [dict(start)] + [{**start, p.name: v} for p, v in zip(params, perturbed)]
-            for var in variants:
-                if cand.kind == "plant":
-                    plant_cols.append({**plant_now, **cand.scoped_set(), **var})
-                    plant_scopes.append({**current.scopes, **cand.scopes()})
-                    sensor_cols.append(dict(sensor_now))
-                    owner.append(("plant", len(plant_cols) - 1))
-                else:
-                    sensor_parts.append({**sensor_now, **var})
-                    owner.append(("sensor", len(sensor_parts) - 1))
-        sims = simulate_unique(ds, plant_cols, ds.n_samples, plant_scopes) if plant_cols else {}
-        merged = {}
-        for c in ds.channels:
-            cols = [sims[c][:, j] if kind == "plant" else base_sim[c][:, 0] for kind, j in owner]
-            merged[c] = np.stack(cols, axis=1)
-        sensors = [sensor_cols[j] if kind == "plant" else sensor_parts[j] for kind, j in owner]
-        preds.append(apply_sensor_model(merged, sensors, ds.dt_s))
+    base_sims = problem._plant(u0)
+    preds = [
+        _simulate_columns(ds, specs, base_sims[k], plant_now, sensor_now, current.scopes)
+        for k, ds in enumerate(datasets)
+    ]
     R = problem._residual_of(preds)
 
     lo, hi = problem.bounds()
     d_base = _gauss_newton(r_base, J_base, is_train, lo, hi, J_base.shape[1])
     base_pred = r_base + J_base @ d_base
-    base_mean, base_per = _heldout_mean(base_pred, held_rows)
-    base_train = float(base_pred[is_train] @ base_pred[is_train])
     # effective sample size of the training rows (the current fit's autocorrelation)
     n_eff = current.n_eff / max(current.n_residuals, 1) * float(is_train.sum())
+    out = _best_screens(specs, R, J_base, base_pred, is_train, held_rows, n_eff)
+    log.info(
+        "screening: %s",
+        ", ".join(
+            f"{s.name} {s.predicted_delta_ic:.0f} ({100 * s.predicted_train:.1f} %)" for s in out
+        ),
+    )
+    return out
+
+
+def _best_screens(
+    specs: Sequence[tuple],
+    R: np.ndarray,
+    J_base: np.ndarray,
+    base_pred: np.ndarray,
+    is_train: np.ndarray,
+    held_rows,
+    n_eff: float,
+) -> list[Screen]:
+    """Each candidate's best starting point's Gauss-Newton step from the simulated columns
+    ``R`` (next to the current model's Jacobian ``J_base``), scored; best first."""
+    base_mean, base_per = _heldout_mean(base_pred, held_rows)
+    base_train = float(base_pred[is_train] @ base_pred[is_train])
     best: dict[str, Screen] = {}
     col = 0
     for cand, params, start, steps, _ in specs:
@@ -330,11 +372,4 @@ def screen_candidates(
         ) + len(cand.parameters) * math.log(max(n_eff, 2.0))
         if cand.name not in best or screen.predicted_delta_ic < best[cand.name].predicted_delta_ic:
             best[cand.name] = screen  # the best of the starting points
-    out = sorted(best.values(), key=lambda s: s.predicted_delta_ic)
-    log.info(
-        "screening: %s",
-        ", ".join(
-            f"{s.name} {s.predicted_delta_ic:.0f} ({100 * s.predicted_train:.1f} %)" for s in out
-        ),
-    )
-    return out
+    return sorted(best.values(), key=lambda s: s.predicted_delta_ic)

@@ -35,9 +35,10 @@ import sys
 import time
 
 from .ceiling import kernel_ceiling, measure_op_costs, vector_loop_instructions
+from .machine import machine_description
 from .measure import measure_scipy, measure_single, measure_sync, measure_vector
 from .plan import SYNC_MAX_N, VECTOR_SIZES, make_plan, median
-from .report import machine_description, report
+from .report import report
 
 
 def _positive_int(name):

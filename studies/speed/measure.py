@@ -96,124 +96,16 @@ def measure_single(plan: Plan, log) -> dict:
 
 def measure_vector(plan: Plan, log) -> dict:
     """Native vector env (gym.make_vec) and the bare kernel at every N and thread count."""
-    import gymnasium as gym
-
-    from pneumatic_env.simulator import PARALLEL_MIN_ENVS, BatchSimulator
-
     env_rows, kernel_rows, regimes, mismatch, pairs = [], [], None, [], []
     regime_n = max(n for n in plan.vector_sizes if n <= SCALING_MIN_N)
     for n in plan.vector_sizes:
-        env = gym.make_vec(ENV_ID, num_envs=n)
-        vector_env = getattr(env, "unwrapped", env)
-        core = vector_env.core
-        env.action_space.seed(0)
-        env.reset(seed=0)
-        for threads in plan.threads:  # warm-up: jitted kernels and thread pool
-            set_threads(threads)
-            env.step(env.action_space.sample())
-        for _ in range(plan.warmup_steps):
-            env.step(env.action_space.sample())
-
-        n_substeps, dt = core.sim.n_substeps, core.sim.control_dt_s
-        configs = [("serial", 1)]
-        if n >= PARALLEL_MIN_ENVS:
-            configs += [("parallel", t) for t in plan.threads if t > 1]
-        sims = {
-            kind: BatchSimulator(
-                np.repeat(core.sim.params[:, :1], n, axis=1),
-                dt,
-                n_substeps,
-                parallel=kind == "parallel",
-            )
-            for kind, _ in configs
-        }
-        for kind, threads in configs:  # warm-up, then the env's warmed state
-            set_threads(threads)
-            sims[kind].step(np.zeros(n))
-            _copy_batch(core.sim, sims[kind])
-        # the env's own kernel must be the BatchSimulator's: a stale Numba cache of a module
-        # that inlines the physics (cache=True does not track other files) breaks this
-        action = env.action_space.sample()
-        env.step(action)
-        sims["serial"].step(np.asarray(action, dtype=np.float64).reshape(n))
-        if not np.array_equal(core.sim.state, sims["serial"].state):
-            mismatch.append(n)
-            log(
-                f"WARNING N={n}: the env's step does not reproduce BatchSimulator.step "
-                "(stale Numba cache? clear the __pycache__ folders of pneumatic_env)"
-            )
-        for sim in sims.values():
-            _copy_batch(core.sim, sim)
-
-        steady = {t: [] for t in plan.threads}
-        autoreset = {t: [] for t in plan.threads}
-        cpu = {t: [] for t in plan.threads}
-        episode_steps = vector_env.max_episode_steps
-        for _ in range(plan.repeats):
-            for window in range(WINDOWS_PER_REPEAT):
-                for threads in plan.threads:
-                    set_threads(threads)
-                    rate, share = with_cpu_share(
-                        threads if core.sim.parallel else 1,
-                        _vector_rate,
-                        env,
-                        plan.vector_s / WINDOWS_PER_REPEAT,
-                        plan.min_steps,
-                    )
-                    steady[threads].append(rate)
-                    cpu[threads].append(share)
-                    if window == WINDOWS_PER_REPEAT - 1:
-                        autoreset[threads].append(
-                            _autoreset_s(env, core, rate, plan.warmup_steps, episode_steps)
-                        )
-        for threads in plan.threads:
-            env_rows.append(
-                {
-                    "n": n,
-                    "threads": threads,
-                    "kernel": ("parallel" if core.sim.parallel and threads > 1 else "serial"),
-                    "rates": [
-                        _amortized_rate(r, median(autoreset[threads]), n, episode_steps)
-                        for r in steady[threads]
-                    ],
-                    "steady_rates": steady[threads],
-                    "autoreset_s": autoreset[threads],
-                    "episode_steps": episode_steps,
-                    "cpu": cpu[threads],
-                    "substeps": n_substeps,
-                    "bytes_per_env": _array_bytes(core, core.sim) / n,
-                }
-            )
-        i_max = core.i_max
+        env, core, sims, configs = _warmed_env_and_kernels(plan, n, mismatch, log)
+        env_rows += _time_vector_env(plan, env, core, n)
+        i_max, n_substeps = core.i_max, core.sim.n_substeps
         env.close()
 
         currents = np.random.default_rng(0).uniform(-i_max, i_max, (16, n))
-        krates = {cfg: [] for cfg in configs}
-        kcpu = {cfg: [] for cfg in configs}
-        for _ in range(plan.repeats * WINDOWS_PER_REPEAT):
-            for kind, threads in configs:
-                set_threads(threads)
-                rate, share = with_cpu_share(
-                    threads,
-                    kernel_rate,
-                    sims[kind],
-                    currents,
-                    plan.vector_s / WINDOWS_PER_REPEAT,
-                    plan.min_steps,
-                )
-                krates[(kind, threads)].append(rate)
-                kcpu[(kind, threads)].append(share)
-        for cfg in configs:
-            kernel_rows.append(
-                {
-                    "n": n,
-                    "kernel": cfg[0],
-                    "threads": cfg[1],
-                    "rates": krates[cfg],
-                    "cpu": kcpu[cfg],
-                    "substeps": n_substeps,
-                }
-            )
+        kernel_rows += _time_kernels(plan, sims, configs, currents, n, n_substeps)
         if n == regime_n:
             set_threads(1)
             pairs = [
@@ -240,6 +132,131 @@ def measure_vector(plan: Plan, log) -> dict:
         "mismatch": mismatch,
         "ceiling_pairs": pairs,
     }
+
+
+def _warmed_env_and_kernels(plan: Plan, n: int, mismatch: list, log):
+    """(vector env, its core, {kind: BatchSimulator}, [(kind, threads)]) of ``n`` envs,
+    warmed up and in the env's state; ``n`` joins ``mismatch`` when the env's step does
+    not reproduce the serial kernel's bit for bit."""
+    import gymnasium as gym
+
+    from pneumatic_env.simulator import PARALLEL_MIN_ENVS, BatchSimulator
+
+    env = gym.make_vec(ENV_ID, num_envs=n)
+    core = getattr(env, "unwrapped", env).core
+    env.action_space.seed(0)
+    env.reset(seed=0)
+    for threads in plan.threads:  # warm-up: jitted kernels and thread pool
+        set_threads(threads)
+        env.step(env.action_space.sample())
+    for _ in range(plan.warmup_steps):
+        env.step(env.action_space.sample())
+
+    n_substeps, dt = core.sim.n_substeps, core.sim.control_dt_s
+    configs = [("serial", 1)]
+    if n >= PARALLEL_MIN_ENVS:
+        configs += [("parallel", t) for t in plan.threads if t > 1]
+    sims = {
+        kind: BatchSimulator(
+            np.repeat(core.sim.params[:, :1], n, axis=1),
+            dt,
+            n_substeps,
+            parallel=kind == "parallel",
+        )
+        for kind, _ in configs
+    }
+    for kind, threads in configs:  # warm-up, then the env's warmed state
+        set_threads(threads)
+        sims[kind].step(np.zeros(n))
+        _copy_batch(core.sim, sims[kind])
+    # the env's own kernel must be the BatchSimulator's: a stale Numba cache of a module
+    # that inlines the physics (cache=True does not track other files) breaks this
+    action = env.action_space.sample()
+    env.step(action)
+    sims["serial"].step(np.asarray(action, dtype=np.float64).reshape(n))
+    if not np.array_equal(core.sim.state, sims["serial"].state):
+        mismatch.append(n)
+        log(
+            f"WARNING N={n}: the env's step does not reproduce BatchSimulator.step "
+            "(stale Numba cache? clear the __pycache__ folders of pneumatic_env)"
+        )
+    for sim in sims.values():
+        _copy_batch(core.sim, sim)
+    return env, core, sims, configs
+
+
+def _time_vector_env(plan: Plan, env, core, n: int) -> list[dict]:
+    """One row per thread count: the vector env's rates between autoresets, its
+    autoreset time and the rates over whole episodes (timing windows interleaved)."""
+    steady: dict[int, list] = {t: [] for t in plan.threads}
+    autoreset: dict[int, list] = {t: [] for t in plan.threads}
+    cpu: dict[int, list] = {t: [] for t in plan.threads}
+    episode_steps = getattr(env, "unwrapped", env).max_episode_steps
+    for _ in range(plan.repeats):
+        for window in range(WINDOWS_PER_REPEAT):
+            for threads in plan.threads:
+                set_threads(threads)
+                rate, share = with_cpu_share(
+                    threads if core.sim.parallel else 1,
+                    _vector_rate,
+                    env,
+                    plan.vector_s / WINDOWS_PER_REPEAT,
+                    plan.min_steps,
+                )
+                steady[threads].append(rate)
+                cpu[threads].append(share)
+                if window == WINDOWS_PER_REPEAT - 1:
+                    autoreset[threads].append(
+                        _autoreset_s(env, core, rate, plan.warmup_steps, episode_steps)
+                    )
+    return [
+        {
+            "n": n,
+            "threads": threads,
+            "kernel": ("parallel" if core.sim.parallel and threads > 1 else "serial"),
+            "rates": [
+                _amortized_rate(r, median(autoreset[threads]), n, episode_steps)
+                for r in steady[threads]
+            ],
+            "steady_rates": steady[threads],
+            "autoreset_s": autoreset[threads],
+            "episode_steps": episode_steps,
+            "cpu": cpu[threads],
+            "substeps": core.sim.n_substeps,
+            "bytes_per_env": _array_bytes(core, core.sim) / n,
+        }
+        for threads in plan.threads
+    ]
+
+
+def _time_kernels(plan: Plan, sims: dict, configs: list, currents, n: int, n_substeps: int):
+    """One row per (kernel, threads): the bare kernel's rates (windows interleaved)."""
+    krates: dict[tuple, list] = {cfg: [] for cfg in configs}
+    kcpu: dict[tuple, list] = {cfg: [] for cfg in configs}
+    for _ in range(plan.repeats * WINDOWS_PER_REPEAT):
+        for kind, threads in configs:
+            set_threads(threads)
+            rate, share = with_cpu_share(
+                threads,
+                kernel_rate,
+                sims[kind],
+                currents,
+                plan.vector_s / WINDOWS_PER_REPEAT,
+                plan.min_steps,
+            )
+            krates[(kind, threads)].append(rate)
+            kcpu[(kind, threads)].append(share)
+    return [
+        {
+            "n": n,
+            "kernel": cfg[0],
+            "threads": cfg[1],
+            "rates": krates[cfg],
+            "cpu": kcpu[cfg],
+            "substeps": n_substeps,
+        }
+        for cfg in configs
+    ]
 
 
 def _copy_batch(source, target) -> None:
@@ -279,7 +296,6 @@ def measure_scipy(plan: Plan, log) -> dict:
     from pneumatic_env.replay import simulate_currents
     from pneumatic_env.simulator import BatchSimulator
 
-    from ..convergence import _scales, errors
     from ..paper import clamped_step_scenario
 
     numerics = load_numerics()
@@ -313,6 +329,15 @@ def measure_scipy(plan: Plan, log) -> dict:
         )
         log(result["message"])
         return result
+    return _compare_scipy(plan, log, result, simulate_reference, params, currents, dt, ours)
+
+
+def _compare_scipy(plan: Plan, log, result: dict, simulate_reference, params, currents, dt, ours):
+    """``result`` with the SciPy reference solution's rates and errors at each tolerance
+    and the loosest one that meets the accuracy target (``chosen``), or a ``message``."""
+    from ..convergence import _scales, errors
+
+    simulated_s = result["simulated_s"]
 
     def run(rtol):
         t0 = time.perf_counter()
@@ -350,7 +375,7 @@ def measure_scipy(plan: Plan, log) -> dict:
         return result
     log(
         f"SciPy: {median(result['chosen']['rates']):.3g} simulated s per wall s at rtol "
-        f"{result['chosen']['rtol']:g}; ours {median(ours_rates):.3g}"
+        f"{result['chosen']['rtol']:g}; ours {median(result['ours_rates']):.3g}"
     )
     return result
 

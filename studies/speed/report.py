@@ -4,12 +4,7 @@ and the tables of every measurement, as Markdown."""
 from __future__ import annotations
 
 import math
-import os
-import platform
-import subprocess
 import time
-
-import numpy as np
 
 from pneumatic_env.text_format import number_text
 
@@ -47,35 +42,27 @@ def _table(headers, rows) -> list[str]:
     return lines
 
 
-def machine_description() -> dict:
-    import gymnasium
-    import numba
-    import scipy
-
-    model = platform.processor() or platform.machine()
-    try:
-        text = subprocess.run(["lscpu"], capture_output=True, text=True, timeout=10).stdout
-        for line in text.splitlines():
-            if line.startswith("Model name:"):
-                model = line.split(":", 1)[1].strip()
-    except (OSError, subprocess.SubprocessError):
-        pass
-    return {
-        "cpu": model,
-        "cores": os.cpu_count(),
-        "numba_threads": numba.config.NUMBA_NUM_THREADS,
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "numba": numba.__version__,
-        "gymnasium": gymnasium.__version__,
-        "scipy": scipy.__version__,
-        "os": platform.platform(),
-    }
-
-
 def _paired_ratio(numerators, denominators) -> float:
     """Median of the ratios of windows measured one after the other (same index)."""
     return median([a / b for a, b in zip(numerators, denominators)])
+
+
+def _ratio_row(name, value, target, bigger_is_better=True, unit="x") -> tuple:
+    """(quantity, value, target text, met) of one ratio against its target."""
+    if value is None or not math.isfinite(value):
+        return (
+            name,
+            "n/a",
+            target and f"{'>=' if bigger_is_better else '<='} {_fmt(target)}{unit}",
+            "n/a",
+        )
+    met = (
+        "n/a"
+        if target is None
+        else ("yes" if (value >= target if bigger_is_better else value <= target) else "no")
+    )
+    tgt = "-" if target is None else f"{'>=' if bigger_is_better else '<='} {_fmt(target)}{unit}"
+    return (name, f"{_fmt(value)}{unit}", tgt, met)
 
 
 def _ratio_rows(res: dict, plan: Plan) -> list[tuple]:
@@ -84,32 +71,11 @@ def _ratio_rows(res: dict, plan: Plan) -> list[tuple]:
     pend = median(res["single"]["rates"][YARDSTICK_ID])
     single = median(res["single"]["rates"][ENV_ID])
 
-    def row(name, value, target, bigger_is_better=True, unit="x"):
-        if value is None or not math.isfinite(value):
-            rows.append(
-                (
-                    name,
-                    "n/a",
-                    target and f"{'>=' if bigger_is_better else '<='} {_fmt(target)}{unit}",
-                    "n/a",
-                )
-            )
-            return
-        met = (
-            "n/a"
-            if target is None
-            else ("yes" if (value >= target if bigger_is_better else value <= target) else "no")
-        )
-        tgt = (
-            "-" if target is None else f"{'>=' if bigger_is_better else '<='} {_fmt(target)}{unit}"
-        )
-        rows.append((name, f"{_fmt(value)}{unit}", tgt, met))
+    def row(*args, **kw):
+        rows.append(_ratio_row(*args, **kw))
 
     row("single env / Pendulum", single / pend, TARGET_SINGLE_OVER_PENDULUM)
     env = {(r["n"], r["threads"]): median(r["rates"]) for r in res["vector"]["env"]}
-    kern = {
-        (r["n"], r["kernel"], r["threads"]): median(r["rates"]) for r in res["vector"]["kernel"]
-    }
     sync = {r["n"]: median(r["rates"]) for r in res["sync"]["rows"]}
     big = [n for n in plan.vector_sizes if n >= SCALING_MIN_N] or [max(plan.vector_sizes)]
     many = plan.threads[-1]
@@ -156,22 +122,35 @@ def _ratio_rows(res: dict, plan: Plan) -> list[tuple]:
             TARGET_MEASURED_OVER_CEILING,
             False,
         )
+    return rows + _thread_scaling_rows(res, big, many)
+
+
+def _thread_scaling_rows(res: dict, big: list[int], many: int) -> list[tuple]:
+    """The ratio rows of ``many`` threads over one, vector env and kernel, at each N of
+    ``big`` (paired windows)."""
+    rows = []
     env_windows = {(r["n"], r["threads"]): r["rates"] for r in res["vector"]["env"]}
     kern_windows = {
         (r["n"], r["kernel"], r["threads"]): r["rates"] for r in res["vector"]["kernel"]
     }
     for n in big:
-        if many > 1 and (n, many) in env:
-            row(
-                f"vector env N={n}, {many} threads / 1 thread",
-                _paired_ratio(env_windows[(n, many)], env_windows[(n, 1)]),
-                TARGET_THREAD_SCALING,
+        if many > 1 and (n, many) in env_windows:
+            rows.append(
+                _ratio_row(
+                    f"vector env N={n}, {many} threads / 1 thread",
+                    _paired_ratio(env_windows[(n, many)], env_windows[(n, 1)]),
+                    TARGET_THREAD_SCALING,
+                )
             )
-        if (n, "parallel", many) in kern and many > 1:
-            row(
-                f"kernel N={n}, {many} threads / serial 1 thread",
-                _paired_ratio(kern_windows[(n, "parallel", many)], kern_windows[(n, "serial", 1)]),
-                TARGET_THREAD_SCALING,
+        if (n, "parallel", many) in kern_windows and many > 1:
+            rows.append(
+                _ratio_row(
+                    f"kernel N={n}, {many} threads / serial 1 thread",
+                    _paired_ratio(
+                        kern_windows[(n, "parallel", many)], kern_windows[(n, "serial", 1)]
+                    ),
+                    TARGET_THREAD_SCALING,
+                )
             )
     return rows
 
@@ -180,10 +159,19 @@ RATIO_HEADERS = ("ratio", "value", "target", "met")
 
 
 def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -> str:
+    """The Markdown report of the measurements ``res``."""
+    lines = _head_lines(res, plan, command, machine, started)
+    lines += _table(RATIO_HEADERS, _ratio_rows(res, plan))
+    lines += _single_lines(res) + _vector_lines(res) + _sync_lines(res)
+    lines += _scipy_lines(res, plan) + _ceiling_lines(res, plan) + _method_lines(plan)
+    return "\n".join(lines) + "\n"
+
+
+def _head_lines(res: dict, plan: Plan, command: str, machine: dict, started: float) -> list:
+    """The title, the machine, the numerics and whether the env's kernel is current."""
     from pneumatic_env.params import load_numerics
 
     numerics = load_numerics()
-    pend = median(res["single"]["rates"][YARDSTICK_ID])
     lines = [
         "# Speed",
         "",
@@ -224,8 +212,13 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
         "## Ratios",
         "",
     ]
-    lines += _table(RATIO_HEADERS, _ratio_rows(res, plan))
-    lines += [
+    return lines
+
+
+def _single_lines(res: dict) -> list[str]:
+    """The single envs' table."""
+    pend = median(res["single"]["rates"][YARDSTICK_ID])
+    lines = [
         "",
         "## Single environments (gym.make, `gymnasium.utils.performance.benchmark_step`)",
         "",
@@ -244,8 +237,12 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
             )
         )
     lines += _table(("env", "steps/s (median)", "min", "max", "/ Pendulum", "CPU busy"), rows)
+    return lines
 
-    lines += [
+
+def _vector_lines(res: dict) -> list[str]:
+    """The native vector env's and the bare kernel's table."""
+    lines = [
         "",
         "## Native vector env (gym.make_vec) and the bare kernel (BatchSimulator.step)",
         "",
@@ -308,8 +305,12 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
         ),
         rows,
     )
+    return lines
 
-    lines += [
+
+def _sync_lines(res: dict) -> list[str]:
+    """SyncVectorEnv against the native vector env."""
+    lines = [
         "",
         '## SyncVectorEnv (gym.make_vec(..., vectorization_mode="sync"), `benchmark_vector_step`)',
         "",
@@ -328,9 +329,13 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
     lines += _table(
         ("N", "Sync env-steps/s", "native, 1 thread", "native / Sync", "CPU busy (Sync)"), rows
     )
+    return lines
 
+
+def _scipy_lines(res: dict, plan: Plan) -> list[str]:
+    """Our kernel against the SciPy reference solution."""
     s = res["scipy"]
-    lines += [
+    lines = [
         "",
         f"## SciPy reference: {s['scenario']}, {s['simulated_s'] * 1e3:g} ms simulated",
         "",
@@ -381,7 +386,12 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
             f"Ours ({s['substeps']} RK4 substeps, kernel, 1 env): "
             f"{_fmt(median(s['ours_rates']))} simulated s per wall s.",
         ]
+    return lines
 
+
+def _ceiling_lines(res: dict, plan: Plan) -> list[str]:
+    """The kernel's ceiling: operation costs, the measured over the ceiling, the gap."""
+    lines: list[str] = []
     c = res.get("ceiling")
     if c:
         how = (
@@ -448,7 +458,12 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
             f"Parts per substep (`kernel.refinement`, sampled): {c['parts']:.2f}; "
             f"substeps the general path redid: {c['redone']:.1%}.",
         ]
-    lines += [
+    return lines
+
+
+def _method_lines(plan: Plan) -> list[str]:
+    """How each quantity is measured."""
+    return [
         "",
         "## How it is measured",
         "",
@@ -482,4 +497,3 @@ def report(res: dict, plan: Plan, command: str, machine: dict, started: float) -
         "from reset (the kernel copies the env's warmed state), past the tube delay and "
         "the first pressure rise; single envs run whole episodes.",
     ]
-    return "\n".join(lines) + "\n"
