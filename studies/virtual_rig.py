@@ -186,6 +186,8 @@ def run_rig(
     spring_rest_position_m: float = 0.0,
     own_forms: bool = True,
     config: IdentificationConfig | None = None,
+    spring_stiffness_n_per_m: float | None = None,
+    load_mass_kg: float | None = None,
 ) -> RigResult:
     """Simulate the virtual rig; returns the recording's samples, sidecar and truth.
 
@@ -198,6 +200,8 @@ def run_rig(
     and expands one chamber below ambient (a physical sub-ambient pressure).
     ``own_forms``: the effects of :data:`.rig_forms.OWN_FORM_EFFECTS` in the rig's own form
     (default); False puts the kernel's parameter (the candidate's form) in the plant.
+    ``spring_stiffness_n_per_m``, ``load_mass_kg`` (a moving rod): the experiment's own
+    spring and load instead of the config's (``virtual_rig.spring_*``; free: no load).
     """
     cfg = config or load_config()
     if effect not in RIG_EFFECTS:
@@ -244,12 +248,16 @@ def run_rig(
         overrides.update(load_mass_kg=0.0, load_force_n=0.0)
     else:
         k_env = cfg.number("virtual_rig", "spring_stiffness_n_per_m", positive=True)
+        if spring_stiffness_n_per_m is not None:  # the experiment's own spring
+            k_env = float(spring_stiffness_n_per_m)
         m_env = cfg.number("virtual_rig", "spring_load_mass_kg", minimum=0.0)
         rest = float(spring_rest_position_m)
         piston_rig.update(stiffness_n_per_m=k_env, rest_position_m=rest, load_mass_kg=m_env)
         overrides.update(
             spring_stiffness_n_per_m=k_env, spring_rest_position_m=rest, load_mass_kg=m_env
         )
+    if load_mass_kg is not None and piston != "fixed":  # the experiment's own load
+        piston_rig["load_mass_kg"] = overrides["load_mass_kg"] = float(load_mass_kg)
     nominal = load_parameters(cylinder, **overrides)
     true = _perturbed(cylinder, nominal, rng, cfg) if perturb else dict(nominal)
     if experiment is not None:
