@@ -163,7 +163,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--campaign", action="append", metavar="DIR", help="time these recordings instead"
     )
-    parser.add_argument("--candidate", default="tube_waves", help="the candidate to time")
+    parser.add_argument(
+        "--candidate", default="tube_waves", help="the candidate to time ('none': no candidate)"
+    )
     parser.add_argument("--repeats", type=int, default=3, help="runs per figure (median)")
     args = parser.parse_args(argv)
     if args.repeats < 1:
@@ -184,7 +186,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print("| Jacobian | columns | M substeps | s (median) | kernel s (both cores) | ratio |")
     print("|---|---|---|---|---|---|")
     for folder in folders:
-        for cand in (None, args.candidate):
+        for cand in (None, args.candidate) if args.candidate != "none" else (None,):
             timing = jacobian_timing(_problem(folder, cand), args.repeats)
             name = f"{folder.name}: {cand or 'base'}"
             print("\n".join(_table(name, timing, both)), flush=True)
