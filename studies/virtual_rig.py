@@ -409,6 +409,8 @@ def run_rig(
         ),
         "parameters": {k: float(v) for k, v in truth_parameters.items()},
     }
+    if isinstance(excitation_kind, tuple):  # a UserExcitation: its settings by name
+        truth["excitation"] = excitation_kind._asdict()
     return RigResult(t=t, channels=channels, rig=rig, truth=truth)
 
 
