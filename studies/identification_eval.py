@@ -439,7 +439,7 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         metavar="NAME",
         help="evaluate campaigns of experiments per rig (studies/rig_campaign.py: "
-        "standard, clamped, small) instead of single recordings",
+        "standard, clamped, small, user13) instead of single recordings",
     )
     p.add_argument(
         "--ray-address",

@@ -24,24 +24,28 @@ from typing import NamedTuple
 
 from pneumatic_env.recording import PISTON_MODES
 
-from .rig_excitation import EXCITATIONS
+from .rig_excitation import EXCITATIONS, UserExcitation
 from .virtual_rig import MOVING_EFFECTS, RIG_EFFECTS, make_recording
 
 __all__ = ["CAMPAIGNS", "Experiment", "make_campaign", "add_arguments", "run"]
 
 
 class Experiment(NamedTuple):
-    """One experiment of a campaign: a name, the rod's mode, the excitation, its length."""
+    """One experiment of a campaign: a name, the rod's mode, the excitation, its length,
+    and optionally its own load (``run_rig`` keywords: spring stiffness, load mass)."""
 
     name: str
     piston: str
-    excitation: str
+    excitation: str | UserExcitation
     duration_s: float
+    load: tuple[tuple[str, float], ...] = ()
 
 
 #: Campaigns by name. ``standard``: five experiments, 13 s in all (three clamped, one
 #: spring, one free), the campaign of issue 20; ``clamped``: its three clamped ones;
 #: ``small``: three short experiments (clamped steps, clamped multisine, spring) for tests.
+#: ``user13``: five experiments, 13 s, recorded as a user might (issue 34): their own
+#: signals, a softer spring with 0.2 kg, a free rod with 0.5 kg.
 #: The free rod is driven by a multisine that keeps it off its end stops, as a user would:
 #: a rod held at an end stop costs the kernel 10-30x more time per second of data (its
 #: stiffness refinement near the stop; 2.8 s per simulated column for a 2.6 s triangle).
@@ -62,6 +66,29 @@ CAMPAIGNS: dict[str, tuple[Experiment, ...]] = {
         Experiment("e1_clamped_steps", "fixed", "steps", 1.0),
         Experiment("e2_clamped_msine", "fixed", "multisine", 1.0),
         Experiment("e3_spring_msine", "spring", "multisine", 1.0),
+    ),
+    # issue 34: as a user records, 13 s: clamped random steps, multisine and pulses, a
+    # multisine against a soft spring, a slow sine on a free loaded rod
+    "user13": (
+        Experiment("e1_clamped_steps", "fixed", UserExcitation("random_steps", 1.0, 0.3), 3.0),
+        Experiment(
+            "e2_clamped_msine", "fixed", UserExcitation("multisine", 0.8, band_hz=(0.5, 30.0)), 2.0
+        ),
+        Experiment("e3_clamped_pulses", "fixed", UserExcitation("pulses", 0.5, 0.03, 0.5), 3.0),
+        Experiment(
+            "e4_spring_msine",
+            "spring",
+            UserExcitation("multisine", 0.6, band_hz=(0.5, 20.0)),
+            2.0,
+            (("spring_stiffness_n_per_m", 3000.0), ("load_mass_kg", 0.2)),
+        ),
+        Experiment(
+            "e5_free_sine",
+            "free",
+            UserExcitation("sine", 0.3, period_s=1.0),
+            3.0,
+            (("load_mass_kg", 0.5),),
+        ),
     ),
 }
 _CLAMPED_ONLY = ("load_cell_compliance",)
@@ -111,6 +138,7 @@ def make_campaign(
                 duration_s=ex.duration_s,
                 piston=ex.piston,
                 excitation_kind=ex.excitation,
+                **dict(ex.load),
                 **rig,
             )
         )

@@ -8,13 +8,14 @@ the ``identification`` layout of ``virtual_rig.excitation.block_layout`` in
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from pneumatic_env.identification.config import IdentificationConfig, load_config
 from pneumatic_env.references import ChirpReference, MultisineReference
 
-__all__ = ["EXCITATIONS", "excitation"]
+__all__ = ["EXCITATIONS", "USER_SIGNALS", "UserExcitation", "excitation"]
 
 EXCITATIONS = ("identification", "steps", "prbs", "multisine", "chirp", "triangle")
 _SEGMENTS = ("rest", "step_pos", "step_neg", "prbs", "multisine", "chirp", "triangle")
@@ -56,8 +57,50 @@ def _segment(
     raise ValueError(f"excitation segment {kind!r} is not known; allowed: {', '.join(_SEGMENTS)}")
 
 
+#: Signal kinds of a :class:`UserExcitation`.
+USER_SIGNALS = ("random_steps", "multisine", "pulses", "sine")
+
+
+class UserExcitation(NamedTuple):
+    """An experiment's own signal, set by the user rather than the config's excitation.
+
+    ``random_steps``: levels drawn uniformly in +-``amplitude_a``, each held ``hold_s``;
+    ``multisine``: random phases on the FFT grid of the segment within ``band_hz``, peak
+    ``amplitude_a``; ``pulses``: ``amplitude_a`` for ``hold_s`` at the start of every
+    ``period_s``, 0 otherwise; ``sine``: ``amplitude_a sin(2 pi t / period_s)``.
+    """
+
+    signal: str
+    amplitude_a: float
+    hold_s: float = 0.0
+    period_s: float = 0.0
+    band_hz: tuple[float, float] = (0.0, 0.0)
+
+
+def _user_signal(spec: UserExcitation, n: int, dt: float, rng: np.random.Generator) -> np.ndarray:
+    t = dt * np.arange(n)
+    a = float(spec.amplitude_a)
+    if spec.signal == "random_steps":
+        hold = max(1, int(round(spec.hold_s / dt)))
+        return np.repeat(rng.uniform(-a, a, size=n // hold + 1), hold)[:n]
+    if spec.signal == "multisine":
+        period = n * dt
+        f_lo, f_hi = spec.band_hz
+        k = np.arange(max(1, math.ceil(f_lo * period)), max(2, math.floor(f_hi * period)) + 1)
+        return MultisineReference(amplitude=a, frequencies_hz=tuple(k / period)).generate(
+            n, dt, rng
+        )
+    if spec.signal == "pulses":
+        return np.where(np.mod(t, spec.period_s) < spec.hold_s - 0.5 * dt, a, 0.0)
+    if spec.signal == "sine":
+        return a * np.sin(2.0 * math.pi * t / spec.period_s)
+    raise ValueError(
+        f"user signal {spec.signal!r} is not known; allowed: {', '.join(USER_SIGNALS)}"
+    )
+
+
 def excitation(
-    kind: str,
+    kind: str | UserExcitation,
     n_samples: int,
     dt_s: float,
     rng: np.random.Generator,
@@ -69,8 +112,10 @@ def excitation(
     periods, steps of both signs, PRBS, multisine, chirp, slow triangle) sized
     ``train_fraction`` and the rest of the recording, so a time split holds out the same
     kinds of segment. The other kinds are one segment type over the whole recording
-    (``steps`` alternates +/- steps with rests).
+    (``steps`` alternates +/- steps with rests). A :class:`UserExcitation` is its own signal.
     """
+    if isinstance(kind, UserExcitation):
+        return _user_signal(kind, n_samples, dt_s, rng)
     cfg = config or load_config()
     if kind not in EXCITATIONS:
         raise ValueError(f"excitation {kind!r} is not known; allowed: {', '.join(EXCITATIONS)}")

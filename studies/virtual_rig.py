@@ -83,7 +83,7 @@ from pneumatic_env.physics import layout as L
 from pneumatic_env.recording import PISTON_MODES, canonical_cylinder, write_recording
 from pneumatic_env.simulator import BatchSimulator
 
-from .rig_excitation import excitation
+from .rig_excitation import UserExcitation, excitation
 from .rig_forms import OWN_FORM_EFFECTS, own_form
 from .rig_plants import _coil_plant, _plant_form, _stick_slip_play, _two_lags
 from .segmented_line import line_constants, segmented_line_rollout
@@ -179,12 +179,14 @@ def run_rig(
     cylinder: str = "numatics",
     tube_length_m: float = 0.5,
     piston: str = "fixed",
-    excitation_kind: str = "identification",
+    excitation_kind: str | UserExcitation = "identification",
     perturb: bool = True,
     experiment: int | None = None,
     spring_rest_position_m: float = 0.0,
     own_forms: bool = True,
     config: IdentificationConfig | None = None,
+    spring_stiffness_n_per_m: float | None = None,
+    load_mass_kg: float | None = None,
 ) -> RigResult:
     """Simulate the virtual rig; returns the recording's samples, sidecar and truth.
 
@@ -197,6 +199,8 @@ def run_rig(
     and expands one chamber below ambient (a physical sub-ambient pressure).
     ``own_forms``: the effects of :data:`.rig_forms.OWN_FORM_EFFECTS` in the rig's own form
     (default); False puts the kernel's parameter (the candidate's form) in the plant.
+    ``spring_stiffness_n_per_m``, ``load_mass_kg`` (a moving rod): the experiment's own
+    spring and load instead of the config's (``virtual_rig.spring_*``; free: no load).
 
     Stages: the rig (piston, perturbed parameters), the effect on its parameters, the
     excitation and the coil drive, the plant, the sensors (:func:`_sensor_channels`).
@@ -206,7 +210,15 @@ def run_rig(
     rng = np.random.default_rng(seed)
     grid = _sample_grid(cfg, duration_s)
     cylinder = canonical_cylinder(cylinder)
-    piston_rig, nominal = _nominal_rig(cylinder, tube_length_m, piston, spring_rest_position_m, cfg)
+    piston_rig, nominal = _nominal_rig(
+        cylinder,
+        tube_length_m,
+        piston,
+        spring_rest_position_m,
+        cfg,
+        spring_stiffness_n_per_m,
+        load_mass_kg,
+    )
     true = _perturbed(cylinder, nominal, rng, cfg) if perturb else dict(nominal)
     if experiment is not None:
         rng = np.random.default_rng([int(seed), int(experiment)])
@@ -243,6 +255,8 @@ def run_rig(
         "plant": plant,
         "parameters": {k: float(v) for k, v in truth_parameters.items()},
     }
+    if isinstance(excitation_kind, tuple):  # a UserExcitation: its settings by name
+        truth["excitation"] = excitation_kind._asdict()
     return RigResult(t=t, channels=channels, rig=rig, truth=truth)
 
 
@@ -301,8 +315,11 @@ def _nominal_rig(
     piston: str,
     spring_rest_position_m: float,
     cfg: IdentificationConfig,
+    spring_stiffness_n_per_m: float | None = None,
+    load_mass_kg: float | None = None,
 ) -> tuple[dict, dict]:
-    """(the sidecar's piston entry, the nominal parameters) of the rig's piston mode."""
+    """(the sidecar's piston entry, the nominal parameters) of the rig's piston mode, with
+    the experiment's own spring and load where given."""
     piston_rig: dict = {"mode": piston}
     overrides: dict = {"tube_length_m": tube_length_m, "piston_mode": PISTON_MODES[piston][0]}
     if piston == "fixed":
@@ -313,12 +330,16 @@ def _nominal_rig(
         overrides.update(load_mass_kg=0.0, load_force_n=0.0)
     else:
         k_env = cfg.number("virtual_rig", "spring_stiffness_n_per_m", positive=True)
+        if spring_stiffness_n_per_m is not None:  # the experiment's own spring
+            k_env = float(spring_stiffness_n_per_m)
         m_env = cfg.number("virtual_rig", "spring_load_mass_kg", minimum=0.0)
         rest = float(spring_rest_position_m)
         piston_rig.update(stiffness_n_per_m=k_env, rest_position_m=rest, load_mass_kg=m_env)
         overrides.update(
             spring_stiffness_n_per_m=k_env, spring_rest_position_m=rest, load_mass_kg=m_env
         )
+    if load_mass_kg is not None and piston != "fixed":  # the experiment's own load
+        piston_rig["load_mass_kg"] = overrides["load_mass_kg"] = float(load_mass_kg)
     return piston_rig, load_parameters(cylinder, **overrides)
 
 

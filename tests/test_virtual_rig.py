@@ -451,3 +451,49 @@ def test_a_tube_volume_state_conserves_the_air():
     isothermal = form.tube_kg[0] * gas_rt / form.tube_volume
     assert abs(form.tube_pa[0] - isothermal) < 1e-3 * warm
     assert state[L.S_P1, 0] == pytest.approx(form.tube_pa[0], rel=1e-6)
+
+
+def test_user_signals_are_the_experiments_a_user_records():
+    from pneumatic_env.studies.rig_excitation import UserExcitation
+
+    dt, rng = 1e-3, np.random.default_rng(0)
+    steps = excitation(UserExcitation("random_steps", 1.0, 0.3), 3001, dt, rng)
+    levels = steps[::300][:10]
+    assert np.all(np.abs(steps) <= 1.0) and np.unique(levels).size == 10
+    assert np.all(steps[:300] == steps[0]) and steps[300] != steps[0]  # held 0.3 s
+    pulses = excitation(UserExcitation("pulses", 0.5, 0.03, 0.5), 3001, dt, rng)
+    assert set(np.unique(pulses)) == {0.0, 0.5}
+    assert np.count_nonzero(pulses[:500]) == 30 and np.count_nonzero(pulses[:3000]) == 180
+    sine = excitation(UserExcitation("sine", 0.3, period_s=1.0), 3001, dt, rng)
+    assert sine[250] == pytest.approx(0.3) and sine[750] == pytest.approx(-0.3)
+    spec = UserExcitation("multisine", 0.8, band_hz=(0.5, 30.0))
+    msine = excitation(spec, 2000, dt, rng)
+    power = np.abs(np.fft.rfft(msine)) ** 2
+    freqs = np.fft.rfftfreq(2000, dt)
+    assert np.max(np.abs(msine)) == pytest.approx(0.8)
+    assert power[(freqs >= 0.5) & (freqs <= 30.0)].sum() > 0.999 * power.sum()
+    with pytest.raises(ValueError, match="user signal 'chirp' is not known"):
+        excitation(UserExcitation("chirp", 1.0), 10, dt, rng)
+
+
+def test_user13_campaign_sets_each_experiments_own_load():
+    from pneumatic_env.studies.rig_campaign import CAMPAIGNS
+
+    campaign = CAMPAIGNS["user13"]
+    assert sum(e.duration_s for e in campaign) == pytest.approx(13.0)
+    assert [e.piston for e in campaign] == ["fixed", "fixed", "fixed", "spring", "free"]
+    spring, free = dict(campaign[3].load), dict(campaign[4].load)
+    assert spring == {"spring_stiffness_n_per_m": 3000.0, "load_mass_kg": 0.2}
+    result = run_rig(piston="free", duration_s=0.01, experiment=5, **dict(campaign[4].load))
+    assert result.rig["piston"]["load_mass_kg"] == free["load_mass_kg"] == 0.5
+    assert result.truth["parameters"]["load_mass_kg"] == 0.5
+    result = run_rig(
+        piston="spring",
+        duration_s=0.01,
+        experiment=4,
+        excitation_kind=campaign[3].excitation,
+        **spring,
+    )
+    assert result.rig["piston"]["stiffness_n_per_m"] == 3000.0
+    assert result.truth["parameters"]["spring_stiffness_n_per_m"] == 3000.0
+    assert result.truth["excitation"]["signal"] == "multisine"
