@@ -380,9 +380,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     spec = load_space(args.space)
-    from .ppo_setup import load_config
+    from .ppo_config import load_config
 
-    env_id = args.env or load_config(agent_config_path(spec["base_config"]))["env"]
+    env_id = args.env or load_config(agent_config_path(spec["base_config"])).env
     trials = int(args.trials if args.trials is not None else spec["budget"]["trials"])
     minutes = float(args.minutes_per_trial or spec["budget"]["minutes_per_trial"])
     steps = args.steps_per_trial or spec["budget"].get("steps_per_trial")
