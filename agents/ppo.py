@@ -40,10 +40,10 @@ from .config import agent_config_path
 from .generalist import MixtureVectorEnv
 from .learned import FORMAT, validate_actor
 from .policy import _layers
-from .ppo_config import PPOFastConfig
+from .ppo_config import PPOFastConfig, load_config
 from .ppo_networks import Agent, RunningMeanStd
 from .ppo_rollout import RolloutBuffer, Rollouts, advantages, imitation_loss, ppo_update
-from .ppo_setup import load_config, make_training_env, references, select_columns
+from .ppo_setup import make_training_env, references, select_columns
 from .residual import RESIDUAL_COLUMNS, env_variant
 
 __all__ = [

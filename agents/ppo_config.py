@@ -11,6 +11,7 @@ units and sources stays in :attr:`PPOFastConfig.tree` (``to_tree``, ``unit``).
 from __future__ import annotations
 
 import copy
+import numbers
 from collections.abc import Mapping
 from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
@@ -58,12 +59,12 @@ def _convert(value: Any, kind: str, where: str) -> Any:
             raise ConfigError(f"{where} = {value!r} is not allowed: must be a list")
         item = kind.removeprefix("tuple[").split(",")[0]
         return tuple(_convert(v, item, f"{where}[{i}]") for i, v in enumerate(value))
-    number = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if kind == "int" and isinstance(value, float) and value.is_integer():
+    number = isinstance(value, numbers.Real) and not isinstance(value, bool)
+    if kind == "int" and number and float(value).is_integer():
         value = int(value)
     allowed = {
         "float": number,
-        "int": number and isinstance(value, int),
+        "int": number and isinstance(value, numbers.Integral),
         "bool": isinstance(value, bool),
         "str": isinstance(value, str),
         "dict": isinstance(value, Mapping),
