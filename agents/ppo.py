@@ -287,13 +287,16 @@ class TrainingRun:
         by_steps = tr.eval_every_steps > 0 and steps - self.last_eval_steps >= tr.eval_every_steps
         return w - self.last_eval_s >= tr.eval_every_s or by_steps or done
 
+    def export(self, path: Path) -> Path:
+        """The actor as it is now (``export_actor``), named after the output directory."""
+        return export_actor(
+            self.agent, self.obs_rms, self.cfg, self.env_id, self.inputs, path, self.out.name
+        )
+
     def validate(self, row: dict, w: float, log) -> None:
         """The actor on the validation references of each variant; the best is kept."""
         te, out, state = time.perf_counter(), self.out, self.state
-        path = export_actor(
-            self.agent, self.obs_rms, self.cfg, self.env_id, self.inputs, out / "actor_tmp.npz",
-            out.name,
-        )  # fmt: skip
+        path = self.export(out / "actor_tmp.npz")
         steps = self.cfg.training.validation_steps
         vals = [validate_actor(path, v, self.validation, steps) for v in self.variants]
         val = {k: float(np.mean([v[k] for v in vals])) for k in vals[0]}
@@ -338,10 +341,7 @@ class TrainingRun:
 
     def summary(self, command: str) -> dict:
         """The final actor, ``train.json`` and the learning curve; the summary."""
-        export_actor(
-            self.agent, self.obs_rms, self.cfg, self.env_id, self.inputs,
-            self.out / "actor.npz", self.out.name,
-        )  # fmt: skip
+        self.export(self.out / "actor.npz")
         w, state = self.state["wall_s"], self.state
         env_share, base_share, update_share = self.shares(w)
         summary = {

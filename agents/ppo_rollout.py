@@ -71,16 +71,12 @@ class Rollouts:
             self.feat = self.obs[:, self.index]
         self.prev_u, self.ret_acc = np.zeros(n), np.zeros(n)
         self.deadband = row_deadband_a(self.env)
-        teacher_cfg = TeacherConfig.from_config(cfg)
-        self.teacher = (
-            Teacher(
-                self.env, teacher_cfg, cfg.pure.action_scale_a, self.deadband,
-                cfg.pure.deadband_smoothing,
+        teacher_cfg, pure = TeacherConfig.from_config(cfg), cfg.pure
+        self.teacher: Teacher | None = None
+        if teacher_cfg:
+            self.teacher = Teacher(
+                self.env, teacher_cfg, pure.action_scale_a, self.deadband, pure.deadband_smoothing
             )
-            if teacher_cfg
-            else None
-        )  # fmt: skip
-        if self.teacher:
             self.teacher.reset()
         # the classical controller: a residual's base (inside env.step) or the teacher
         self.base = getattr(self.env, "residual", None) or self.teacher
