@@ -20,7 +20,7 @@ from .ppo_config import REFERENCES, PPOFastConfig, load_config
 from .residual import ResidualVectorWrapper
 
 __all__ = [
-    "load_config",
+    "load_config",  # its home is agents.ppo_config; kept here for callers of this module
     "references",
     "select_columns",
     "make_training_env",
