@@ -4,19 +4,19 @@
         [--config configs/agents/ppo_fast-numatics-2m.yaml] [--seed S] [--minutes M] \\
         [--out DIR] [--resume]
 
-One file, in the spirit of CleanRL's ``ppo_continuous_action.py``: thousands of envs
-advanced in one jitted call (``gym.make_vec`` with the ``envs.features`` options), short
-rollouts, a few large minibatches, GAE, and a bootstrap on time-limit truncation (the
-vector env truncates and resets in the same step; V of ``info["final_obs"]`` is added to
-the last reward). Residual mode trains a correction on a classical controller through
+In the shape of CleanRL's ``ppo_continuous_action.py``: a typed config
+(``agents.ppo_config.PPOFastConfig``) and a loop that reads top to bottom as rollout,
+advantages, update, validate, log (``agents.ppo_rollout``). Thousands of envs advance in
+one jitted call (``gym.make_vec`` with the ``envs.features`` options), short rollouts, a
+few large minibatches, GAE, and a bootstrap on time-limit truncation. Residual mode
+trains a correction on a classical controller through
 ``agents.residual.ResidualVectorWrapper``; pure mode sets the current directly, taught in
 its first updates by a classical controller if ``pure.teacher`` names one
 (``agents.teacher``). The run ends at ``training.minutes`` or ``training.total_steps``,
-whichever comes first, and the schedules follow the one nearer its end. The
-policy reads the columns ``policy_inputs`` of the observation (running mean/std
-normalised); rewards are scaled by a running std of the discounted return. The reward is
-the trainer's, computed from ``info`` to match the benchmark's RMS metric (config
-``reward``). Hyperparameters: ``configs/agents/ppo_fast-<variant>.yaml``.
+whichever comes first, and the schedules follow the one nearer its end. The policy reads
+the columns ``policy_inputs`` of the observation (running mean/std normalised); rewards
+are scaled by a running std of the discounted return (``agents.ppo_rollout``).
+Hyperparameters: ``configs/agents/ppo_fast-<variant>.yaml``.
 
 Written to ``--out``: ``actor.npz`` (final) and ``actor_best.npz`` (best validation), numpy
 actors for ``agents.learned`` (``pneumatic-env bench --controller DIR/actor.npz``);
@@ -35,117 +35,29 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import torch.nn as nn
 
 from .actor_validation import validate_actor
 from .config import agent_config_path
 from .generalist import MixtureVectorEnv
-from .learned import FORMAT, pure_current
-from .policy import actor_layers as _layers
-from .ppo_setup import (
-    action_scale_a,
-    deadband_smoothing,
-    load_config,
-    make_training_env,
-    references,
-    row_deadband_a,
-    select_columns,
-)
+from .learned import FORMAT
+from .policy import actor_layers
+from .ppo_config import PPOFastConfig, load_config
+from .ppo_networks import Agent, RunningMeanStd
+from .ppo_rollout import RolloutBuffer, Rollouts, advantages, imitation_loss, ppo_update
+from .ppo_setup import make_training_env, references, select_columns
 from .residual import RESIDUAL_COLUMNS, env_variant
-from .teacher import Teacher, TeacherConfig
 
 __all__ = [
-    "Agent",
     "export_actor",
     "train",
     "run_fast",
 ]
 
-# --------------------------------------------------------------------------- networks
-
-
-class RunningMeanStd:
-    """Running mean and variance over batches (Chan et al.), as SB3's VecNormalize."""
-
-    def __init__(self, shape=()):
-        self.mean, self.var, self.count = np.zeros(shape), np.ones(shape), 1e-4
-
-    def update(self, x):
-        bm, bv, bc = x.mean(0), x.var(0), x.shape[0]
-        d, tot = bm - self.mean, self.count + bc
-        self.mean = self.mean + d * bc / tot
-        self.var = (self.var * self.count + bv * bc + d**2 * self.count * bc / tot) / tot
-        self.count = tot
-
-    def state(self):
-        return {"mean": self.mean, "var": self.var, "count": self.count}
-
-    def load(self, s):
-        self.mean, self.var, self.count = s["mean"], s["var"], s["count"]
-
-
-class _NumpyTanhFunction(torch.autograd.Function):
-    """tanh evaluated by NumPy, whose SIMD float32 tanh is about 3 x faster on one core
-    than torch 2.13's on two (1M values: 0.43 ms against 1.35 ms); same backward as
-    torch's (``tanh_backward``: g (1 - y^2))."""
-
-    @staticmethod
-    def forward(ctx, x):
-        y = torch.from_numpy(np.tanh(x.detach().numpy()))
-        ctx.save_for_backward(y)
-        return y
-
-    @staticmethod
-    def backward(ctx, grad):
-        (y,) = ctx.saved_tensors
-        return torch.ops.aten.tanh_backward(grad, y)
-
-
-class NumpyTanh(nn.Tanh):
-    """``nn.Tanh`` computed by :class:`_NumpyTanhFunction` (CPU tensors); exported as Tanh."""
-
-    def forward(self, x):
-        return _NumpyTanhFunction.apply(x)
-
-
-def mlp(n_in: int, hidden, n_out: int, out_gain: float) -> nn.Sequential:
-    layers, d = [], n_in
-    for h in hidden:
-        lin = nn.Linear(d, int(h))
-        nn.init.orthogonal_(lin.weight, np.sqrt(2))
-        nn.init.zeros_(lin.bias)
-        layers += [lin, NumpyTanh()]
-        d = int(h)
-    out = nn.Linear(d, n_out)
-    if out_gain > 0:
-        nn.init.orthogonal_(out.weight, out_gain)
-    else:  # zero output: a residual policy starts at the classical controller
-        nn.init.zeros_(out.weight)
-    nn.init.zeros_(out.bias)
-    return nn.Sequential(*layers, out)
-
-
-class Agent(nn.Module):
-    """Gaussian actor (state-independent log std) and critic, separate MLPs."""
-
-    def __init__(self, n_obs: int, hidden_pi, hidden_v, log_std_init: float, zero_init: bool):
-        super().__init__()
-        self.actor = mlp(n_obs, hidden_pi, 1, 0.0 if zero_init else 0.01)
-        self.critic = mlp(n_obs, hidden_v, 1, 1.0)
-        self.log_std = nn.Parameter(torch.full((1,), float(log_std_init)))
-
-    def value(self, x):
-        return self.critic(x).squeeze(-1)
-
-    def dist(self, x):
-        mu = self.actor(x)
-        return torch.distributions.Normal(mu, self.log_std.exp().expand_as(mu))
-
 
 def export_actor(
     agent: Agent,
     obs_rms: RunningMeanStd,
-    cfg: dict,
+    cfg: PPOFastConfig,
     env_id: str,
     inputs: list[str],
     path: Path,
@@ -154,8 +66,8 @@ def export_actor(
     """The deterministic actor as an ``agents.learned`` ``.npz`` (numpy only at run time)."""
     from pneumatic_env.ids import parse_env_id
 
-    layers = _layers(list(agent.actor))
-    env_options = dict(cfg["env_kwargs"])
+    layers = actor_layers(list(agent.actor))
+    env_options = dict(cfg.env_kwargs)
     meta = {
         "format": FORMAT,
         "algo": "ppo_fast",
@@ -163,17 +75,18 @@ def export_actor(
         "env_id": env_id,
         "variant": parse_env_id(env_id).variant,
         "output": "clip",
-        "clip_obs": float(cfg["hyperparameters"]["clip_obs"]),
+        "clip_obs": cfg.hyperparameters.clip_obs,
         "activations": [a for _, _, a in layers],
         "obs_dim": len(inputs),
         "inputs": list(inputs),
         "env_options": env_options,
         "preview_steps": int(env_options["preview_steps"]),
         "normalize_observation": bool(env_options["normalize_observation"]),
-        "residual": dict(cfg["residual"]) if cfg["mode"] == "residual" else None,
-        "action_scale_a": action_scale_a(cfg),
-        "deadband_smoothing": deadband_smoothing(cfg),
-        "variants": cfg.get("variants"),  # a generalist's training variants (else None)
+        "residual": dict(cfg.residual or {}) if cfg.mode == "residual" else None,
+        "action_scale_a": cfg.pure.action_scale_a,
+        "deadband_smoothing": cfg.pure.deadband_smoothing,
+        # a generalist's training variants (else None)
+        "variants": list(cfg.variants) if cfg.variants else None,
     }
     arrays = {}
     for i, (w, b, _) in enumerate(layers):
@@ -188,7 +101,7 @@ def export_actor(
     return path
 
 
-# --------------------------------------------------------------------------- training
+# --------------------------------------------------------------------------- training run
 
 
 def _env_only_rate(env, n_steps: int = 30) -> float:
@@ -204,6 +117,39 @@ def _env_only_rate(env, n_steps: int = 30) -> float:
         for raw, action in zip(raws, actions):
             raw.step(action)
     return sum(raw.num_envs for raw in raws) * n_steps / (time.perf_counter() - t0)
+
+
+class Checkpoint:
+    """``checkpoint.pt``: networks, optimiser, normalisers, counters and torch's RNG."""
+
+    def __init__(self, path: Path, agent: Agent, opt, obs_rms, ret_rms):
+        self.path, self.agent, self.opt = path, agent, opt
+        self.obs_rms, self.ret_rms = obs_rms, ret_rms
+
+    def save(self, state: dict, wall_s: float) -> None:
+        torch.save(
+            {
+                "agent": self.agent.state_dict(),
+                "optimizer": self.opt.state_dict(),
+                "obs_rms": self.obs_rms.state(),
+                "ret_rms": self.ret_rms.state(),
+                "state": {**state, "wall_s": wall_s},
+                "torch_rng": torch.get_rng_state(),
+            },
+            self.path,
+        )
+
+    def resume(self) -> dict:
+        """Load the saved run into the networks etc.; its counters."""
+        if not self.path.is_file():
+            raise FileNotFoundError(f"--resume: no checkpoint at {self.path}")
+        saved = torch.load(self.path, weights_only=False)
+        self.agent.load_state_dict(saved["agent"])
+        self.opt.load_state_dict(saved["optimizer"])
+        self.obs_rms.load(saved["obs_rms"])
+        self.ret_rms.load(saved["ret_rms"])
+        torch.set_rng_state(saved["torch_rng"])
+        return saved["state"]
 
 
 PROGRESS_COLUMNS = (
@@ -224,6 +170,206 @@ PROGRESS_COLUMNS = (
 )
 
 
+class ProgressLog:
+    """``progress.csv``, one row per update; a resumed run appends in its file's columns
+    (older runs have fewer)."""
+
+    def __init__(self, path: Path, resume: bool):
+        new_file = not (resume and path.is_file())
+        columns = PROGRESS_COLUMNS
+        if not new_file:
+            with open(path, newline="", encoding="utf-8") as f:
+                columns = tuple(next(csv.reader(f), PROGRESS_COLUMNS))
+        self.file = open(path, "w" if new_file else "a", newline="", encoding="utf-8")
+        self.writer = csv.DictWriter(self.file, fieldnames=columns, extrasaction="ignore")
+        if new_file:
+            self.writer.writeheader()
+
+
+class WallClock:
+    """Training wall time (s): a resumed run's plus this run's, validations not counted."""
+
+    def __init__(self, wall0_s: float):
+        self.wall0_s, self.t_start, self.eval_s = wall0_s, time.perf_counter(), 0.0
+
+    def __call__(self) -> float:
+        return self.wall0_s + time.perf_counter() - self.t_start - self.eval_s
+
+
+class TrainingRun:
+    """A run's parts: env, networks, rollouts, counters (``state``: steps, updates,
+    wall_s, best, curve), clocks, checkpoint and progress file."""
+
+    def __init__(self, cfg: PPOFastConfig, env_id: str, seed: int, out: Path, budget, resume):
+        hp, tr = cfg.hyperparameters, cfg.training
+        minutes, total_steps = budget
+        self.cfg, self.env_id, self.seed, self.out = cfg, env_id, seed, out
+        self.budget_s = 60.0 * float(minutes if minutes is not None else tr.minutes)
+        if total_steps is None:  # the config's step budget, if it has one
+            total_steps = tr.total_steps
+        self.total_steps = float(total_steps) if total_steps is not None else float("inf")
+        out.mkdir(parents=True, exist_ok=True)
+        torch.set_num_threads(tr.torch_threads)
+        torch.manual_seed(seed)
+        rng = np.random.default_rng(seed)
+        self.env = env = make_training_env(cfg, env_id, seed)
+        raw = env.unwrapped
+        columns = getattr(raw, "columns", None) or (
+            raw.observation_columns + (list(RESIDUAL_COLUMNS) if cfg.mode == "residual" else [])
+        )
+        self.inputs = select_columns(columns, list(cfg.policy_inputs))
+        _, self.validation = references(cfg)
+        self.variants = tr.validation_variants or (
+            raw.variants if isinstance(raw, MixtureVectorEnv) else [env_variant(env)]
+        )
+        self.env_only = _env_only_rate(env)
+        D = len(self.inputs)
+        self.agent = Agent(
+            D, hp.hidden_pi, hp.hidden_v, hp.log_std_init, zero_init=cfg.mode == "residual"
+        )
+        self.opt = torch.optim.Adam(self.agent.parameters(), lr=hp.learning_rate, eps=1e-5)
+        self.obs_rms, ret_rms = RunningMeanStd(D), RunningMeanStd()
+        self.checkpoint = Checkpoint(
+            out / "checkpoint.pt", self.agent, self.opt, self.obs_rms, ret_rms
+        )
+        self.state = {"steps": 0, "updates": 0, "wall_s": 0.0, "best": None, "curve": []}
+        if resume:
+            self.state = self.checkpoint.resume()
+            rng = np.random.default_rng(seed + 7919 * self.state["updates"])
+        index = np.array([columns.index(c) for c in self.inputs])
+        self.rollouts = Rollouts(cfg, env, index, self.obs_rms, ret_rms)
+        self.rollouts.start(seed, self.state["updates"], rng, warm=not resume)
+        self.buf = RolloutBuffer.zeros(hp.rollout_steps, hp.num_envs, D)
+        self.progress = ProgressLog(out / "progress.csv", resume)
+        self.wall = WallClock(self.state["wall_s"])
+        self.last_eval_s, self.last_eval_steps = self.wall.wall0_s, self.state["steps"]
+        self.t_update_s = 0.0
+
+    def budget_fraction(self) -> float:
+        """Progress through the budget that binds first (wall time or env steps)."""
+        return min(max(self.wall() / self.budget_s, self.state["steps"] / self.total_steps), 1.0)
+
+    def anneal_learning_rate(self, frac: float) -> None:
+        hp = self.cfg.hyperparameters
+        for g in self.opt.param_groups:
+            g["lr"] = hp.learning_rate * (1.0 - (1.0 - hp.learning_rate_final_fraction) * frac)
+
+    def shares(self, wall_s: float) -> tuple[float, float, float]:
+        """This run's shares of wall time in the env, the classical base, the updates."""
+        span = max(wall_s - self.wall.wall0_s, 1e-9)
+        base_s = self.rollouts.base_time_s()
+        env_s = self.rollouts.t_env_s - base_s * (self.cfg.mode == "residual")
+        return env_s / span, base_s / span, self.t_update_s / span
+
+    def progress_row(self, w: float, sq_err: float, sq_gap: float, kls, value_loss) -> dict:
+        T, steps = len(self.buf.act), self.state["steps"]
+        env_share, base_share, update_share = self.shares(w)
+        return {
+            "update": self.state["updates"],
+            "wall_s": round(w, 3),
+            "steps": steps,
+            "steps_per_s": round(steps / max(w, 1e-9)),
+            "env_share": round(env_share, 4),
+            "base_share": round(base_share, 4),
+            "update_share": round(update_share, 4),
+            "train_rms_pct": round(100 * np.sqrt(sq_err / T), 4),
+            "log_std": round(self.agent.log_std.item(), 4),
+            "approx_kl": round(np.mean(kls), 5),
+            "value_loss": round(value_loss, 5),
+            "val_rms_pct": "",
+            "val_chatter_a": "",
+            "teacher_gap": round(np.sqrt(sq_gap / T), 5) if self.rollouts.teacher else "",
+        }
+
+    def validation_due(self, w: float) -> bool:
+        """Every ``eval_every_s`` of wall time or ``eval_every_steps``, and at the end."""
+        tr, steps = self.cfg.training, self.state["steps"]
+        done = w >= self.budget_s or steps >= self.total_steps
+        by_steps = tr.eval_every_steps > 0 and steps - self.last_eval_steps >= tr.eval_every_steps
+        return w - self.last_eval_s >= tr.eval_every_s or by_steps or done
+
+    def export(self, path: Path) -> Path:
+        """The actor as it is now (``export_actor``), named after the output directory."""
+        return export_actor(
+            self.agent, self.obs_rms, self.cfg, self.env_id, self.inputs, path, self.out.name
+        )
+
+    def validate(self, row: dict, w: float, log) -> None:
+        """The actor on the validation references of each variant; the best is kept."""
+        te, out, state = time.perf_counter(), self.out, self.state
+        path = self.export(out / "actor_tmp.npz")
+        steps = self.cfg.training.validation_steps
+        vals = [validate_actor(path, v, self.validation, steps) for v in self.variants]
+        val = {k: float(np.mean([v[k] for v in vals])) for k in vals[0]}
+        row.update({k: round(v, 5) for k, v in val.items()})
+        record = {"wall_s": w, "steps": state["steps"], **val}
+        record["train_rms_pct"] = row["train_rms_pct"]
+        state["curve"].append(record)
+        log(
+            f"  eval at {w:.0f} s, {state['steps'] / 1e6:.2f}M steps: "
+            f"val RMS {val['val_rms_pct']:.3f} %",
+            flush=True,
+        )
+        if state["best"] is None or val["val_rms_pct"] < state["best"]["val_rms_pct"]:
+            state["best"] = record
+            path.replace(out / "actor_best.npz")
+        self.wall.eval_s += time.perf_counter() - te
+        self.last_eval_s, self.last_eval_steps = self.wall(), state["steps"]
+
+    def write_row(self, row: dict, log, on_eval) -> None:
+        """The row to ``progress.csv``; ``on_eval`` after a validation; a line every 10."""
+        self.progress.writer.writerow(row)
+        if row["val_rms_pct"] != "" and on_eval is not None:
+            self.progress.file.flush()
+            on_eval(self.state["curve"][-1])
+        steps, w = self.state["steps"], row["wall_s"]
+        if self.state["updates"] % 10 == 0:
+            self.progress.file.flush()
+            log(
+                f"upd {self.state['updates']} {steps / 1e6:.1f}M steps "
+                f"{steps / max(w, 1e-9):.0f} steps/s (env alone {self.env_only:.0f}) "
+                f"train RMS {row['train_rms_pct']:.2f} % log_std {row['log_std']:.2f}"
+                + (f" teacher gap {row['teacher_gap']:.3f}" if self.rollouts.teacher else ""),
+                flush=True,
+            )
+
+    def close(self) -> None:
+        """Close the progress file and checkpoint (also when the run is interrupted)."""
+        self.progress.file.close()
+        self.state["wall_s"] = self.wall()
+        self.checkpoint.save(self.state, self.state["wall_s"])
+        (self.out / "actor_tmp.npz").unlink(missing_ok=True)
+
+    def summary(self, command: str) -> dict:
+        """The final actor, ``train.json`` and the learning curve; the summary."""
+        self.export(self.out / "actor.npz")
+        w, state = self.state["wall_s"], self.state
+        env_share, base_share, update_share = self.shares(w)
+        summary = {
+            "algo": "ppo_fast",
+            "env_id": self.env_id,
+            "seed": self.seed,
+            "command": command,
+            "config": self.cfg.to_tree(),
+            "steps": state["steps"],
+            "updates": state["updates"],
+            "wall_s": w,
+            "steps_per_s": state["steps"] / max(w, 1e-9),
+            "env_only_steps_per_s": self.env_only,
+            "env_share": env_share,
+            "base_share": base_share,
+            "update_share": update_share,
+            "inputs": self.inputs,
+            "curve": state["curve"],
+            "best": state["best"],
+        }
+        text = json.dumps(summary, indent=2, default=_plain)
+        (self.out / "train.json").write_text(text, encoding="utf-8")
+        _learning_curve(self.out, f"ppo_fast on {self.env_id} (seed {self.seed})")
+        self.env.close()
+        return summary
+
+
 def train(
     config,
     env_id: str | None = None,
@@ -237,347 +383,42 @@ def train(
     command: str = "",
     log=print,
 ) -> dict:
-    """Train with the ppo_fast config (path or dict); returns the ``train.json`` summary.
+    """Train with the ppo_fast config (path, tree or config); returns the ``train.json``
+    summary. The run ends at ``minutes`` or ``total_steps`` (default: the config's).
 
     ``on_eval(record)`` is called after each validation (the tuner reports and prunes
     there; an exception it raises ends the run after the checkpoint).
     """
     cfg = load_config(config, overrides)
-    env_id = env_id or cfg["env"]
-    hp, tr, rw = cfg["hyperparameters"], cfg["training"], cfg["reward"]
-    budget_s = 60.0 * float(minutes if minutes is not None else tr["minutes"])
-    if total_steps is None:  # the config's step budget, if it has one
-        total_steps = tr.get("total_steps")
-    total_steps = float(total_steps) if total_steps is not None else float("inf")
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    torch.set_num_threads(int(tr["torch_threads"]))
-    torch.manual_seed(seed)
-    rng = np.random.default_rng(seed)
-    residual = cfg["mode"] == "residual"
-    env = make_training_env(cfg, env_id, seed)
-    raw = env.unwrapped
-    columns = getattr(raw, "columns", None) or (
-        raw.observation_columns + (list(RESIDUAL_COLUMNS) if residual else [])
-    )
-    inputs = select_columns(columns, cfg["policy_inputs"])
-    index = np.array([columns.index(c) for c in inputs])
-    _, validation = references(cfg)
-    variants = tr.get("validation_variants") or (
-        raw.variants if isinstance(raw, MixtureVectorEnv) else [env_variant(env)]
-    )
-    N, T, D = int(hp["num_envs"]), int(hp["rollout_steps"]), len(inputs)
-    scale, i_max = raw.reference_scale, raw.coil_current_max_a
-    env_only = _env_only_rate(env)
-    agent = Agent(D, hp["hidden_pi"], hp["hidden_v"], hp["log_std_init"], zero_init=residual)
-    opt = torch.optim.Adam(agent.parameters(), lr=float(hp["learning_rate"]), eps=1e-5)
-    obs_rms, ret_rms = RunningMeanStd(D), RunningMeanStd()
-    state = {"steps": 0, "updates": 0, "wall_s": 0.0, "best": None, "curve": []}
-    ckpt = out / "checkpoint.pt"
-    if resume:
-        if not ckpt.is_file():
-            raise FileNotFoundError(f"--resume: no checkpoint at {ckpt}")
-        saved = torch.load(ckpt, weights_only=False)
-        agent.load_state_dict(saved["agent"])
-        opt.load_state_dict(saved["optimizer"])
-        obs_rms.load(saved["obs_rms"])
-        ret_rms.load(saved["ret_rms"])
-        state = saved["state"]
-        torch.set_rng_state(saved["torch_rng"])
-        rng = np.random.default_rng(seed + 7919 * state["updates"])
-    gamma, lam, clip_obs = float(hp["gamma"]), float(hp["gae_lambda"]), float(hp["clip_obs"])
-
-    def norm(x):
-        return np.clip(
-            (x - obs_rms.mean) / np.sqrt(obs_rms.var + 1e-8), -clip_obs, clip_obs
-        ).astype(np.float32)
-
-    episode = int(tr["episode_steps"])
-    options = {"start_step": rng.integers(0, episode, N)} if tr["stagger"] else None
-    obs, _ = env.reset(seed=seed * 100_000 + state["updates"], options=options)
-    feat = obs[:, index]
-    zeros = np.zeros(N)
-    if not resume:  # warm the normaliser on the classical (or zero-current) features
-        for _ in range(20):
-            obs_rms.update(feat)
-            obs, *_ = env.step(zeros[:, None])
-            feat = obs[:, index]
-    prev_u, ret_acc = np.zeros(N), np.zeros(N)
-    b_obs = np.zeros((T, N, D), np.float32)
-    b_act, b_logp, b_rew, b_done = (np.zeros((T, N), np.float32) for _ in range(4))
-    b_val = np.zeros((T + 1, N), np.float32)
-    e_unit, c_unit, u_unit = (
-        float(rw["error_unit_fraction"]) * scale,
-        float(rw["chatter_unit_a"]),
-        float(rw["effort_unit_a"]),
-    )
-    action_scale, smoothing = action_scale_a(cfg), deadband_smoothing(cfg)
-    deadband = row_deadband_a(env)
-    teacher_cfg = TeacherConfig.from_config(cfg)
-    teacher = Teacher(env, teacher_cfg, action_scale, deadband, smoothing) if teacher_cfg else None
-    # the classical controller's time (a residual's base, inside env.step, or a pure
-    # policy's teacher, outside it)
-    base = getattr(env, "residual", None) or teacher
-    if teacher:
-        teacher.reset()
-    b_teach = np.zeros((T, N), np.float32)
-    t_env = t_upd = 0.0
-    base_t0 = base.base_time_s if base else 0.0
-    progress_path = out / "progress.csv"
-    new_file = not (resume and progress_path.is_file())
-    columns_written = PROGRESS_COLUMNS
-    if not new_file:  # a resumed run keeps its file's columns (older runs have fewer)
-        with open(progress_path, newline="", encoding="utf-8") as f:
-            columns_written = tuple(next(csv.reader(f), PROGRESS_COLUMNS))
-    progress = open(progress_path, "a" if not new_file else "w", newline="", encoding="utf-8")
-    writer = csv.DictWriter(progress, fieldnames=columns_written, extrasaction="ignore")
-    if new_file:
-        writer.writeheader()
-    t_start, wall0 = time.perf_counter(), state["wall_s"]
-    last_eval, last_eval_steps = wall0, state["steps"]
-    eval_every_steps = float(tr.get("eval_every_steps") or 0.0)  # 0: by wall time only
-    eval_time = 0.0
-
-    def wall():
-        return wall0 + time.perf_counter() - t_start - eval_time
-
-    lr0, lr_end = float(hp["learning_rate"]), float(hp["learning_rate_final_fraction"])
+    hp, tr = cfg.hyperparameters, cfg.training
+    run = TrainingRun(cfg, env_id or cfg.env, seed, Path(out), (minutes, total_steps), resume)
+    buf, state, teach = run.buf, run.state, torch.from_numpy(run.buf.teach.reshape(-1))
     try:
-        while state["steps"] < total_steps and wall() < budget_s:
-            # progress through the budget that binds first (wall time or env steps)
-            frac = min(max(wall() / budget_s, state["steps"] / total_steps), 1.0)
-            for g in opt.param_groups:
-                g["lr"] = lr0 * (1.0 - (1.0 - lr_end) * frac)
-            sq_err = sq_gap = 0.0
-            for t in range(T):
-                obs_rms.update(feat)
-                x = norm(feat)
-                with torch.no_grad():
-                    xt = torch.from_numpy(x)
-                    d = agent.dist(xt)
-                    a = d.sample()
-                    logp, v = d.log_prob(a).sum(-1), agent.value(xt)
-                a_np = a.numpy()[:, 0].astype(np.float64)
-                if teacher:
-                    b_teach[t] = teacher.targets(obs)
-                    sq_gap += float(np.nanmean((d.mean.numpy()[:, 0] - b_teach[t]) ** 2))
-                a_clip = np.clip(a_np, -1.0, 1.0)
-                act = (
-                    a_clip
-                    if residual
-                    else pure_current(a_clip, action_scale, deadband, smoothing, i_max)
-                )
-                if teacher:
-                    teacher.applied(act)
-                t0 = time.perf_counter()
-                obs, _, _, trunc, info = env.step(act[:, None])
-                t_env += time.perf_counter() - t0
-                if teacher and trunc.any():
-                    teacher.reset(np.flatnonzero(trunc))
-                feat = obs[:, index]
-                e = info["tracking_error"] / e_unit
-                u = info["coil_current_a"]
-                rew = (
-                    -(e**2)
-                    - float(rw["l1_weight"]) * np.abs(e)
-                    - float(rw["chatter_weight"]) * ((u - prev_u) / c_unit) ** 2
-                    - float(rw["effort_weight"]) * (u / u_unit) ** 2
-                    - (float(rw["residual_weight"]) * a_clip**2 if residual else 0.0)
-                )
-                prev_u = np.where(trunc, 0.0, u)
-                sq_err += float(np.mean((info["tracking_error"] / scale) ** 2))
-                ret_acc = ret_acc * gamma + rew
-                ret_rms.update(ret_acc)
-                ret_acc[trunc] = 0.0
-                rs = rew / np.sqrt(ret_rms.var + 1e-8)
-                if trunc.any():  # bootstrap the truncated episodes from their final obs
-                    rows = np.flatnonzero(trunc)
-                    final = np.stack([info["final_obs"][r] for r in rows])[:, index]
-                    with torch.no_grad():
-                        rs[rows] += gamma * agent.value(torch.from_numpy(norm(final))).numpy()
-                b_obs[t], b_act[t], b_logp[t], b_val[t] = x, a_np, logp.numpy(), v.numpy()
-                b_rew[t], b_done[t] = rs, trunc
-            with torch.no_grad():
-                b_val[T] = agent.value(torch.from_numpy(norm(feat))).numpy()
-            tu = time.perf_counter()
-            # GAE; done[t]: transition t ended its episode (its bootstrap is in the reward)
-            adv = np.zeros((T, N), np.float32)
-            last = np.zeros(N, np.float32)
-            for t in reversed(range(T)):
-                nd = 1.0 - b_done[t]
-                delta = b_rew[t] + gamma * b_val[t + 1] * nd - b_val[t]
-                last = delta + gamma * lam * nd * last
-                adv[t] = last
-            B = T * N
-            fo = torch.from_numpy(b_obs.reshape(B, D))
-            fa = torch.from_numpy(b_act.reshape(B, 1))
-            flp, fadv = torch.from_numpy(b_logp.reshape(-1)), torch.from_numpy(adv.reshape(-1))
-            fret = torch.from_numpy((adv + b_val[:T]).reshape(-1))
-            fteach = torch.from_numpy(b_teach.reshape(-1))
-            # rows without a teacher (a generalist's untuned variants): no imitation term
-            fmask = torch.from_numpy(np.tile(teacher.taught, T)) if teacher else None
-            all_taught = teacher is None or bool(teacher.taught.all())
-            w_teach = teacher.config.weight_at(frac) if teacher else 0.0
-            n_mb = int(hp["minibatches"])
-            mb = B // n_mb
-            kls = []
-            for _ in range(int(hp["epochs"])):
-                perm = torch.randperm(B)
-                for s in range(0, mb * n_mb, mb):
-                    idx = perm[s : s + mb]
-                    obs_mb = fo[idx]
-                    d = agent.dist(obs_mb)
-                    lp = d.log_prob(fa[idx]).sum(-1)
-                    log_ratio = lp - flp[idx]
-                    ratio = log_ratio.exp()
-                    with torch.no_grad():
-                        kls.append(((ratio - 1) - log_ratio).mean().item())
-                    A = fadv[idx]
-                    A = (A - A.mean()) / (A.std() + 1e-8)
-                    clip = float(hp["clip_range"])
-                    pg = torch.max(-A * ratio, -A * ratio.clamp(1 - clip, 1 + clip)).mean()
-                    vl = 0.5 * ((agent.value(obs_mb) - fret[idx]) ** 2).mean()
-                    loss = (
-                        pg
-                        + float(hp["vf_coef"]) * vl
-                        - float(hp["ent_coef"]) * d.entropy().sum(-1).mean()
-                    )
-                    if w_teach > 0:  # imitation of the teacher (agents.teacher)
-                        gap = (d.mean[:, 0] - fteach[idx]) / teacher.config.unit
-                        if all_taught:
-                            loss = loss + w_teach * (gap**2).mean()
-                        else:
-                            m = fmask[idx]
-                            sq = torch.where(m, gap, torch.zeros_like(gap)) ** 2
-                            loss = loss + w_teach * sq.sum() / m.sum().clamp(min=1)
-                    opt.zero_grad()
-                    loss.backward()
-                    nn.utils.clip_grad_norm_(agent.parameters(), float(hp["max_grad_norm"]))
-                    opt.step()
-                    with torch.no_grad():
-                        agent.log_std.clamp_(min=float(hp["log_std_min"]))
-                if hp["target_kl"] and np.mean(kls[-n_mb:]) > float(hp["target_kl"]):
-                    break
-            t_upd += time.perf_counter() - tu
-            state["steps"] += B
+        while state["steps"] < run.total_steps and run.wall() < run.budget_s:
+            frac = run.budget_fraction()
+            run.anneal_learning_rate(frac)
+            sq_err, sq_gap = run.rollouts.collect(run.agent, buf)
+            t0 = time.perf_counter()
+            adv = advantages(buf, hp.gamma, hp.gae_lambda)
+            imitation = imitation_loss(run.rollouts.teacher, teach, frac, len(buf.act))
+            kls, value_loss = ppo_update(run.agent, run.opt, buf, adv, hp, imitation)
+            run.t_update_s += time.perf_counter() - t0
+            state["steps"] += buf.act.size
             state["updates"] += 1
-            w = wall()
-            span = max(w - wall0, 1e-9)
-            base_s = (base.base_time_s - base_t0) if base else 0.0
-            row = {
-                "update": state["updates"],
-                "wall_s": round(w, 3),
-                "steps": state["steps"],
-                "steps_per_s": round(state["steps"] / max(w, 1e-9)),
-                "env_share": round((t_env - base_s * residual) / span, 4),
-                "base_share": round(base_s / span, 4),
-                "update_share": round(t_upd / span, 4),
-                "train_rms_pct": round(100 * np.sqrt(sq_err / T), 4),
-                "log_std": round(agent.log_std.item(), 4),
-                "approx_kl": round(np.mean(kls), 5),
-                "value_loss": round(vl.item(), 5),
-                "val_rms_pct": "",
-                "val_chatter_a": "",
-                "teacher_gap": round(np.sqrt(sq_gap / T), 5) if teacher else "",
-            }
-            done = w >= budget_s or state["steps"] >= total_steps
-            due_by_steps = eval_every_steps > 0 and (
-                state["steps"] - last_eval_steps >= eval_every_steps
-            )
-            if w - last_eval >= float(tr["eval_every_s"]) or due_by_steps or done:
-                te = time.perf_counter()
-                path = export_actor(
-                    agent, obs_rms, cfg, env_id, inputs, out / "actor_tmp.npz", out.name
-                )
-                vals = [
-                    validate_actor(path, v, validation, int(tr["validation_steps"]))
-                    for v in variants
-                ]
-                val = {k: float(np.mean([v[k] for v in vals])) for k in vals[0]}
-                row.update({k: round(v, 5) for k, v in val.items()})
-                record = {
-                    "wall_s": w,
-                    "steps": state["steps"],
-                    **val,
-                    "train_rms_pct": row["train_rms_pct"],
-                }
-                state["curve"].append(record)
-                log(
-                    f"  eval at {w:.0f} s, {state['steps'] / 1e6:.2f}M steps: "
-                    f"val RMS {val['val_rms_pct']:.3f} %",
-                    flush=True,
-                )
-                if state["best"] is None or val["val_rms_pct"] < state["best"]["val_rms_pct"]:
-                    state["best"] = record
-                    path.replace(out / "actor_best.npz")
-                eval_time += time.perf_counter() - te
-                last_eval, last_eval_steps = wall(), state["steps"]
-            writer.writerow(row)
-            if row["val_rms_pct"] != "" and on_eval is not None:
-                progress.flush()
-                on_eval(state["curve"][-1])
-            if state["updates"] % 10 == 0:
-                progress.flush()
-                log(
-                    f"upd {state['updates']} {state['steps'] / 1e6:.1f}M steps "
-                    f"{state['steps'] / max(w, 1e-9):.0f} steps/s (env alone {env_only:.0f}) "
-                    f"train RMS {100 * np.sqrt(sq_err / T):.2f} % log_std "
-                    f"{agent.log_std.item():.2f}"
-                    + (f" teacher gap {row['teacher_gap']:.3f}" if teacher else ""),
-                    flush=True,
-                )
-            if state["updates"] % int(tr["checkpoint_every"]) == 0:
-                _checkpoint(ckpt, agent, opt, obs_rms, ret_rms, state, w)
+            w = run.wall()
+            row = run.progress_row(w, sq_err, sq_gap, kls, value_loss)
+            if run.validation_due(w):
+                run.validate(row, w, log)
+            run.write_row(row, log, on_eval)
+            if state["updates"] % tr.checkpoint_every == 0:
+                run.checkpoint.save(state, w)
     finally:
-        progress.close()
-        state["wall_s"] = wall()
-        _checkpoint(ckpt, agent, opt, obs_rms, ret_rms, state, state["wall_s"])
-        (out / "actor_tmp.npz").unlink(missing_ok=True)
-    export_actor(agent, obs_rms, cfg, env_id, inputs, out / "actor.npz", out.name)
-    w = state["wall_s"]
-    span = max(w - wall0, 1e-9)
-    base_s = (base.base_time_s - base_t0) if base else 0.0
-    summary = {
-        "algo": "ppo_fast",
-        "env_id": env_id,
-        "seed": seed,
-        "command": command,
-        "config": cfg,
-        "steps": state["steps"],
-        "updates": state["updates"],
-        "wall_s": w,
-        "steps_per_s": state["steps"] / max(w, 1e-9),
-        "env_only_steps_per_s": env_only,
-        "env_share": (t_env - base_s * residual) / span,
-        "base_share": base_s / span,
-        "update_share": t_upd / span,
-        "inputs": inputs,
-        "curve": state["curve"],
-        "best": state["best"],
-    }
-    (out / "train.json").write_text(json.dumps(summary, indent=2, default=_plain), encoding="utf-8")
-    _learning_curve(out, f"ppo_fast on {env_id} (seed {seed})")
-    env.close()
-    return summary
+        run.close()
+    return run.summary(command)
 
 
 def _plain(x):
     return x.item() if hasattr(x, "item") else str(x)
-
-
-def _checkpoint(path, agent, opt, obs_rms, ret_rms, state, wall_s):
-    state = {**state, "wall_s": wall_s}
-    torch.save(
-        {
-            "agent": agent.state_dict(),
-            "optimizer": opt.state_dict(),
-            "obs_rms": obs_rms.state(),
-            "ret_rms": ret_rms.state(),
-            "state": state,
-            "torch_rng": torch.get_rng_state(),
-        },
-        path,
-    )
 
 
 def _learning_curve(out: Path, title: str) -> Path | None:

@@ -13,11 +13,13 @@ runs only in training; the exported actor is the network alone.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
 from .generalist import MixtureVectorEnv
+from .ppo_config import PPOFastConfig, PureSettings
 from .registry import tuned_config_path
 from .residual import ResidualConfig, env_variant
 from .residual_env import residual_core as _residual_core
@@ -35,16 +37,15 @@ class TeacherConfig:
     fraction: float  # share of the budget (wall time or steps) over which the weight falls to 0
 
     @classmethod
-    def from_config(cls, cfg: dict) -> TeacherConfig | None:
-        pure = cfg.get("pure") or {}
-        if cfg.get("mode") != "pure" or not pure.get("teacher"):
+    def from_config(cls, cfg: PPOFastConfig | Mapping) -> TeacherConfig | None:
+        """The teacher of a config (or a tree with ``mode`` and ``pure``); None without."""
+        if isinstance(cfg, Mapping):
+            mode, pure = cfg.get("mode"), PureSettings.from_tree(cfg.get("pure") or {}, "pure")
+        else:
+            mode, pure = cfg.mode, cfg.pure
+        if mode != "pure" or not pure.teacher:
             return None
-        out = cls(
-            str(pure["teacher"]),
-            float(pure.get("teacher_weight", 1.0)),
-            float(pure.get("teacher_unit", 0.02)),
-            float(pure.get("teacher_fraction", 0.5)),
-        )
+        out = cls(pure.teacher, pure.teacher_weight, pure.teacher_unit, pure.teacher_fraction)
         for name in ("weight", "unit"):
             value = getattr(out, name)
             if not (np.isfinite(value) and value > 0.0):

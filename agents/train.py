@@ -101,6 +101,72 @@ def _learning_curve(out: Path, title: str) -> Path | None:
     return png
 
 
+def _sb3_config(algo: str, config: str | Path | dict) -> dict:
+    """The SB3 config of ``algo`` (file or dict), its algo and keys checked."""
+    if algo not in ALGOS:
+        raise ValueError(f"algo = {algo!r} is not allowed: use one of {list(ALGOS)}")
+    cfg = load_agent_config(config) if not isinstance(config, dict) else config
+    if cfg.get("algo") != algo:
+        raise ConfigError(
+            f"config {config if not isinstance(config, dict) else '<dict>'}: "
+            f"algo = {cfg.get('algo')!r}, but --algo {algo}"
+        )
+    for key in ("n_envs", "episode_steps", "total_timesteps", "hyperparameters"):
+        if key not in cfg:
+            raise ConfigError(f"config is missing {key!r}")
+    return cfg
+
+
+def _sb3_model(algo: str, cfg: dict, env_id: str, kwargs: dict, seed: int, out: Path, verbose):
+    """(model, its wrapped vector env, the native env under it), logging to ``out``."""
+    from stable_baselines3 import PPO, SAC
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
+
+    from .sb3 import make_sb3_vec_env
+
+    repeat = int(cfg.get("action_repeat", 1))
+    base = make_sb3_vec_env(
+        env_id, int(cfg["n_envs"]), int(cfg["episode_steps"]), action_repeat=repeat, **kwargs
+    )
+    venv = VecMonitor(base)
+    hp = dict(cfg["hyperparameters"])
+    if cfg.get("normalize_reward", False):
+        venv = VecNormalize(
+            venv, norm_obs=False, norm_reward=True, gamma=float(hp.get("gamma", 0.99))
+        )
+    venv.seed(seed)
+    cls = {"ppo": PPO, "sac": SAC}[algo]
+    model = cls(
+        cfg.get("policy", "MlpPolicy"), venv, seed=seed, verbose=verbose, device="cpu", **hp
+    )
+    model.set_logger(configure(str(out), ["csv", "tensorboard"] + (["stdout"] if verbose else [])))
+    return model, venv, base
+
+
+def _export_and_evaluate(model, base, cfg: dict, env_id: str, kwargs: dict, out: Path, seeds):
+    """Export the actor (``model.npz``); (its env settings, its returns on ``seeds``, the
+    zero current's)."""
+
+    repeat = int(cfg.get("action_repeat", 1))
+    trained = base.venv.unwrapped
+    policy_env = {
+        "env_id": env_id,
+        "preview_steps": trained.preview_steps,
+        "normalize_observation": True,
+        "action_scale_a": trained.coil_current_max_a,
+    }
+    export_policy(model, out / "model.npz", **policy_env, extra={"action_repeat": repeat})
+    policy = NumpyPolicy(out / "model.npz")
+    episode = int(cfg["episode_steps"])
+    eval_kwargs = {k: v for k, v in kwargs.items() if k != "domain_randomization"}
+    returns = evaluate(
+        lambda o: policy(o), env_id, seeds, episode, action_repeat=repeat, **eval_kwargs
+    )
+    zero = evaluate(lambda o: np.zeros(len(o)), env_id, seeds, episode, **eval_kwargs)
+    return policy_env, returns, zero
+
+
 def train(
     algo: str,
     env_id: str,
@@ -120,24 +186,9 @@ def train(
     ``torch_threads=1`` (default): the networks are small, and one torch thread leaves the
     other core to the env and avoids oversubscription on a shared machine.
     """
-    from stable_baselines3 import PPO, SAC
-    from stable_baselines3.common.logger import configure
     from stable_baselines3.common.utils import set_random_seed
-    from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
-    from .sb3 import make_sb3_vec_env  # imports Stable-Baselines3, like the lines above
-
-    if algo not in ALGOS:
-        raise ValueError(f"algo = {algo!r} is not allowed: use one of {list(ALGOS)}")
-    cfg = load_agent_config(config) if not isinstance(config, dict) else config
-    if cfg.get("algo") != algo:
-        raise ConfigError(
-            f"config {config if not isinstance(config, dict) else '<dict>'}: "
-            f"algo = {cfg.get('algo')!r}, but --algo {algo}"
-        )
-    for key in ("n_envs", "episode_steps", "total_timesteps", "hyperparameters"):
-        if key not in cfg:
-            raise ConfigError(f"config is missing {key!r}")
+    cfg = _sb3_config(algo, config)
     kwargs = {**(cfg.get("env_kwargs") or {}), **(env_kwargs or {})}
     if not kwargs.get("normalize_observation", False):
         raise ConfigError(
@@ -152,57 +203,29 @@ def train(
 
         torch.set_num_threads(int(torch_threads))
     set_random_seed(seed)
-    repeat = int(cfg.get("action_repeat", 1))
-    base = make_sb3_vec_env(
-        env_id, int(cfg["n_envs"]), int(cfg["episode_steps"]), action_repeat=repeat, **kwargs
-    )
-    venv = VecMonitor(base)
-    hp = dict(cfg["hyperparameters"])
-    if cfg.get("normalize_reward", False):
-        venv = VecNormalize(
-            venv, norm_obs=False, norm_reward=True, gamma=float(hp.get("gamma", 0.99))
-        )
-    venv.seed(seed)
-    cls = {"ppo": PPO, "sac": SAC}[algo]
-    model = cls(
-        cfg.get("policy", "MlpPolicy"), venv, seed=seed, verbose=verbose, device="cpu", **hp
-    )
-    model.set_logger(configure(str(out), ["csv", "tensorboard"] + (["stdout"] if verbose else [])))
+    model, venv, base = _sb3_model(algo, cfg, env_id, kwargs, seed, out, verbose)
     t0 = time.perf_counter()
     model.learn(total_timesteps=timesteps, progress_bar=progress_bar)
     wall = time.perf_counter() - t0
     model.logger.close()  # flushes and closes progress.csv and the TensorBoard writer
     model.save(out / "model.zip")
-    trained = base.venv.unwrapped
-    policy_env = {
-        "env_id": env_id,
-        "preview_steps": trained.preview_steps,
-        "normalize_observation": True,
-        "action_scale_a": trained.coil_current_max_a,
-    }
-    export_policy(model, out / "model.npz", **policy_env, extra={"action_repeat": repeat})
-    policy = NumpyPolicy(out / "model.npz")
-    episode = int(cfg["episode_steps"])
-    eval_kwargs = {k: v for k, v in kwargs.items() if k != "domain_randomization"}
-    returns = evaluate(
-        lambda o: policy(o), env_id, eval_seeds, episode, action_repeat=repeat, **eval_kwargs
+    policy_env, returns, zero = _export_and_evaluate(
+        model, base, cfg, env_id, kwargs, out, eval_seeds
     )
-    zero = evaluate(lambda o: np.zeros(len(o)), env_id, eval_seeds, episode, **eval_kwargs)
-    steps_done = int(model.num_timesteps)
     summary = {
         "algo": algo,
         "env_id": env_id,
         "config": str(config) if not isinstance(config, dict) else "<dict>",
         "seed": seed,
-        "timesteps": steps_done,
+        "timesteps": int(model.num_timesteps),
         "command": command,
         "n_envs": int(cfg["n_envs"]),
-        "episode_steps": episode,
+        "episode_steps": int(cfg["episode_steps"]),
         "env_kwargs": jsonable(kwargs),
         "wall_s": wall,
         "env_time_s": base.env_time_s,
         "env_share": base.env_time_s / wall,
-        "action_repeat": repeat,
+        "action_repeat": int(cfg.get("action_repeat", 1)),
         "env_steps": int(base.env_steps),
         "env_steps_per_s": base.env_steps / wall,
         "env_only_steps_per_s": base.env_steps / base.env_time_s if base.env_time_s else None,

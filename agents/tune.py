@@ -33,7 +33,7 @@ from pathlib import Path
 from pneumatic_env.config_files import make_entry, read_yaml
 
 from .config import ConfigError, agent_config_path, load_agent_config, write_agent_config
-from .ppo_setup import load_config
+from .ppo_config import load_config
 
 __all__ = [
     "load_space",
@@ -381,7 +381,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     spec = load_space(args.space)
-    env_id = args.env or load_config(agent_config_path(spec["base_config"]))["env"]
+    env_id = args.env or load_config(agent_config_path(spec["base_config"])).env
     trials = int(args.trials if args.trials is not None else spec["budget"]["trials"])
     minutes = float(args.minutes_per_trial or spec["budget"]["minutes_per_trial"])
     steps = args.steps_per_trial or spec["budget"].get("steps_per_trial")

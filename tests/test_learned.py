@@ -299,6 +299,70 @@ SMALL = {
 }
 
 
+def _config_extending(tmp_path, text: str):
+    from pneumatic_env.agents.config import agent_config_path
+
+    path = tmp_path / "typo.yaml"
+    path.write_text(f"extends: {agent_config_path('ppo_fast-numatics-2m')}\n{text}")
+    return path
+
+
+def test_a_typo_in_a_ppo_fast_config_key_is_refused_naming_the_key_file_and_allowed_keys(
+    tmp_path,
+):
+    from pneumatic_env.agents.config import ConfigError
+    from pneumatic_env.agents.ppo_config import load_config
+
+    path = _config_extending(
+        tmp_path, "hyperparameters:\n  gama: {value: 0.9, unit: '-', source: test}\n"
+    )
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    assert_error_names(err, ["hyperparameters.gama", str(path)], rule=["gamma", "gae_lambda"])
+    path = _config_extending(tmp_path, "rewrad: {}\n")
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    assert_error_names(err, ["rewrad", str(path)], rule=["reward", "hyperparameters"])
+    with pytest.raises(ConfigError) as err:
+        load_config("ppo_fast-numatics-2m", {"training.stager": False})
+    assert_error_names(err, "training.stager", rule="stagger")
+
+
+@pytest.mark.parametrize(
+    "key, value", [("hyperparameters.num_envs", 2.5), ("training.stagger", "yes")]
+)
+def test_a_ppo_fast_setting_of_the_wrong_type_is_refused_naming_it(key, value):
+    from pneumatic_env.agents.config import ConfigError
+    from pneumatic_env.agents.ppo_config import load_config
+
+    with pytest.raises(ConfigError) as err:
+        load_config("ppo_fast-numatics-2m", {key: value})
+    assert_error_names(err, key, value)
+
+
+def test_ppo_fast_configs_round_trip_with_their_units_and_sources(tmp_path):
+    """Every ppo_fast config: typed settings, and its tree (units, sources) written back
+    reads as the same config; an override keeps its entry's unit."""
+    from pneumatic_env.agents.config import agent_config_dir, write_agent_config
+    from pneumatic_env.agents.ppo_config import load_config
+
+    names = sorted(p.stem for p in agent_config_dir().glob("ppo_fast-*.yaml"))
+    names.remove("ppo_fast-references")
+    assert len(names) >= 10
+    for name in names:
+        cfg = load_config(name)
+        write_agent_config(tmp_path / "copy.yaml", cfg.to_tree())
+        again = load_config(tmp_path / "copy.yaml")
+        assert again == cfg and again.to_tree() == cfg.to_tree(), name
+        assert isinstance(cfg.hyperparameters.num_envs, int) and cfg.mode in ("pure", "residual")
+    cfg = load_config("ppo_fast-numatics-2m", {"hyperparameters.gamma": 0.9})
+    assert cfg.hyperparameters.gamma == 0.9 and cfg.unit("hyperparameters.gamma") == (
+        "per control period"
+    )
+    assert cfg.to_tree()["hyperparameters"]["gamma"]["source"].startswith("override")
+    assert cfg.unit("training.minutes") == "min of wall time" and cfg.unit("mode") is None
+
+
 @pytest.fixture(scope="module")
 def fast_run(tmp_path_factory):
     from pneumatic_env.agents.ppo import train
@@ -363,7 +427,7 @@ def test_numpy_actor_equals_the_torch_actor(fast_run):
     import torch
 
     from pneumatic_env.agents.learned import LearnedActor
-    from pneumatic_env.agents.ppo import Agent
+    from pneumatic_env.agents.ppo_networks import Agent
 
     out, _ = fast_run
     actor = LearnedActor(out / "actor.npz")
@@ -382,7 +446,7 @@ def test_numpy_tanh_equals_torch_tanh_in_value_and_gradient():
     import torch
 
     from pneumatic_env.agents.policy import actor_layers
-    from pneumatic_env.agents.ppo import NumpyTanh, mlp
+    from pneumatic_env.agents.ppo_networks import NumpyTanh, mlp
 
     for dtype, tol in ((torch.float32, 1e-6), (torch.float64, 1e-15)):
         x = torch.linspace(-12.0, 12.0, 2001, dtype=dtype).reshape(-1, 3).requires_grad_()
@@ -435,10 +499,10 @@ def test_learned_controller_rebuilds_the_training_observation(fast_run):
 def test_pure_mode_trains_and_runs_as_a_controller(tmp_path):
     from pneumatic_env.agents.bench import closed_loop, make_env
     from pneumatic_env.agents.ppo import train
-    from pneumatic_env.agents.ppo_setup import load_config
+    from pneumatic_env.agents.ppo_config import load_config
 
     cfg = load_config("ppo_fast-pure-numatics-2m")
-    assert cfg["mode"] == "pure" and cfg["hyperparameters"]["num_envs"] == 2048  # extends
+    assert cfg.mode == "pure" and cfg.hyperparameters.num_envs == 2048  # extends
     s = train(
         "ppo_fast-pure-numatics-2m",
         out=tmp_path,
@@ -574,11 +638,11 @@ def test_tune_tiny_budget_runs_and_resumes(tmp_path):
     assert len(study.trials) == 2
     best = json.loads((tmp_path / "out" / "best.json").read_text())
     assert set(best["params"]) == {"hyperparameters.learning_rate", "hyperparameters.epochs"}
-    from pneumatic_env.agents.ppo_setup import load_config
+    from pneumatic_env.agents.ppo_config import load_config
 
     tuned = load_config(tmp_path / "out" / "ppo_fast-tuned.yaml")
-    assert tuned["hyperparameters"]["epochs"] == best["params"]["hyperparameters.epochs"]
-    assert tuned["hyperparameters"]["num_envs"] == 16
+    assert tuned.hyperparameters.epochs == best["params"]["hyperparameters.epochs"]
+    assert tuned.hyperparameters.num_envs == 16
 
 
 def test_tune_with_a_step_budget_evaluates_at_fixed_steps_and_scores_chatter(tmp_path):
