@@ -56,16 +56,20 @@ def _coil_plant(
     return y[1:]
 
 
-def _stick_slip_play(current_a: np.ndarray, band_a: float, breakaway_a: float) -> np.ndarray:
+def _stick_slip_play(
+    current_a: np.ndarray, band_a: float, breakaway_a: float, state: list | None = None
+) -> np.ndarray:
     """The current a spool with Coulomb and static friction follows (quasi-static).
 
     Stuck, the spool holds its current ``h`` until the command leaves ``h +/- breakaway_a``
     (static friction); it then slides, held ``band_a`` behind the command (Coulomb
     friction), for as long as the command keeps moving that way. With ``breakaway_a =
-    band_a`` this is the candidate's play (``effects.spool_play_current``).
+    band_a`` this is the candidate's play (``effects.spool_play_current``). ``state``: the
+    spool's [held current, sliding direction] to start from (default at rest at 0), updated
+    in place at the end (to run the play a chunk at a time).
     """
     out = np.empty_like(current_a)
-    held, sliding = 0.0, 0.0
+    held, sliding = (0.0, 0.0) if state is None else state
     for k, command in enumerate(current_a):
         if sliding != 0.0:
             target = command - sliding * band_a
@@ -77,6 +81,8 @@ def _stick_slip_play(current_a: np.ndarray, band_a: float, breakaway_a: float) -
             sliding = 1.0 if command > held else -1.0
             held = command - sliding * band_a
         out[k] = held
+    if state is not None:
+        state[:] = [held, sliding]
     return out
 
 

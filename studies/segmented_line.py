@@ -45,7 +45,13 @@ from pneumatic_env.physics.piston import (
 from pneumatic_env.physics.tube import reynolds_number, tube_resistance
 from pneumatic_env.physics.valve import orifice_area, spool_acceleration
 
-__all__ = ["line_constants", "segmented_line_rollout"]
+__all__ = [
+    "line_chamber_rows",
+    "line_constants",
+    "segmented_line_advance",
+    "segmented_line_rest",
+    "segmented_line_rollout",
+]
 
 # rows of the constants vector
 (
@@ -224,21 +230,31 @@ def _derivatives(c, n, coil_current_a, direction, y, out):
         )
 
 
+def line_chamber_rows(n: int) -> tuple[int, int]:
+    """The state rows of chamber 1's and chamber 2's pressure."""
+    return 2 + 2 * n, 2 + 2 * (2 * n + 1) - 1
+
+
 @njit(cache=True)
-def segmented_line_rollout(c, n, coil_current_a, step_s, substeps):
-    """Run the plant from rest (spool centred, every node and chamber at ambient, no flow,
-    the piston at rest at the kernel's initial position) with ``coil_current_a[j]`` held
-    over plant step j (``substeps`` RK4 steps of ``step_s / substeps``). Returns
-    (steps + 1, 4): p1, p2 (Pa), the force channel (N: the load cell at a clamp, else as
-    ``piston.output_force``) and the piston position (m) at the start and the end of
-    every step."""
-    size = 2 + 2 * (2 * n + 1) + 2
-    y = np.zeros(size)
+def segmented_line_rest(c, n):
+    """The plant at rest: spool centred, every node and chamber at ambient, no flow, the
+    piston at rest at the kernel's initial position."""
+    y = np.zeros(2 + 2 * (2 * n + 1) + 2)
     for side in range(2):
         first = 2 + side * (2 * n + 1)
         y[first : first + n] = c[_P_A]
         y[first + 2 * n] = c[_P_A]
     y[-2] = c[_X0]
+    return y
+
+
+@njit(cache=True)
+def segmented_line_advance(c, n, y, coil_current_a, step_s, substeps):
+    """Advance the state ``y`` in place with ``coil_current_a[j]`` held over plant step j
+    (``substeps`` RK4 steps of ``step_s / substeps``). Returns (steps + 1, 4): p1, p2 (Pa),
+    the force channel (N: the load cell at a clamp, else as ``piston.output_force``) and
+    the piston position (m) at the start and the end of every step."""
+    size = y.size
     k1, k2, k3, k4 = np.empty(size), np.empty(size), np.empty(size), np.empty(size)
     stage = np.empty(size)
     out = np.empty((coil_current_a.size + 1, 4))
@@ -271,3 +287,10 @@ def segmented_line_rollout(c, n, coil_current_a, step_s, substeps):
                 y[-1] = 0.0  # the velocity reversed: the piston stops, friction decides next
             y[-2], y[-1] = end_of_substep(y[-2], y[-1], c[_HALF_STROKE])
     return out
+
+
+@njit(cache=True)
+def segmented_line_rollout(c, n, coil_current_a, step_s, substeps):
+    """Run the plant from rest (:func:`segmented_line_rest`) with ``coil_current_a[j]``
+    held over plant step j; returns :func:`segmented_line_advance`'s outputs."""
+    return segmented_line_advance(c, n, segmented_line_rest(c, n), coil_current_a, step_s, substeps)
