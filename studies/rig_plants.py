@@ -33,6 +33,14 @@ def _two_lags(y: np.ndarray, total_tau_s: float, dt_s: float) -> np.ndarray:
     return y
 
 
+def _coil_filter(total_tau_s: float, dt_s: float, force_share: float):
+    """(num, den) of the rig's coil lags (``_coil_plant``) discretised exactly for a
+    command held over each ``dt_s``."""
+    den = np.polymul([(1.0 - force_share) * total_tau_s, 1.0], [force_share * total_tau_s, 1.0])
+    num, den = cont2discrete(([1.0], np.trim_zeros(den, "f")), dt_s, method="zoh")[:2]
+    return np.ravel(num), den
+
+
 def _coil_plant(
     command_a: np.ndarray,
     total_tau_s: float,
@@ -47,9 +55,7 @@ def _coil_plant(
     starting at rest at the first command."""
     hold = max(1, int(round(amplifier_period_s / dt_s)))
     held = np.repeat(command_a[::hold], hold)[: command_a.size]
-    den = np.polymul([(1.0 - force_share) * total_tau_s, 1.0], [force_share * total_tau_s, 1.0])
-    num, den = cont2discrete(([1.0], np.trim_zeros(den, "f")), dt_s, method="zoh")[:2]
-    num = np.ravel(num)
+    num, den = _coil_filter(total_tau_s, dt_s, force_share)
     # lfilter's y[n] is the value at sample n with the input held over the step before it
     padded = np.append(held, held[-1])
     y, _ = lfilter(num, den, padded, zi=lfilter_zi(num, den) * held[0])

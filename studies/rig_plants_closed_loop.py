@@ -5,8 +5,8 @@
 :mod:`.segmented_line`) as an object that advances one held command at a time, with
 several effects at once:
 
-- command effects filter the current at the plant rate (``spool_friction``'s stick-slip
-  play, run a chunk at a time);
+- command effects filter the current at the plant rate, a chunk at a time (``coil_lag``'s
+  amplifier hold and lags, then ``spool_friction``'s stick-slip play);
 - split effects (:data:`.virtual_rig.SPLIT_EFFECTS`) act around the kernel's steps, in the
   order given; two forms may not drive the same kernel parameter;
 - ``tube_waves`` replaces the kernel by the segmented line. Of the split effects only
@@ -19,6 +19,7 @@ several effects at once:
 from __future__ import annotations
 
 import numpy as np
+from scipy.signal import lfilter, lfilter_zi
 
 from pneumatic_env.identification.config import IdentificationConfig
 from pneumatic_env.ids import PISTON_MODE_NAMES
@@ -26,14 +27,14 @@ from pneumatic_env.params import load_parameters, parameter_array
 from pneumatic_env.physics import layout as L
 from pneumatic_env.simulator import BatchSimulator
 
-from .rig_plants import _plant_form, _stick_slip_play, _WallExchange
+from .rig_plants import _coil_filter, _plant_form, _stick_slip_play, _WallExchange
 from .segmented_line import line_constants, line_rows, segmented_line_advance, segmented_line_rest
 from .virtual_rig import LINE_EFFECTS, SPLIT_EFFECTS
 
 __all__ = ["COMMAND_EFFECTS", "CLOSED_LOOP_EFFECTS", "LINE_SPLIT_EFFECTS", "rig_plant"]
 
-#: Effects that filter the command at the plant rate.
-COMMAND_EFFECTS = ("spool_friction",)
+#: Effects that filter the command at the plant rate, in this order.
+COMMAND_EFFECTS = ("coil_lag", "spool_friction")
 #: Every effect the closed-loop plant can hold (several at once).
 CLOSED_LOOP_EFFECTS = (*LINE_EFFECTS, *SPLIT_EFFECTS, *COMMAND_EFFECTS)
 #: Split effects that compose with the segmented line (they act on its chambers' state).
@@ -45,6 +46,24 @@ _DRIVEN_PARAMETER = {
     "exhaust_muffler": "load_force_n",
     "lugre": "load_force_n",
 }
+
+
+class _CoilLag:
+    """``coil_lag``: the rig's amplifier hold and current and force lags (``_coil_plant``),
+    run a chunk of whole amplifier periods at a time, from rest at the first command."""
+
+    def __init__(self, total_tau_s, dt_s, amplifier_period_s, force_share):
+        self.hold = max(1, int(round(amplifier_period_s / dt_s)))
+        self.num, self.den = _coil_filter(total_tau_s, dt_s, force_share)
+        self.state: np.ndarray | None = None
+
+    def __call__(self, current_a: np.ndarray) -> np.ndarray:
+        held = np.repeat(current_a[:: self.hold], self.hold)[: current_a.size]
+        if self.state is None:
+            self.state = lfilter_zi(self.num, self.den) * held[0]
+        y, self.state = lfilter(self.num, self.den, held, zi=self.state)
+        # the value at the end of the last step: the filter's state (num[0] = 0, zero-order hold)
+        return np.append(y[1:], self.state[0])
 
 
 class _SpoolFriction:
@@ -197,7 +216,18 @@ def rig_plant(
         for e, s in active.items()
         if e in SPLIT_EFFECTS
     ]
-    filters = []
+    filters: list = []
+    if "coil_lag" in active:
+        period = cfg.number("virtual_rig", "coil_amplifier_period_s", positive=True)
+        coil = _CoilLag(
+            active["coil_lag"] * cfg.number("virtual_rig", "effects", "coil_lag"),
+            plant_dt_s,
+            period,
+            cfg.number("virtual_rig", "coil_force_lag_share", minimum=0.0),
+        )
+        if ratio % coil.hold:
+            raise ValueError("coil_lag: a control period must hold whole amplifier periods")
+        filters.append(coil)
     if "spool_friction" in active:
         band = (
             active["spool_friction"]

@@ -118,3 +118,25 @@ def test_segmented_line_chambers_exchange_heat_with_the_wall():
     segmented_line_advance(c, n, y, np.full(20000, 1.0), 1e-4, 10)  # held 2 s
     assert y[rows["t1"]] == pytest.approx(p["temperature_k"], abs=2.0)
     assert y[rows["p1"]] == pytest.approx(p["supply_pressure_pa"], rel=1e-3)
+
+
+def test_coil_lag_a_control_period_at_a_time_is_the_rigs_coil():
+    """The closed loop's coil (a chunk of plant steps per control period) gives the open-loop
+    rig's coil (``_coil_plant`` on the whole command) to rounding."""
+    from pneumatic_env.studies.rig_plants import _coil_plant
+
+    cfg = load_config()
+    p = load_parameters("numatics", tube_length_m=0.5, piston_mode="fixed")
+    plant = rig_plant(p, "numatics", {"coil_lag": 1.0}, 1e-3, 1e-4, 10, cfg)
+    (coil,) = plant.command_filters
+    command = np.repeat(np.random.default_rng(0).uniform(-1.0, 1.0, 50), 10)
+    chunked = np.concatenate([coil(command[k : k + 10]) for k in range(0, command.size, 10)])
+    whole = _coil_plant(
+        command,
+        cfg.number("virtual_rig", "effects", "coil_lag"),
+        1e-4,
+        cfg.number("virtual_rig", "coil_amplifier_period_s"),
+        cfg.number("virtual_rig", "coil_force_lag_share"),
+    )
+    np.testing.assert_allclose(chunked, whole, rtol=0, atol=1e-12)
+    assert np.max(np.abs(chunked - command)) > 0.1  # the lag is there
