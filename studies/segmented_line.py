@@ -21,7 +21,11 @@ kernel's sub-model functions; ``tests/test_virtual_rig.py`` compares the two. Wi
 free or on a spring the piston moves by Eq. 1 with Karnopp friction (Eq. 47): its direction
 is chosen at the start of each RK4 step (``piston.motion_direction``) and held over it, a
 velocity that changes sign within a step ends at zero, and the stops are inelastic; the
-chambers' volumes (Eq. 15) and their rates enter Eq. 14.
+chambers' volumes (Eq. 15) and their rates enter Eq. 14. With ``line_constants``'s
+``wall_heat`` the chambers follow the energy equation instead (their temperatures are
+states), exchanging heat with the wall (the closed-loop rig's ``heat_transfer``,
+``rig_plants_closed_loop``); the exhaust mass (the valve's flow out of the tubes' first
+volumes) is a state as well.
 """
 
 from __future__ import annotations
