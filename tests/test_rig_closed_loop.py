@@ -140,3 +140,15 @@ def test_coil_lag_a_control_period_at_a_time_is_the_rigs_coil():
     )
     np.testing.assert_allclose(chunked, whole, rtol=0, atol=1e-12)
     assert np.max(np.abs(chunked - command)) > 0.1  # the lag is there
+
+
+def test_sensor_noise_is_drawn_from_the_rigs_seed():
+    """The rig's sensor noise and quantisation reach the controller: the loop moves, and the
+    same rig (seed) gives the same run."""
+    suite = _suite("sine_10hz", duration_s=0.2)
+    runs = [
+        rig_closed_loop("pid", RigSpec(seed=1, noise=noise), VARIANT, suite)["traces"]["current_a"]
+        for noise in (True, True, False)
+    ]
+    np.testing.assert_array_equal(runs[0], runs[1])
+    assert np.max(np.abs(runs[0] - runs[2])) > 1e-4
