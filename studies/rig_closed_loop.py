@@ -72,6 +72,31 @@ class RigSpec:
         return f"{effects}, {params}" + (", noise" if self.noise else "")
 
 
+class _Sensors:
+    """The rig's measured channels (observation order) from plant outputs (rows: tasks):
+    exact, or with the rig's white noise and ADC quantisation (``virtual_rig.noise``,
+    ``virtual_rig.quantisation``), drawn per task from ``(rig seed, task seed)``."""
+
+    def __init__(self, rig: RigSpec, task_seeds: list[int], cfg):
+        self.noisy = rig.noise
+        self.rows = [_CHANNEL_OUTPUT[c] for c in OBSERVED_CHANNELS]
+        self.rngs = [np.random.default_rng([rig.seed or 0, s]) for s in task_seeds]
+        number = cfg.number
+        self.sigma = np.array([number("virtual_rig", "noise", c) for c in OBSERVED_CHANNELS])
+        self.quantum = np.array(
+            [number("virtual_rig", "quantisation", c, positive=True) for c in OBSERVED_CHANNELS]
+        )
+
+    def __call__(self, outputs: np.ndarray) -> np.ndarray:
+        measured = outputs[:, self.rows].copy()
+        if self.noisy:
+            measured += self.sigma * np.array(
+                [rng.standard_normal(len(self.rows)) for rng in self.rngs]
+            )
+            measured = self.quantum * np.round(measured / self.quantum)
+        return measured
+
+
 def _suite_episodes(controller: str, variant: str, suite: Suite, config: str | None):
     """The controller, its context and the suite's episodes on ``variant`` as the env makes
     them: (controller, env's base parameters, observation scales, references (n_tasks,
@@ -130,28 +155,13 @@ def rig_closed_loop(
         rig_plant(true, cylinder, dict(rig.effects), dt, plant_dt, substeps, cfg)
         for _ in range(n_tasks)
     ]
-    rows = [_CHANNEL_OUTPUT[c] for c in OBSERVED_CHANNELS]
-    rngs = [np.random.default_rng([rig.seed or 0, t.seed]) for t in suite.tasks]
-    noise = np.array(
-        [cfg.number("virtual_rig", "noise", c, minimum=0.0) for c in OBSERVED_CHANNELS]
-    )
-    quantum = np.array(
-        [cfg.number("virtual_rig", "quantisation", c, minimum=0.0) for c in OBSERVED_CHANNELS]
-    )
-
-    def measure(outputs: np.ndarray) -> np.ndarray:
-        m = outputs[:, rows].copy()
-        if rig.noise:
-            m += noise * np.array([rng.standard_normal(len(rows)) for rng in rngs])
-            m = np.where(quantum > 0, quantum * np.round(m / np.where(quantum > 0, quantum, 1)), m)
-        return m
-
+    measure = _Sensors(rig, [t.seed for t in suite.tasks], cfg)
     i_max = float(base["coil_current_max_a"])
     out = {
         k: np.empty((n_steps, n_tasks))
         for k in ("force_n", "reference_n", "current_a", "exhaust_kg")
     }
-    obs = np.empty((n_tasks, len(OBSERVED_CHANNELS) + 1 + ctrl.context.preview_steps), np.float32)
+    obs = np.empty((n_tasks, ctrl.context.obs_dim), np.float32)
     step_count = np.zeros(n_tasks, dtype=np.int64)
     outputs = np.array([p.outputs() for p in plants])
     ctrl.reset()
@@ -165,13 +175,21 @@ def rig_closed_loop(
         out["force_n"][k] = outputs[:, L.O_F]
         out["current_a"][k] = applied
         out["exhaust_kg"][k] = outputs[:, L.O_EXHAUST]
-    metrics = [
-        {
-            "task": task.name,
-            **task_metrics(*(out[key][: steps[i], i] for key in out), scale),
-        }
-        for i, task in enumerate(suite.tasks)
-    ]
+    metrics = []
+    for i, task in enumerate(suite.tasks):
+        k = steps[i]
+        metrics.append(
+            {
+                "task": task.name,
+                **task_metrics(
+                    out["force_n"][:k, i],
+                    out["reference_n"][:k, i],
+                    out["current_a"][:k, i],
+                    out["exhaust_kg"][:k, i],
+                    scale,
+                ),
+            }
+        )
     return {"controller": name, "rows": metrics, "traces": out}
 
 
