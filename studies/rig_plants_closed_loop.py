@@ -29,7 +29,7 @@ from pneumatic_env.simulator import BatchSimulator
 
 from .rig_plants import _coil_filter, _plant_form, _stick_slip_play, _WallExchange
 from .segmented_line import line_constants, line_rows, segmented_line_advance, segmented_line_rest
-from .virtual_rig import LINE_EFFECTS, SPLIT_EFFECTS
+from .virtual_rig import LINE_EFFECTS, MOVING_EFFECTS, SPLIT_EFFECTS
 
 __all__ = ["COMMAND_EFFECTS", "CLOSED_LOOP_EFFECTS", "LINE_SPLIT_EFFECTS", "rig_plant"]
 
@@ -207,10 +207,12 @@ def rig_plant(
         bad = [e for e in active if e in SPLIT_EFFECTS and e not in LINE_SPLIT_EFFECTS]
         if bad:
             raise ValueError(f"effects {bad} do not compose with tube_waves (the segmented line)")
+    piston = PISTON_MODE_NAMES[int(true["piston_mode"])]
+    if piston == "fixed" and any(e in MOVING_EFFECTS for e in active):
+        raise ValueError(f"effects {sorted(active)}: {MOVING_EFFECTS} need a moving piston")
     true = dict(true)
     line_true = dict(true)  # the line's plant: the forms switch kernel forms off in `true`
     truth: dict = {}
-    piston = PISTON_MODE_NAMES[int(true["piston_mode"])]
     forms = [
         _plant_form(e, s, cfg.number("virtual_rig", "effects", e), true, truth, cfg, piston)
         for e, s in active.items()

@@ -92,11 +92,16 @@ def test_spool_friction_holds_the_current_across_control_periods():
 
 
 @pytest.mark.parametrize(
-    "effects", [{"supply_ripple": 1.0, "supply_droop": 1.0}, {"tube_waves": 1.0, "leakage": 1.0}]
+    "effects",
+    [
+        {"supply_ripple": 1.0, "supply_droop": 1.0},
+        {"tube_waves": 1.0, "leakage": 1.0},
+        {"lugre": 1.0},
+    ],
 )
 def test_effects_that_do_not_compose_are_refused(effects):
     p = load_parameters("numatics", tube_length_m=2.0, piston_mode="fixed")
-    with pytest.raises(ValueError, match="twice|compose"):
+    with pytest.raises(ValueError, match="twice|compose|moving piston"):
         rig_plant(p, "numatics", effects, 1e-3, 1e-4, 10, load_config())
 
 
