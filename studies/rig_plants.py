@@ -33,6 +33,14 @@ def _two_lags(y: np.ndarray, total_tau_s: float, dt_s: float) -> np.ndarray:
     return y
 
 
+def _coil_filter(total_tau_s: float, dt_s: float, force_share: float):
+    """(num, den) of the rig's coil lags (``_coil_plant``) discretised exactly for a
+    command held over each ``dt_s``."""
+    den = np.polymul([(1.0 - force_share) * total_tau_s, 1.0], [force_share * total_tau_s, 1.0])
+    num, den = cont2discrete(([1.0], np.trim_zeros(den, "f")), dt_s, method="zoh")[:2]
+    return np.ravel(num), den
+
+
 def _coil_plant(
     command_a: np.ndarray,
     total_tau_s: float,
@@ -47,25 +55,27 @@ def _coil_plant(
     starting at rest at the first command."""
     hold = max(1, int(round(amplifier_period_s / dt_s)))
     held = np.repeat(command_a[::hold], hold)[: command_a.size]
-    den = np.polymul([(1.0 - force_share) * total_tau_s, 1.0], [force_share * total_tau_s, 1.0])
-    num, den = cont2discrete(([1.0], np.trim_zeros(den, "f")), dt_s, method="zoh")[:2]
-    num = np.ravel(num)
+    num, den = _coil_filter(total_tau_s, dt_s, force_share)
     # lfilter's y[n] is the value at sample n with the input held over the step before it
     padded = np.append(held, held[-1])
     y, _ = lfilter(num, den, padded, zi=lfilter_zi(num, den) * held[0])
     return y[1:]
 
 
-def _stick_slip_play(current_a: np.ndarray, band_a: float, breakaway_a: float) -> np.ndarray:
+def _stick_slip_play(
+    current_a: np.ndarray, band_a: float, breakaway_a: float, state: list | None = None
+) -> np.ndarray:
     """The current a spool with Coulomb and static friction follows (quasi-static).
 
     Stuck, the spool holds its current ``h`` until the command leaves ``h +/- breakaway_a``
     (static friction); it then slides, held ``band_a`` behind the command (Coulomb
     friction), for as long as the command keeps moving that way. With ``breakaway_a =
-    band_a`` this is the candidate's play (``effects.spool_play_current``).
+    band_a`` this is the candidate's play (``effects.spool_play_current``). ``state``: the
+    spool's [held current, sliding direction] to start from (default at rest at 0), updated
+    in place at the end (to run the play a chunk at a time).
     """
     out = np.empty_like(current_a)
-    held, sliding = 0.0, 0.0
+    held, sliding = (0.0, 0.0) if state is None else state
     for k, command in enumerate(current_a):
         if sliding != 0.0:
             target = command - sliding * band_a
@@ -77,6 +87,8 @@ def _stick_slip_play(current_a: np.ndarray, band_a: float, breakaway_a: float) -
             sliding = 1.0 if command > held else -1.0
             held = command - sliding * band_a
         out[k] = held
+    if state is not None:
+        state[:] = [held, sliding]
     return out
 
 
