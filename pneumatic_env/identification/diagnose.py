@@ -69,6 +69,7 @@ from .selection import (
     Selection,
     Settings,
     WorkPlan,
+    screening_columns,
     selection_round,
     winner_and_runner_up,
 )
@@ -247,11 +248,11 @@ def _plan_work(
 ) -> WorkPlan:
     """Estimate the work, time one simulation of the data, and add the size notice."""
     w_train, w_all = _work(split.train, split.train_n), _work(datasets)
-    n_screen = len(refit) + 1 + sum(1 + len(c.parameters) for c in pool if c.kind == "plant")
+    n_screen = screening_columns(pool, len(refit))
     plan_base = w_train * (len(base_params) + 1) * 0.8 * cfg.number("fit", "max_nfev")
     refit_work = w_train * (len(refit) + 3) * 12  # about 12 Jacobians per refit
     plan_round = w_all * n_screen + (0 if quick else settings.top_k * refit_work)
-    progress.stage("timing a simulation of the data", w_all + plan_base + plan_round)
+    progress.stage("timing a simulation of the data", w_all, later=plan_base + plan_round)
     t_probe = time.monotonic()
     FitProblem(datasets, [], config=cfg, label="probe").residual([])
     per_column = (time.monotonic() - t_probe) / max(w_all, 1.0)
@@ -260,7 +261,7 @@ def _plan_work(
         issues.append(issue)
         log.warning("%s", issue.message)
     progress.restart_clock()  # the first simulation may have compiled the kernel
-    return WorkPlan(plan_base, plan_round, refit_work)
+    return WorkPlan(plan_base, plan_round, refit_work, w_all)
 
 
 def diagnose(
@@ -310,7 +311,7 @@ def diagnose(
     after_nrmse, after_preds = split.heldout_nrmse(state.current)
     after_per = split.per_recording(after_preds)
     timings["total"] = time.monotonic() - t0
-    progress.stage("done", 0.0)
+    progress.finish()
     return Diagnosis(
         datasets=datasets,
         holdout=split.info,
@@ -349,7 +350,7 @@ def _fit_base(
     plan: WorkPlan,
 ) -> FitResult:
     """Calibrate the base model on the training data."""
-    progress.stage("base fit", plan.base + plan.round)
+    progress.stage("base fit", plan.base, later=plan.round)
     log.info(
         "diagnosis: calibrating the base model (%s) on the training data",
         ", ".join(p.name for p in base_params),

@@ -14,7 +14,7 @@ import math
 import multiprocessing
 import sys
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -433,28 +433,29 @@ def _parameter_verdict(cand: Candidate, fit: FitResult) -> tuple[bool, bool, lis
     return plausible, identified, reasons
 
 
-def _score_job(args: tuple) -> CandidateScore:
-    """:func:`score` in a worker process (its progress is the parent's to show)."""
-    progress._ACTIVE.clear()
-    return score(*args)
-
-
-def score_many(
-    jobs_args: Sequence[tuple], jobs: int, work_each: float = 0.0
-) -> list[CandidateScore]:
+def score_many(jobs_args: Sequence[tuple], jobs: int, poll_s: float = 1.0) -> list[CandidateScore]:
     """:func:`score` of every argument tuple, in up to ``jobs`` processes (``fork``: the
-    children inherit the compiled kernel) when there are two or more; in order.
-    ``work_each`` is reported to :mod:`.progress` as each one finishes."""
+    children inherit the compiled kernel) when there are two or more; in order. The
+    workers' simulated work reaches :mod:`.progress` through a shared counter, read every
+    ``poll_s`` seconds."""
     jobs_args = list(jobs_args)
     if jobs <= 1 or len(jobs_args) < 2 or sys.platform == "win32":
-        out = []
-        for args in jobs_args:
-            out.append(score(*args))
-        return out
+        return [score(*args) for args in jobs_args]
     ctx = multiprocessing.get_context("fork")
-    out = []
-    with ProcessPoolExecutor(max_workers=min(jobs, len(jobs_args)), mp_context=ctx) as pool:
-        for result in pool.map(_score_job, jobs_args):
-            progress.advance(work_each)
-            out.append(result)
-    return out
+    counter = ctx.Value("d", 0.0)
+    shown = 0.0
+    with ProcessPoolExecutor(
+        max_workers=min(jobs, len(jobs_args)),
+        mp_context=ctx,
+        initializer=progress.report_to,
+        initargs=(counter,),
+    ) as pool:
+        futures = [pool.submit(score, *args) for args in jobs_args]
+        pending = set(futures)
+        while pending:
+            _, pending = wait(pending, timeout=poll_s)
+            with counter.get_lock():
+                now = counter.value
+            progress.advance(now - shown)
+            shown = now
+        return [f.result() for f in futures]
