@@ -3,9 +3,20 @@ report written after each round (pneumatic_env.identification)."""
 
 from __future__ import annotations
 
+import json
+from types import SimpleNamespace
+
 import pytest
 
 from pneumatic_env.identification import progress
+from pneumatic_env.identification.checks import read_checked
+from pneumatic_env.identification.config import load_config
+from pneumatic_env.identification.diagnose import diagnose
+from pneumatic_env.identification.drift import base_drifts, suggested_effects
+from pneumatic_env.identification.report import _drift_lines, write_report
+from pneumatic_env.identification.results import FitResult
+from pneumatic_env.identification.scoring import acceptance
+from pneumatic_env.studies.virtual_rig import make_recording
 
 
 class _Clock:
@@ -68,3 +79,109 @@ def test_a_worker_process_reports_its_work_through_the_shared_counter():
         assert counter.value == 7.0 and bar.done == 0.0
     finally:
         progress._ACTIVE[:], progress._SHARED[:] = saved_active, saved_shared
+
+
+# --------------------------------------------------------------------------- drift notice
+
+
+def _fit_with(values: dict) -> FitResult:
+    """A calibrated base model with these fitted values (statistics left neutral)."""
+    cfg = load_config()
+    params = [cfg.base_parameters[n] for n in values]
+    return FitResult(
+        parameters=params,
+        values=dict(values),
+        fixed={},
+        std=dict.fromkeys(values, 0.0),
+        ci={n: (v, v) for n, v in values.items()},
+        identified=dict.fromkeys(values, True),
+        plausible={p.name: p.plausible_min <= values[p.name] <= p.plausible_max for p in params},
+        flags={n: [] for n in values},
+        correlations=[],
+        condition_number=1.0,
+        cost=1.0,
+        rss=1.0,
+        n_residuals=10,
+        rho1=0.0,
+        n_eff=10.0,
+        nfev=1,
+        message="",
+    )
+
+
+def test_drift_notice_names_the_parameters_outside_their_range_and_what_they_stand_for():
+    cfg = load_config()
+    nominal = {"discharge_coefficient": 0.25, "coil_force_n_per_a": 2.78}
+    data = SimpleNamespace(values={**nominal, "dead_volume_cap_m3": 1e-6})
+    fit = _fit_with(
+        {"discharge_coefficient": 0.02, "coil_force_n_per_a": 2.9, "dead_volume_cap_m3": 9e-6}
+    )
+    drifts = base_drifts(fit, [data], cfg)
+    # farthest first: 0.05 / 0.02 = 2.5 x below, 9 / 5 = 1.8 x above; the gain is inside
+    assert [d.name for d in drifts] == ["discharge_coefficient", "dead_volume_cap_m3"]
+    cd = drifts[0]
+    assert cd.direction == "below" and cd.nominal == 0.25 and cd.fitted == 0.02
+    assert cd.factor == pytest.approx(0.05 / 0.02)  # plausible_min / fitted
+    assert "tube_waves" in cd.effects and cd.explanation
+    assert drifts[1].direction == "above" and drifts[1].factor == pytest.approx(9e-6 / 5e-6)
+    assert suggested_effects(drifts)[0] == drifts[0].effects[0]
+    # the report's table names each, with its values and what it may stand for
+    data_json = {
+        "base_drift": [d.to_dict() for d in drifts],
+        "suggested_by_drift": suggested_effects(drifts),
+    }
+    lines = "\n".join(_drift_lines(data_json))
+    assert "| discharge_coefficient | 0.25 - | 0.02 | [0.05, 0.95] | 2.50 x below |" in lines
+    assert "tube_waves" in lines
+    assert _drift_lines({"base_drift": [], "suggested_by_drift": []}) == []
+
+
+# --------------------------------------------------------------------------- acceptance
+
+
+def test_a_strong_effect_outside_its_plausible_range_is_accepted_flagged_a_weak_one_not():
+    cfg = load_config()
+    outside = ["supply_resistance_pa_s_per_kg = 3.3e+07 Pa s/kg is outside the plausible range"]
+    args = dict(how="median", delta_ic=-500.0, identified=True, min_rel=0.1, min_ic=10.0)
+    accepted, reasons, flags = acceptance(0.37, outside=outside, cfg=cfg, **args)
+    assert accepted and not reasons
+    assert flags == ["fitted value outside the plausible range: " + outside[0]]
+    accepted, reasons, flags = acceptance(0.15, outside=outside, cfg=cfg, **args)
+    assert not accepted and not flags and outside[0] in reasons
+    accepted, reasons, flags = acceptance(0.15, outside=[], cfg=cfg, **args)
+    assert accepted and not reasons and not flags
+    # a strong improvement is no licence without identification
+    accepted, _, _ = acceptance(0.37, outside=outside, cfg=cfg, **{**args, "identified": False})
+    assert not accepted
+
+
+# --------------------------------------------------------------------------- anytime report
+
+
+def test_the_report_is_written_before_each_round_with_what_was_found_so_far(tmp_path):
+    csv = tmp_path / "leakage_1.csv"
+    make_recording(tmp_path, name="leakage_1", effect="leakage", seed=1, duration_s=1.0)
+    out = tmp_path / "report"
+    seen = []
+
+    def write_so_far(diag):
+        data = write_report(diag, out, plots=False)
+        seen.append(json.loads((out / "diagnosis.json").read_text()))
+        assert data == seen[-1]
+        assert "Status: running" in (out / "report.md").read_text()
+        assert (out / "fitted_final.yaml").is_file()
+
+    diag = diagnose(
+        [read_checked(csv)],
+        candidates=["leakage", "pressure_sensor_offset"],
+        max_effects=2,
+        jobs=1,
+        on_round=write_so_far,
+    )
+    assert [s["status"] for s in seen] == ["running, round 1", "running, round 2"]
+    assert seen[0]["selected"] == [] and seen[0]["candidates"] == []
+    after_round_1 = seen[1]
+    assert after_round_1["selected"] == ["leakage"] == diag.selected[:1]
+    assert {c["name"] for c in after_round_1["candidates"]} == {"leakage", "pressure_sensor_offset"}
+    assert "beyond leakage" in after_round_1["still_checking"]
+    assert diag.status == "complete" and diag.to_json()["still_checking"] is None

@@ -32,6 +32,8 @@ __all__ = [
     "Selection",
     "Settings",
     "WorkPlan",
+    "eligible",
+    "screening_columns",
     "selection_round",
     "winner_and_runner_up",
 ]
@@ -111,22 +113,27 @@ class Selection:
     over_freer: dict = field(default_factory=dict)
 
 
+def eligible(pool: Sequence[Candidate], selected: Sequence[Candidate]) -> list[Candidate]:
+    """The candidates of ``pool`` a round screens: not selected, not in conflict with one."""
+    return [c for c in pool if c not in selected and not conflicts(c, selected)]
+
+
 def selection_round(
     ctx: RoundContext, state: Selection, pool: Sequence[Candidate], rnd: int
 ) -> bool:
     """One greedy round: screen, refit the best few, accept the best; False when done."""
-    eligible = [c for c in pool if c not in state.selected and not conflicts(c, state.selected)]
-    if not eligible:
+    candidates = eligible(pool, state.selected)
+    if not candidates:
         return False
     t_round = time.monotonic()
-    n_refits = 0 if ctx.quick else min(ctx.settings.top_k, len(eligible))
+    n_refits = 0 if ctx.quick else min(ctx.settings.top_k, len(candidates))
     progress.stage(
-        f"screening {len(eligible)} candidates (round {rnd})",
-        ctx.plan.screening(eligible, len(ctx.refit)),
+        f"screening {len(candidates)} candidates (round {rnd})",
+        ctx.plan.screening(candidates, len(ctx.refit)),
         later=n_refits * ctx.plan.refit,
     )
     screens = screen_candidates(
-        eligible,
+        candidates,
         state.current,
         list(state.current.parameters),
         ctx.datasets,
@@ -356,4 +363,5 @@ def _confidence(
         "holds_on_every_heldout_recording": bool(per) and all(v > 0 for v in per.values()),
         "acts_on": where,
         "holds_where_it_acts": bool(where) and all(per[k] > 0 for k in where),
+        "flagged": list(best.flags),
     }
