@@ -126,14 +126,17 @@ def test_drift_notice_names_the_parameters_outside_their_range_and_what_they_sta
     assert drifts[1].direction == "above" and drifts[1].factor == pytest.approx(9e-6 / 5e-6)
     assert suggested_effects(drifts)[0] == drifts[0].effects[0]
     # the report's table names each, with its values and what it may stand for
+    tube = {"name": "tube_waves", "round": 1, "refitted": True, "accepted": False}
     data_json = {
         "base_drift": [d.to_dict() for d in drifts],
         "suggested_by_drift": suggested_effects(drifts),
+        "candidates": [tube],
     }
     lines = "\n".join(_drift_lines(data_json))
     assert "| discharge_coefficient | 0.25 - | 0.02 | [0.05, 0.95] | 2.50 x below |" in lines
-    assert "tube_waves" in lines
-    assert _drift_lines({"base_drift": [], "suggested_by_drift": []}) == []
+    assert "tube_waves (refitted, not accepted)" in lines
+    assert "supply_droop (not tried)" in lines
+    assert _drift_lines({"base_drift": [], "suggested_by_drift": [], "candidates": []}) == []
 
 
 # --------------------------------------------------------------------------- acceptance

@@ -202,11 +202,19 @@ def _drift_lines(data: dict) -> list[str]:
             f"{_fmt(d['final'])} | {', '.join(d['may_stand_for']) or '-'} | "
             f"{d['explanation']} |"
         )
-    lines += [
-        "",
-        "Effects these drifts point at: " + (", ".join(data["suggested_by_drift"]) or "-") + ".",
-    ]
+    tried = {c["name"]: c for c in data["candidates"] if c["round"] == 1}
+    pointed = [f"{e} ({_tried(tried.get(e))})" for e in data["suggested_by_drift"]]
+    lines += ["", "Effects these drifts point at: " + (", ".join(pointed) or "-") + "."]
     return lines
+
+
+def _tried(c: dict | None) -> str:
+    """How round 1 tried a candidate (its score in :func:`_candidate_lines`'s table)."""
+    if c is None:
+        return "not tried"
+    if not c["refitted"]:
+        return "screened, not refitted"
+    return "refitted, accepted" if c["accepted"] else "refitted, not accepted"
 
 
 def _nrmse_lines(data: dict) -> list[str]:
