@@ -300,13 +300,8 @@ def score(
     ``current_per``: the current model's mean held-out NRMSE per held-out recording; the
     score's ``per_recording`` is the candidate's relative improvement on each. The refit
     starts from the config's warm start, and from the screening's ``step`` as well when
-    it falls short of ``predicted_train`` (:func:`refit_with_restart`).
-
-    Accepted when the held-out improvement is at least ``min_rel``, the BIC falls by at
-    least ``min_ic`` and the effect's parameters are identified, and either plausible or
-    the improvement is strong (``diagnosis.min_improvement_when_implausible``): a strong
-    effect with a value outside its assumed plausible range is still that effect, and is
-    accepted flagged with the value (``flags``); a weaker implausible one is refused."""
+    it falls short of ``predicted_train`` (:func:`refit_with_restart`). The verdict is
+    :func:`acceptance`'s."""
     # parameters the candidate adds to the current model (its own and the base parameters
     # it makes observable that the current model did not fit)
     current_free = {p.name for p in current.parameters}
@@ -374,11 +369,14 @@ def acceptance(
     min_ic: float,
     cfg: IdentificationConfig,
 ) -> tuple[bool, list[str], list[str]]:
-    """Whether a refit with held-out improvement ``rel`` (taken as ``how``), BIC change
-    ``delta_ic`` and its parameters ``identified`` is accepted; the reasons against, and
-    the flags it is accepted with. ``outside``: its parameters outside their plausible
-    range (with their values). An implausible value is accepted, flagged, only when the
-    improvement is at least ``diagnosis.min_improvement_when_implausible``."""
+    """Whether a refit is accepted, the reasons against and the flags it is accepted with.
+
+    Accepted when the held-out improvement ``rel`` (taken as ``how``) is at least
+    ``min_rel``, the BIC change ``delta_ic`` at most ``-min_ic``, the effect's parameters
+    are ``identified``, and none is ``outside`` its plausible range (each with its value)
+    or the improvement is at least ``diagnosis.min_improvement_when_implausible``: a
+    strong effect is still that effect, accepted flagged with the value; a weaker
+    implausible one is refused."""
     min_strong = cfg.diagnosis("min_improvement_when_implausible")
     reasons = []
     if rel < min_rel:
