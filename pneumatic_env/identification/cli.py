@@ -127,6 +127,7 @@ def run(args) -> int:
                 max_effects=args.max_effects,
                 quick=args.quick,
                 jobs=args.jobs,
+                on_round=lambda so_far: write_report(so_far, args.report, plots=False),
             )
     except BadDataError as exc:
         print(f"pneumatic-env identify: {exc}", file=sys.stderr)

@@ -14,8 +14,10 @@
    size ``N (1 - rho) / (1 + rho)`` of the autocorrelated residual.
 4. Accept an effect only when the held-out improvement and the BIC drop pass the
    thresholds of ``configs/identification.yaml`` (fixed before any test data existed),
-   and its parameters are plausible and identified (confidence interval narrower than
-   the plausible range and excluding the neutral value). A second or later effect must
+   and its parameters are identified (confidence interval narrower than the plausible
+   range and excluding the neutral value) and plausible, or the improvement is strong
+   (``diagnosis.min_improvement_when_implausible``: then it is accepted flagged with the
+   value outside the plausible range). A second or later effect must
    also be supported on held-out data the effects before it did not explain: it must
    lower the error of every held-out recording it can act on by the threshold, raise
    none, and beat the effects before it refitted per experiment type
@@ -32,7 +34,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from pneumatic_env.recording import Recording
@@ -53,6 +55,7 @@ from .candidates import (
 )
 from .checks import dead_band_current
 from .config import IdentificationConfig, load_config
+from .drift import base_drifts, suggested_effects
 from .holdout import Holdout
 from .problem import FitProblem
 from .residuals import PHASES, phase_masks, residual_analysis
@@ -69,6 +72,8 @@ from .selection import (
     Selection,
     Settings,
     WorkPlan,
+    eligible,
+    screening_columns,
     selection_round,
     winner_and_runner_up,
 )
@@ -120,6 +125,9 @@ class Diagnosis:
     quick: bool = False  # screening only, nothing refitted
     freer_forms: list = field(default_factory=list)  # per later round (.later_effects)
     timings: dict = field(default_factory=dict)  # seconds per stage
+    status: str = "complete"  # or "running, round N" (a report written during the run)
+    still_checking: str | None = None  # what the running round checks
+    drift: list = field(default_factory=list)  # .drift.Drift: base parameters implausible
 
     def ranked(self) -> list[CandidateScore]:
         """Round 1 by score (refitted candidates first), then each later round."""
@@ -151,6 +159,10 @@ class Diagnosis:
             "freer_forms": self.freer_forms,
             "quick": self.quick,
             "timings_s": self.timings,
+            "status": self.status,
+            "still_checking": self.still_checking,
+            "base_drift": [d.to_dict() for d in self.drift],
+            "suggested_by_drift": suggested_effects(self.drift),
             "note": "NRMSE = RMSE / channel scale (supply - ambient for pressures, that times the "
             "cap area for the force, half the stroke for x), on held-out data",
         }
@@ -206,6 +218,7 @@ def _settings(cfg: IdentificationConfig, max_effects: int | None, jobs: int | No
         "max_effects": max_effects,
         "refit_top": top_k,
         "min_predicted_improvement": min_pred,
+        "min_improvement_when_implausible": cfg.diagnosis("min_improvement_when_implausible"),
     }
     tolerance = cfg.number("fit", "diagnosis_tolerance", positive=True)
     return Settings(
@@ -247,11 +260,11 @@ def _plan_work(
 ) -> WorkPlan:
     """Estimate the work, time one simulation of the data, and add the size notice."""
     w_train, w_all = _work(split.train, split.train_n), _work(datasets)
-    n_screen = len(refit) + 1 + sum(1 + len(c.parameters) for c in pool if c.kind == "plant")
+    n_screen = screening_columns(pool, len(refit))
     plan_base = w_train * (len(base_params) + 1) * 0.8 * cfg.number("fit", "max_nfev")
     refit_work = w_train * (len(refit) + 3) * 12  # about 12 Jacobians per refit
     plan_round = w_all * n_screen + (0 if quick else settings.top_k * refit_work)
-    progress.stage("timing a simulation of the data", w_all + plan_base + plan_round)
+    progress.stage("timing a simulation of the data", w_all, later=plan_base + plan_round)
     t_probe = time.monotonic()
     FitProblem(datasets, [], config=cfg, label="probe").residual([])
     per_column = (time.monotonic() - t_probe) / max(w_all, 1.0)
@@ -260,7 +273,7 @@ def _plan_work(
         issues.append(issue)
         log.warning("%s", issue.message)
     progress.restart_clock()  # the first simulation may have compiled the kernel
-    return WorkPlan(plan_base, plan_round, refit_work)
+    return WorkPlan(plan_base, plan_round, refit_work, w_all)
 
 
 def diagnose(
@@ -273,6 +286,7 @@ def diagnose(
     max_effects: int | None = None,
     quick: bool = False,
     jobs: int | None = None,
+    on_round: Callable[[Diagnosis], None] | None = None,
 ) -> Diagnosis:
     """Calibrate, screen the candidates, refit the promising ones, select effects.
 
@@ -280,6 +294,9 @@ def diagnose(
     parameters to calibrate (default from the config). ``holdout``: see :mod:`.holdout`.
     ``quick``: stop after the screening (nothing is refitted or selected; the ranking is
     in ``screening``). ``jobs``: processes for the refits (default ``screening.jobs``).
+    ``on_round``: called with the diagnosis so far (status "running, round N") before
+    each round, e.g. to write the report then, so a run stopped early still tells what
+    it found.
     """
     t0 = time.monotonic()
     cfg = config or load_config()
@@ -303,23 +320,59 @@ def diagnose(
     state = Selection(
         base, mean_nrmse(baseline_nrmse), {k: mean_nrmse(v) for k, v in base_per.items()}
     )
+    before = _Before(t0, issues, skipped, baseline_nrmse, base_preds, base_per)
     for rnd in range(1, settings.max_effects + 1):
+        if on_round is not None:  # the report so far, before each round
+            on_round(_assemble(ctx, state, before, pool, rnd))
         if not selection_round(ctx, state, pool, rnd):
             break
-    winner, runner_up, suggestion = winner_and_runner_up(state, cfg, settings.min_rel, quick)
+    diag = _assemble(ctx, state, before, pool)
+    progress.finish()
+    return diag
+
+
+@dataclass
+class _Before:
+    """What :func:`diagnose` knows before the rounds: the start time, the data issues,
+    the skipped candidates, and the base model's held-out error and predictions."""
+
+    t0: float
+    issues: list
+    skipped: dict
+    baseline_nrmse: dict
+    base_preds: list
+    base_per: dict
+
+
+def _assemble(
+    ctx: RoundContext,
+    state: Selection,
+    before: _Before,
+    pool: Sequence[Candidate],
+    running_round: int | None = None,
+) -> Diagnosis:
+    """The :class:`Diagnosis` of the selection so far: complete, or (``running_round``)
+    while that round is still to run (no predictions for plots then)."""
+    split, base, cfg = ctx.split, ctx.base, ctx.cfg
+    winner, runner_up, suggestion = winner_and_runner_up(
+        state, cfg, ctx.settings.min_rel, ctx.quick
+    )
     after_nrmse, after_preds = split.heldout_nrmse(state.current)
     after_per = split.per_recording(after_preds)
-    timings["total"] = time.monotonic() - t0
-    progress.stage("done", 0.0)
+    ctx.timings["total"] = time.monotonic() - before.t0
+    status, checking = "complete", None
+    if running_round is not None:
+        status = f"running, round {running_round}"
+        checking = _still_checking(state, pool, running_round)
     return Diagnosis(
-        datasets=datasets,
+        datasets=list(ctx.datasets),
         holdout=split.info,
-        issues=issues,
+        issues=before.issues,
         base=base,
-        baseline_nrmse=baseline_nrmse,
-        baseline_residuals=_heldout_residuals(split, base, base_preds, cfg),
-        scores=state.scores,
-        skipped=skipped,
+        baseline_nrmse=before.baseline_nrmse,
+        baseline_residuals=_heldout_residuals(split, base, before.base_preds, cfg),
+        scores=list(state.scores),
+        skipped=before.skipped,
         selected=[c.name for c in state.selected],
         final=state.current,
         after_nrmse=after_nrmse,
@@ -327,18 +380,33 @@ def diagnose(
         winner=winner,
         runner_up=runner_up,
         suggestion=suggestion,
-        thresholds=settings.thresholds,
-        predictions={
-            "before": split.predict(base, datasets),
-            "after": split.predict(state.current, datasets),
-        },
-        screening=state.screening,
-        confidence=state.confidence,
-        freer_forms=state.freer_forms,
-        per_recording=_per_recording_before_after(base_per, after_per),
-        quick=quick,
-        timings=timings,
+        thresholds=ctx.settings.thresholds,
+        predictions=(
+            {}
+            if running_round is not None
+            else {
+                "before": split.predict(base, ctx.datasets),
+                "after": split.predict(state.current, ctx.datasets),
+            }
+        ),
+        screening=list(state.screening),
+        confidence=list(state.confidence),
+        freer_forms=list(state.freer_forms),
+        per_recording=_per_recording_before_after(before.base_per, after_per),
+        quick=ctx.quick,
+        timings=dict(ctx.timings),
+        status=status,
+        still_checking=checking,
+        drift=base_drifts(base, ctx.datasets, cfg, state.current),
     )
+
+
+def _still_checking(state: Selection, pool: Sequence[Candidate], rnd: int) -> str:
+    """What round ``rnd`` checks, in words."""
+    names = [c.name for c in eligible(pool, state.selected)]
+    found = ", ".join(c.name for c in state.selected)
+    question = f"is there an effect beyond {found}?" if found else "which effect, if any?"
+    return f"round {rnd}: {question} Screening {len(names)} candidates: {', '.join(names)}"
 
 
 def _fit_base(
@@ -349,7 +417,7 @@ def _fit_base(
     plan: WorkPlan,
 ) -> FitResult:
     """Calibrate the base model on the training data."""
-    progress.stage("base fit", plan.base + plan.round)
+    progress.stage("base fit", plan.base, later=plan.round)
     log.info(
         "diagnosis: calibrating the base model (%s) on the training data",
         ", ".join(p.name for p in base_params),

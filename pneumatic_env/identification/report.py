@@ -120,9 +120,15 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
         f"Held-out data: {json.dumps(data['holdout'])}.",
         "",
     ]
+    if data["status"] != "complete":
+        lines += [
+            f"**Status: {data['status']}.** The run is not finished: this report holds what "
+            f"it found so far. Still being checked: {data['still_checking']}.",
+            "",
+        ]
     if data["issues"]:
         lines += ["## Data issues", ""] + [f"- {i}" for i in data["issues"]] + [""]
-    lines += _result_lines(data) + _nrmse_lines(data)
+    lines += _result_lines(data) + _drift_lines(data) + _nrmse_lines(data)
     lines += _confidence_lines(data) + _per_recording_lines(data) + _screening_lines(data)
     lines += _candidate_lines(data) + _calibration_lines(data) + _residual_lines(data)
     lines += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots]
@@ -150,6 +156,9 @@ def _result_lines(data: dict) -> list[str]:
             + ", ".join(f"**{s}**" for s in data["selected"])
             + f". Runner-up in round 1: {data['runner_up'] or '-'}."
         )
+        for c in data["confidence"]:
+            if c.get("flagged"):
+                lines.append(f"Flagged: **{c['effect']}**: " + "; ".join(c["flagged"]) + ".")
     else:
         lines.append(
             "Selected effects: **none** (no candidate passed the acceptance rules). "
@@ -166,6 +175,46 @@ def _result_lines(data: dict) -> list[str]:
             "and no accepted candidate explains it."
         )
     return lines
+
+
+def _drift_lines(data: dict) -> list[str]:
+    """The base parameters fitted outside their plausible range, and what they may stand
+    for (:mod:`.drift`)."""
+    if not data["base_drift"]:
+        return []
+    lines = [
+        "",
+        "## Base parameters outside their plausible range",
+        "",
+        "A base parameter fitted far outside what a real rig can have is itself evidence "
+        "of a missing effect: the model bends it to take up the effect's part of the data.",
+        "",
+        "| parameter | nominal | fitted | plausible range | factor outside | with the "
+        "selected effects | may stand for | why |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for d in data["base_drift"]:
+        lo, hi = d["plausible_range"]
+        factor = "-" if d["factor_outside"] is None else f"{d['factor_outside']:.2f} x"
+        lines.append(
+            f"| {d['parameter']} | {_fmt(d['nominal'])} {d['unit']} | {_fmt(d['fitted'])} | "
+            f"[{_fmt(lo, 3)}, {_fmt(hi, 3)}] | {factor} {d['direction']} | "
+            f"{_fmt(d['final'])} | {', '.join(d['may_stand_for']) or '-'} | "
+            f"{d['explanation']} |"
+        )
+    tried = {c["name"]: c for c in data["candidates"] if c["round"] == 1}
+    pointed = [f"{e} ({_tried(tried.get(e))})" for e in data["suggested_by_drift"]]
+    lines += ["", "Effects these drifts point at: " + (", ".join(pointed) or "-") + "."]
+    return lines
+
+
+def _tried(c: dict | None) -> str:
+    """How round 1 tried a candidate (its score in :func:`_candidate_lines`'s table)."""
+    if c is None:
+        return "not tried"
+    if not c["refitted"]:
+        return "screened, not refitted"
+    return "refitted, accepted" if c["accepted"] else "refitted, not accepted"
 
 
 def _nrmse_lines(data: dict) -> list[str]:
@@ -201,9 +250,11 @@ def _candidate_lines(data: dict) -> list[str]:
         f"with {th.get('median_from_recordings', 3)} or more held-out recordings, the median "
         "of the improvements on the recordings the effect acts on), the "
         "autocorrelation-corrected BIC "
-        f"falls by at least {th['min_ic_drop']:g}, and the effect's parameters are plausible "
-        "and identified (confidence interval narrower than the plausible range, excluding "
-        "the neutral value).",
+        f"falls by at least {th['min_ic_drop']:g}, and the effect's parameters are identified "
+        "(confidence interval narrower than the plausible range, excluding the neutral "
+        "value) and plausible; a candidate with a value outside its plausible range is "
+        "accepted, flagged with the value, when its held-out improvement is at least "
+        f"{100 * th.get('min_improvement_when_implausible', math.inf):.0f} %.",
         "",
         "| round | candidate | score (held-out improvement) | delta BIC | held-out NRMSE | "
         "parameters (95 % CI) | accepted | why not (or notes) |",
@@ -221,7 +272,7 @@ def _candidate_lines(data: dict) -> list[str]:
             f"| {c['round']} | {c['name']} | {score} | "
             f"{_fmt(c['delta_ic'], 3)} | {_fmt(c['heldout_nrmse_mean'])} | {params} | "
             f"{'yes' if c['accepted'] else 'no'} | "
-            f"{'; '.join([*c['reasons'], *c.get('notes', [])])} |"
+            f"{'; '.join([*c['reasons'], *c.get('flagged', []), *c.get('notes', [])])} |"
         )
     if data["skipped"]:
         lines += ["", "Not tried: " + "; ".join(f"{k} ({v})" for k, v in data["skipped"].items())]
@@ -416,6 +467,6 @@ def write_report(diag: Diagnosis, out_dir: str | os.PathLike, plots: bool = True
         f"pneumatic_env identify on {recs}; selected effects: "
         + (", ".join(diag.selected) or "none"),
     )
-    written = _plots(diag, out_dir) if plots else []
+    written = _plots(diag, out_dir) if plots and diag.predictions else []
     (out_dir / "report.md").write_text(_markdown(diag, data, written), encoding="utf-8")
     return data

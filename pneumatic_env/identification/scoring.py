@@ -14,7 +14,7 @@ import math
 import multiprocessing
 import sys
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,6 +29,7 @@ __all__ = [
     "CandidateScore",
     "conflicts",
     "heldout_improvement",
+    "acceptance",
     "improvement_is_the_basin",
     "mean_nrmse",
     "refit_with_restart",
@@ -102,6 +103,7 @@ class CandidateScore:
     refitted: bool = True  # False: screened out, the score is the screening's prediction
     restarted: bool = False  # refitted again from the screening's step (refit_with_restart)
     notes: list[str] = field(default_factory=list)  # checks it passed, with their figures
+    flags: list[str] = field(default_factory=list)  # accepted despite these (see score)
 
     @property
     def name(self) -> str:
@@ -149,6 +151,7 @@ class CandidateScore:
             "refitted": self.refitted,
             "restarted_from_screening_step": self.restarted,
             "notes": self.notes,
+            "flagged": self.flags,
             "heldout_improvement_per_recording": dict(self.per_recording),
             "heldout_nrmse_per_recording": dict(self.per_recording_nrmse),
             "screening": self.screening,
@@ -297,7 +300,8 @@ def score(
     ``current_per``: the current model's mean held-out NRMSE per held-out recording; the
     score's ``per_recording`` is the candidate's relative improvement on each. The refit
     starts from the config's warm start, and from the screening's ``step`` as well when
-    it falls short of ``predicted_train`` (:func:`refit_with_restart`)."""
+    it falls short of ``predicted_train`` (:func:`refit_with_restart`). The verdict is
+    :func:`acceptance`'s."""
     # parameters the candidate adds to the current model (its own and the base parameters
     # it makes observable that the current model did not fit)
     current_free = {p.name for p in current.parameters}
@@ -331,12 +335,11 @@ def score(
     rel, how = heldout_improvement(per, pooled, cfg, split.acted_on(cand))
     # BIC(candidate) - BIC(current): N_eff ln(RSS_c / RSS_m) + (extra parameters) ln(N_eff)
     delta_ic = _ic(fit.rss, n_res, n_eff, n_extra) - _ic(current.rss, n_res, n_eff, 0)
-    plausible, identified, reasons = _parameter_verdict(cand, fit)
-    if rel < min_rel:
-        reasons.append(f"held-out improvement ({how}) {100 * rel:.1f} % < {100 * min_rel:.0f} %")
-    if delta_ic > -min_ic:
-        reasons.append(f"BIC change {delta_ic:.1f} > -{min_ic:g}")
-    accepted = rel >= min_rel and delta_ic <= -min_ic and plausible and identified
+    plausible, identified, reasons, outside = _parameter_verdict(cand, fit)
+    accepted, more, flags = acceptance(
+        rel, how, delta_ic, identified, outside, min_rel, min_ic, cfg
+    )
+    reasons += more
     return CandidateScore(
         cand,
         rnd,
@@ -352,7 +355,47 @@ def score(
         per_recording=per,
         per_recording_nrmse=per_nrmse,
         restarted=restarted,
+        flags=flags,
     )
+
+
+def acceptance(
+    rel: float,
+    how: str,
+    delta_ic: float,
+    identified: bool,
+    outside: Sequence[str],
+    min_rel: float,
+    min_ic: float,
+    cfg: IdentificationConfig,
+) -> tuple[bool, list[str], list[str]]:
+    """Whether a refit is accepted, the reasons against and the flags it is accepted with.
+
+    Accepted when the held-out improvement ``rel`` (taken as ``how``) is at least
+    ``min_rel``, the BIC change ``delta_ic`` at most ``-min_ic``, the effect's parameters
+    are ``identified``, and none is ``outside`` its plausible range (each with its value)
+    or the improvement is at least ``diagnosis.min_improvement_when_implausible``: a
+    strong effect is still that effect, accepted flagged with the value; a weaker
+    implausible one is refused."""
+    min_strong = cfg.diagnosis("min_improvement_when_implausible")
+    reasons = []
+    if rel < min_rel:
+        reasons.append(f"held-out improvement ({how}) {100 * rel:.1f} % < {100 * min_rel:.0f} %")
+    if delta_ic > -min_ic:
+        reasons.append(f"BIC change {delta_ic:.1f} > -{min_ic:g}")
+    passes = rel >= min_rel and delta_ic <= -min_ic and identified
+    if not outside:
+        return passes, reasons, []
+    if passes and rel >= min_strong:  # a strong effect is still that effect: flagged
+        return True, reasons, [f"fitted value outside the plausible range: {o}" for o in outside]
+    reasons += outside
+    if rel >= min_rel:
+        reasons.append(
+            f"a value outside the plausible range needs a held-out improvement of at least "
+            f"{100 * min_strong:.0f} % (diagnosis.min_improvement_when_implausible), "
+            f"this one is {100 * rel:.1f} %"
+        )
+    return False, reasons, []
 
 
 def _refit(
@@ -408,12 +451,13 @@ class _FitFailed(Exception):
     """A candidate's refit failed (its message says why)."""
 
 
-def _parameter_verdict(cand: Candidate, fit: FitResult) -> tuple[bool, bool, list[str]]:
+def _parameter_verdict(cand: Candidate, fit: FitResult) -> tuple[bool, bool, list[str], list[str]]:
     """Whether ``cand``'s fitted parameters are plausible and identified (confidence
-    interval excluding the neutral value), and the reasons where not."""
+    interval excluding the neutral value), why not identified, and each parameter
+    outside its plausible range with its value."""
     plausible = all(fit.plausible[p.name] for p in cand.parameters)
     identified = True
-    reasons = []
+    reasons, outside = [], []
     for p in cand.parameters:
         lo, hi = fit.ci[p.name]
         if not fit.identified[p.name]:
@@ -426,35 +470,36 @@ def _parameter_verdict(cand: Candidate, fit: FitResult) -> tuple[bool, bool, lis
                 f"neutral value {p.neutral:g} (effect off)"
             )
         if not fit.plausible[p.name]:
-            reasons.append(
+            outside.append(
                 f"{p.name} = {fit.values[p.name]:.4g} {p.unit} is outside the plausible "
                 f"range [{p.plausible_min:g}, {p.plausible_max:g}]"
             )
-    return plausible, identified, reasons
+    return plausible, identified, reasons, outside
 
 
-def _score_job(args: tuple) -> CandidateScore:
-    """:func:`score` in a worker process (its progress is the parent's to show)."""
-    progress._ACTIVE.clear()
-    return score(*args)
-
-
-def score_many(
-    jobs_args: Sequence[tuple], jobs: int, work_each: float = 0.0
-) -> list[CandidateScore]:
+def score_many(jobs_args: Sequence[tuple], jobs: int, poll_s: float = 1.0) -> list[CandidateScore]:
     """:func:`score` of every argument tuple, in up to ``jobs`` processes (``fork``: the
-    children inherit the compiled kernel) when there are two or more; in order.
-    ``work_each`` is reported to :mod:`.progress` as each one finishes."""
+    children inherit the compiled kernel) when there are two or more; in order. The
+    workers' simulated work reaches :mod:`.progress` through a shared counter, read every
+    ``poll_s`` seconds."""
     jobs_args = list(jobs_args)
     if jobs <= 1 or len(jobs_args) < 2 or sys.platform == "win32":
-        out = []
-        for args in jobs_args:
-            out.append(score(*args))
-        return out
+        return [score(*args) for args in jobs_args]
     ctx = multiprocessing.get_context("fork")
-    out = []
-    with ProcessPoolExecutor(max_workers=min(jobs, len(jobs_args)), mp_context=ctx) as pool:
-        for result in pool.map(_score_job, jobs_args):
-            progress.advance(work_each)
-            out.append(result)
-    return out
+    counter = ctx.Value("d", 0.0)
+    shown = 0.0
+    with ProcessPoolExecutor(
+        max_workers=min(jobs, len(jobs_args)),
+        mp_context=ctx,
+        initializer=progress.report_to,
+        initargs=(counter,),
+    ) as pool:
+        futures = [pool.submit(score, *args) for args in jobs_args]
+        pending = set(futures)
+        while pending:
+            _, pending = wait(pending, timeout=poll_s)
+            with counter.get_lock():
+                now = counter.value
+            progress.advance(now - shown)
+            shown = now
+        return [f.result() for f in futures]

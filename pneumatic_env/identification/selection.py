@@ -32,6 +32,8 @@ __all__ = [
     "Selection",
     "Settings",
     "WorkPlan",
+    "eligible",
+    "screening_columns",
     "selection_round",
     "winner_and_runner_up",
 ]
@@ -56,11 +58,23 @@ class Settings:
 
 @dataclass(frozen=True)
 class WorkPlan:
-    """The work ahead, in simulated samples x substeps (for progress and the size notice)."""
+    """The work ahead, in simulated samples x substeps x parameter columns (for progress
+    and the size notice)."""
 
     base: float  # the base fit
-    round: float  # one screening round and its refits
+    round: float  # round 1: its screening and its refits
     refit: float  # one refit
+    column: float = 0.0  # one simulation of all the data (a screening column)
+
+    def screening(self, pool: Sequence[Candidate], n_refit: int) -> float:
+        """The work of screening ``pool`` (:func:`screening_columns`)."""
+        return self.column * screening_columns(pool, n_refit)
+
+
+def screening_columns(pool: Sequence[Candidate], n_refit: int) -> int:
+    """Simulations of all the data a screening of ``pool`` runs: the current model and
+    its ``n_refit`` columns, and each plant candidate's start and columns."""
+    return n_refit + 1 + sum(1 + len(c.parameters) for c in pool if c.kind == "plant")
 
 
 @dataclass
@@ -99,17 +113,27 @@ class Selection:
     over_freer: dict = field(default_factory=dict)
 
 
+def eligible(pool: Sequence[Candidate], selected: Sequence[Candidate]) -> list[Candidate]:
+    """The candidates of ``pool`` a round screens: not selected, not in conflict with one."""
+    return [c for c in pool if c not in selected and not conflicts(c, selected)]
+
+
 def selection_round(
     ctx: RoundContext, state: Selection, pool: Sequence[Candidate], rnd: int
 ) -> bool:
     """One greedy round: screen, refit the best few, accept the best; False when done."""
-    eligible = [c for c in pool if c not in state.selected and not conflicts(c, state.selected)]
-    if not eligible:
+    candidates = eligible(pool, state.selected)
+    if not candidates:
         return False
     t_round = time.monotonic()
-    progress.stage(f"screening {len(eligible)} candidates (round {rnd})", ctx.plan.round)
+    n_refits = 0 if ctx.quick else min(ctx.settings.top_k, len(candidates))
+    progress.stage(
+        f"screening {len(candidates)} candidates (round {rnd})",
+        ctx.plan.screening(candidates, len(ctx.refit)),
+        later=n_refits * ctx.plan.refit,
+    )
     screens = screen_candidates(
-        eligible,
+        candidates,
         state.current,
         list(state.current.parameters),
         ctx.datasets,
@@ -162,7 +186,7 @@ def _refit_round(ctx: RoundContext, state: Selection, screens: Sequence, rnd: in
         )
         for s in top
     ]
-    round_scores = score_many(args, s_.jobs, ctx.plan.refit)
+    round_scores = score_many(args, s_.jobs)
     for sc, s in zip(round_scores, top):
         sc.screening = s.to_dict()
     for s in screens:
@@ -245,6 +269,7 @@ def _adopt(
     )
     state.confidence[-1]["margin_over_freer_form"] = state.over_freer.get(best.name)
     selected = state.selected
+    progress.stage(f"re-converging the model with {best.name}", ctx.plan.refit)
     free = unique(
         list(ctx.base_params) + [p for c in selected for p in (*c.refit_base, *c.parameters)]
     )
@@ -338,4 +363,5 @@ def _confidence(
         "holds_on_every_heldout_recording": bool(per) and all(v > 0 for v in per.values()),
         "acts_on": where,
         "holds_where_it_acts": bool(where) and all(per[k] > 0 for k in where),
+        "flagged": list(best.flags),
     }

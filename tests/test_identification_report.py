@@ -1,0 +1,190 @@
+"""Identification: honest progress, the drift notice, flagged strong effects, and the
+report written after each round (pneumatic_env.identification)."""
+
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import pytest
+
+from pneumatic_env.identification import progress
+from pneumatic_env.identification.checks import read_checked
+from pneumatic_env.identification.config import load_config
+from pneumatic_env.identification.diagnose import diagnose
+from pneumatic_env.identification.drift import base_drifts, suggested_effects
+from pneumatic_env.identification.report import _drift_lines, write_report
+from pneumatic_env.identification.results import FitResult
+from pneumatic_env.identification.scoring import acceptance
+from pneumatic_env.studies.virtual_rig import make_recording
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+# --------------------------------------------------------------------------- progress
+
+
+def test_progress_fraction_is_monotone_below_one_and_time_left_follows_the_work_left():
+    clock = _Clock()
+    bar = progress.Progress(bar=False, interval_s=1e9, clock=clock)
+    rate = 100.0  # work per second, constant
+    # stages as diagnose plans them; the base fit runs 3x over its estimate
+    stages = [("base fit", 1000.0, 500.0, 3000.0), ("screening", 200.0, 300.0, 200.0)]
+    stages.append(("refits", 300.0, 0.0, 450.0))
+    fractions = []
+    for name, planned, later, actual in stages:
+        bar.stage(name, planned, later=later)
+        for _ in range(int(actual // 10)):
+            clock.t += 10.0 / rate
+            bar.advance(10.0)
+            fractions.append(bar.fraction)
+            left = bar.seconds_left()
+            assert left is not None and left > 0  # work remains: never "0 s left"
+            assert left == pytest.approx(bar.work_left() / rate)
+    assert fractions == sorted(fractions)
+    assert max(fractions) < 1.0
+    assert max(fractions) <= 0.99
+    # the overrun grew the base fit's estimate: the time left never hit zero there
+    assert all(f < 0.99 for f in fractions[:100])
+    bar.finish()
+    assert bar.fraction == 1.0 and bar.seconds_left() == 0.0
+
+
+def test_progress_matches_the_plan_when_the_plan_holds():
+    bar = progress.Progress(bar=False, interval_s=1e9, clock=_Clock())
+    bar.stage("base fit", 60.0, later=40.0)
+    bar.advance(30.0)
+    assert bar.fraction == pytest.approx(0.3)
+    bar.advance(20.0)
+    assert bar.fraction == pytest.approx(0.5)
+    assert bar.work_left() == pytest.approx(50.0)
+
+
+def test_a_worker_process_reports_its_work_through_the_shared_counter():
+    import multiprocessing
+
+    counter = multiprocessing.get_context("fork").Value("d", 0.0)
+    bar = progress.Progress(bar=False, interval_s=1e9)
+    saved_active, saved_shared = list(progress._ACTIVE), list(progress._SHARED)
+    try:
+        progress._ACTIVE.append(bar)  # the parent's display, as copied by fork
+        progress.report_to(counter)  # in the worker: its work goes to the counter
+        progress.advance(7.0)
+        assert counter.value == 7.0 and bar.done == 0.0
+    finally:
+        progress._ACTIVE[:], progress._SHARED[:] = saved_active, saved_shared
+
+
+# --------------------------------------------------------------------------- drift notice
+
+
+def _fit_with(values: dict) -> FitResult:
+    """A calibrated base model with these fitted values (statistics left neutral)."""
+    cfg = load_config()
+    params = [cfg.base_parameters[n] for n in values]
+    return FitResult(
+        parameters=params,
+        values=dict(values),
+        fixed={},
+        std=dict.fromkeys(values, 0.0),
+        ci={n: (v, v) for n, v in values.items()},
+        identified=dict.fromkeys(values, True),
+        plausible={p.name: p.plausible_min <= values[p.name] <= p.plausible_max for p in params},
+        flags={n: [] for n in values},
+        correlations=[],
+        condition_number=1.0,
+        cost=1.0,
+        rss=1.0,
+        n_residuals=10,
+        rho1=0.0,
+        n_eff=10.0,
+        nfev=1,
+        message="",
+    )
+
+
+def test_drift_notice_names_the_parameters_outside_their_range_and_what_they_stand_for():
+    cfg = load_config()
+    nominal = {"discharge_coefficient": 0.25, "coil_force_n_per_a": 2.78}
+    data = SimpleNamespace(values={**nominal, "dead_volume_cap_m3": 1e-6})
+    fit = _fit_with(
+        {"discharge_coefficient": 0.02, "coil_force_n_per_a": 2.9, "dead_volume_cap_m3": 9e-6}
+    )
+    drifts = base_drifts(fit, [data], cfg)
+    # farthest first: 0.05 / 0.02 = 2.5 x below, 9 / 5 = 1.8 x above; the gain is inside
+    assert [d.name for d in drifts] == ["discharge_coefficient", "dead_volume_cap_m3"]
+    cd = drifts[0]
+    assert cd.direction == "below" and cd.nominal == 0.25 and cd.fitted == 0.02
+    assert cd.factor == pytest.approx(0.05 / 0.02)  # plausible_min / fitted
+    assert "tube_waves" in cd.effects and cd.explanation
+    assert drifts[1].direction == "above" and drifts[1].factor == pytest.approx(9e-6 / 5e-6)
+    assert suggested_effects(drifts)[0] == drifts[0].effects[0]
+    # the report's table names each, with its values and what it may stand for
+    tube = {"name": "tube_waves", "round": 1, "refitted": True, "accepted": False}
+    data_json = {
+        "base_drift": [d.to_dict() for d in drifts],
+        "suggested_by_drift": suggested_effects(drifts),
+        "candidates": [tube],
+    }
+    lines = "\n".join(_drift_lines(data_json))
+    assert "| discharge_coefficient | 0.25 - | 0.02 | [0.05, 0.95] | 2.50 x below |" in lines
+    assert "tube_waves (refitted, not accepted)" in lines
+    assert "supply_droop (not tried)" in lines
+    assert _drift_lines({"base_drift": [], "suggested_by_drift": [], "candidates": []}) == []
+
+
+# --------------------------------------------------------------------------- acceptance
+
+
+def test_a_strong_effect_outside_its_plausible_range_is_accepted_flagged_a_weak_one_not():
+    cfg = load_config()
+    outside = ["supply_resistance_pa_s_per_kg = 3.3e+07 Pa s/kg is outside the plausible range"]
+    args = dict(how="median", delta_ic=-500.0, identified=True, min_rel=0.1, min_ic=10.0)
+    accepted, reasons, flags = acceptance(0.37, outside=outside, cfg=cfg, **args)
+    assert accepted and not reasons
+    assert flags == ["fitted value outside the plausible range: " + outside[0]]
+    accepted, reasons, flags = acceptance(0.15, outside=outside, cfg=cfg, **args)
+    assert not accepted and not flags and outside[0] in reasons
+    accepted, reasons, flags = acceptance(0.15, outside=[], cfg=cfg, **args)
+    assert accepted and not reasons and not flags
+    # a strong improvement is no licence without identification
+    accepted, _, _ = acceptance(0.37, outside=outside, cfg=cfg, **{**args, "identified": False})
+    assert not accepted
+
+
+# --------------------------------------------------------------------------- anytime report
+
+
+def test_the_report_is_written_before_each_round_with_what_was_found_so_far(tmp_path):
+    csv = tmp_path / "leakage_1.csv"
+    make_recording(tmp_path, name="leakage_1", effect="leakage", seed=1, duration_s=1.0)
+    out = tmp_path / "report"
+    seen = []
+
+    def write_so_far(diag):
+        data = write_report(diag, out, plots=False)
+        seen.append(json.loads((out / "diagnosis.json").read_text()))
+        assert data == seen[-1]
+        assert "Status: running" in (out / "report.md").read_text()
+        assert (out / "fitted_final.yaml").is_file()
+
+    diag = diagnose(
+        [read_checked(csv)],
+        candidates=["leakage", "pressure_sensor_offset"],
+        max_effects=2,
+        jobs=1,
+        on_round=write_so_far,
+    )
+    assert [s["status"] for s in seen] == ["running, round 1", "running, round 2"]
+    assert seen[0]["selected"] == [] and seen[0]["candidates"] == []
+    after_round_1 = seen[1]
+    assert after_round_1["selected"] == ["leakage"] == diag.selected[:1]
+    assert {c["name"] for c in after_round_1["candidates"]} == {"leakage", "pressure_sensor_offset"}
+    assert "beyond leakage" in after_round_1["still_checking"]
+    assert diag.status == "complete" and diag.to_json()["still_checking"] is None
