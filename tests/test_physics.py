@@ -689,17 +689,7 @@ def test_batch_path_reproduces_the_general_path_bit_for_bit():
     for step_currents in currents:
         batch.step(np.ascontiguousarray(step_currents))
         for env in range(len(sets)):
-            kernel.advance_env(
-                general.params,
-                general.state,
-                general.history,
-                env,
-                general.head,
-                float(step_currents[env]),
-                general.control_dt_s,
-                general.n_substeps,
-                general.outputs,
-            )
+            kernel.advance_env(general.arrays, env, float(step_currents[env]))
         general.advance_clock()
         np.testing.assert_array_equal(batch.outputs, general.outputs)
         moved |= bool(np.any(batch.outputs[L.O_V, 1:] != 0.0))

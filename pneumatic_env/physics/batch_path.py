@@ -30,6 +30,7 @@ from .general_path import (
     refinement,
     stiffness_ratio,
 )
+from .layout import SimArrays
 from .piston import (
     MODE_FIXED,
     end_of_substep,
@@ -306,27 +307,15 @@ def prepare_substep(constants, work, history, first, n_lanes, head_sub, same_del
 
 
 @njit(cache=True)
-def advance_chunk(
-    params,
-    state,
-    history,
-    first,
-    stop,
-    head,
-    coil_current_a,
-    control_dt_s,
-    n_substeps,
-    outputs,
-    key,
-    constants,
-):
-    """Advance environments ``first .. stop-1`` by one control period; write their outputs.
+def advance_chunk(sim, first, stop, coil_current_a):
+    """Advance environments ``first .. stop-1`` of ``sim`` (``layout.SimArrays``) by one
+    control period with the coil currents ``coil_current_a`` (n_envs,) held; write their
+    outputs.
 
-    ``first`` is a multiple of ``CHUNK_ENVS``; ``key``, ``constants`` are the cache of
-    ``constants_cache``. Environments where ``base_model_only`` holds advance together:
-    per substep, one vectorised loop keeps the start state and finds the piston's
-    direction and the stiff lanes (``_begin_substeps``), the delayed spool positions are
-    read (``_delayed_spool_rows``), one vectorised RK4 substep
+    ``first`` is a multiple of ``CHUNK_ENVS``. Environments where ``base_model_only``
+    holds advance together: per substep, one vectorised loop keeps the start state and
+    finds the piston's direction and the stiff lanes (``_begin_substeps``), the delayed
+    spool positions are read (``_delayed_spool_rows``), one vectorised RK4 substep
     (``_base_substeps_vectorised``) advances every lane, and one vectorised loop finds the
     lanes whose piston met an event and applies the stops (``_end_substeps``). A lane
     whose substep needs splitting (stiff flow, ``refinement``) or crosses a piston event
@@ -335,25 +324,15 @@ def advance_chunk(
     on the rest of the batch.
     """
     n = stop - first
-    h = control_dt_s / n_substeps
+    state, history, n_substeps = sim.state, sim.history, sim.n_substeps
+    h = sim.control_dt_s / n_substeps
     n_slots = history.shape[0]
-    chunk_constants = constants[first // CHUNK_ENVS]
-    refresh_constants(params, first, stop, h, key, chunk_constants)
+    chunk_constants = sim.constants[first // CHUNK_ENVS]
+    refresh_constants(sim.params, first, stop, h, sim.constants_key, chunk_constants)
     fast = chunk_constants[C_BASE_ONLY * CHUNK_ENVS :]
     for j in range(n):
-        env = first + j
         if fast[j] == 0.0:
-            advance_env(
-                params,
-                state,
-                history,
-                env,
-                head,
-                coil_current_a[env],
-                control_dt_s,
-                n_substeps,
-                outputs,
-            )
+            advance_env(sim, first + j, coil_current_a[first + j])
     # lanes advance_env advanced are computed below too, and ignored
     work = chunk_work(state, first, stop)
     _fast_commands(
@@ -361,7 +340,7 @@ def advance_chunk(
     )
     same_delay = _same_delay(chunk_constants, n)
     for sub in range(n_substeps):
-        head_sub = ring_slot(head + sub, n_slots)
+        head_sub = ring_slot(sim.head[0] + sub, n_slots)
         prepare_substep(chunk_constants, work, history, first, n, head_sub, same_delay, h)
         _base_substeps_vectorised(chunk_constants, work, n, h)
         _end_substeps(chunk_constants, work, n)
@@ -370,27 +349,44 @@ def advance_chunk(
             _copy_fast_lanes(
                 chunk_constants, work, n, row, history[slot, channel, first:stop], True
             )
-        for j in range(n if _any_lane_set(work, W_REDO, n) else 0):
-            if fast[j] != 0.0 and work[W_REDO * CHUNK_ENVS + j] != 0.0:
-                env = first + j
-                c = load_constants(chunk_constants, j)
-                y0 = _work_rows(work, W_START, j)
-                current = work[W_CURRENT * CHUNK_ENVS + j]
-                y, _ = _split_substep(
-                    c,
-                    history,
-                    env,
-                    head_sub,
-                    h,
-                    current,
-                    (current, current),
-                    y0,
-                    refinement(c, y0, h),
-                    c.ambient_pa,
-                    0.0,
-                )
-                _set_work_rows(work, 0, j, _close_substep(c, history, env, slot, y))
-    # the batch path's lanes: state and outputs as _store_state writes them
+        if _any_lane_set(work, W_REDO, n):
+            _redo_lanes(chunk_constants, work, history, first, n, head_sub, slot, h)
+    _store_fast_lanes(chunk_constants, work, state, sim.outputs, first, stop)
+
+
+@njit(cache=True)
+def _redo_lanes(chunk_constants, work, history, first, n_lanes, head_sub, slot, h):
+    """Redo by the general path (``_split_substep``) the substep after ring slot
+    ``head_sub`` of the batch-path lanes of a chunk marked in work row ``W_REDO`` (stiff,
+    or a piston event), from the substep's start."""
+    fast = chunk_constants[C_BASE_ONLY * CHUNK_ENVS :]
+    for j in range(n_lanes):
+        if fast[j] != 0.0 and work[W_REDO * CHUNK_ENVS + j] != 0.0:
+            env = first + j
+            c = load_constants(chunk_constants, j)
+            y0 = _work_rows(work, W_START, j)
+            current = work[W_CURRENT * CHUNK_ENVS + j]
+            y, _ = _split_substep(
+                c,
+                history,
+                env,
+                head_sub,
+                h,
+                current,
+                (current, current),
+                y0,
+                refinement(c, y0, h),
+                c.ambient_pa,
+                0.0,
+            )
+            _set_work_rows(work, 0, j, _close_substep(c, history, env, slot, y))
+
+
+@njit(cache=True)
+def _store_fast_lanes(chunk_constants, work, state, outputs, first, stop):
+    """The state and outputs of the batch-path lanes of environments ``first .. stop-1``
+    (one chunk) as ``general_path._store_state`` writes them."""
+    n = stop - first
     for row in range(N_RK):
         _copy_fast_lanes(chunk_constants, work, n, row, state[row, first:stop], False)
     for row in (L.S_COIL, L.S_COIL_FORCE):  # no coil lag on the batch path
@@ -401,74 +397,49 @@ def advance_chunk(
 
 
 @njit(cache=True)
-def step_serial(
-    params, state, history, head, coil_current_a, control_dt_s, n_substeps, outputs, key, constants
-):
-    """Advance every environment of the batch by one control period on one thread."""
-    n_envs = state.shape[1]
+def step_serial(sim, coil_current_a):
+    """Advance every environment of ``sim`` (``layout.SimArrays``, or its plain tuple, which
+    Numba's dispatcher types faster) by one control period on one thread, the coil
+    currents ``coil_current_a`` (n_envs,) held."""
+    sim = SimArrays(*sim)
+    n_envs = sim.state.shape[1]
     for first in range(0, n_envs, CHUNK_ENVS):
-        advance_chunk(
-            params,
-            state,
-            history,
-            first,
-            min(first + CHUNK_ENVS, n_envs),
-            head,
-            coil_current_a,
-            control_dt_s,
-            n_substeps,
-            outputs,
-            key,
-            constants,
-        )
+        advance_chunk(sim, first, min(first + CHUNK_ENVS, n_envs), coil_current_a)
 
 
 @njit(cache=True, parallel=True)
-def step_parallel(
-    params, state, history, head, coil_current_a, control_dt_s, n_substeps, outputs, key, constants
-):
-    """Advance every environment of the batch by one control period, chunks in parallel
-    (``BatchSimulator.call_step_kernel`` hands them out)."""
-    n_envs = state.shape[1]
+def step_parallel(sim, coil_current_a):
+    """As ``step_serial``, chunks in parallel (``BatchSimulator.call_step_kernel`` hands
+    them out)."""
+    sim = SimArrays(*sim)
+    n_envs = sim.state.shape[1]
     for chunk in prange((n_envs + CHUNK_ENVS - 1) // CHUNK_ENVS):
         first = chunk * CHUNK_ENVS
-        advance_chunk(
-            params,
-            state,
-            history,
-            first,
-            min(first + CHUNK_ENVS, n_envs),
-            head,
-            coil_current_a,
-            control_dt_s,
-            n_substeps,
-            outputs,
-            key,
-            constants,
-        )
+        advance_chunk(sim, first, min(first + CHUNK_ENVS, n_envs), coil_current_a)
 
 
 @njit(cache=True)
-def rollout_serial(
-    params, state, history, head, coil_current_a, control_dt_s, n_substeps, outputs, key, constants
-):
-    """Run a whole open-loop current sequence ``coil_current_a[step, env]`` in one call.
-
-    ``outputs[step, O_*, env]`` receives the outputs after each control period.
-    """
+def rollout_serial(sim, coil_current_a, outputs):
+    """Run a whole open-loop current sequence ``coil_current_a[step, env]`` through ``sim``
+    (as ``step_serial``) in one call; ``outputs[step, O_*, env]`` receives the outputs
+    after each control period. ``sim.head`` is left where it was."""
+    sim = SimArrays(*sim)
+    head = sim.head[0]
     for step in range(coil_current_a.shape[0]):
-        step_serial(
-            params,
-            state,
-            history,
-            head + step * n_substeps,
-            coil_current_a[step],
-            control_dt_s,
-            n_substeps,
+        sim.head[0] = head + step * sim.n_substeps
+        at_step = SimArrays(
+            sim.params,
+            sim.state,
+            sim.history,
+            sim.head,
             outputs[step],
-            key,
-            constants,
+            sim.constants_key,
+            sim.constants,
+            sim.control_dt_s,
+            sim.n_substeps,
         )
+        step_serial(at_step, coil_current_a[step])
+    sim.head[0] = head
 
 
 def history_slots(max_delay_s, control_dt_s, n_substeps):

@@ -300,17 +300,17 @@ def exhaust_node_after_substep(c, history, env, slot, y, exhaust_node_pa, h):
 
 
 @njit(cache=True)
-def advance_env(
-    params, state, history, env, head, coil_current_a, control_dt_s, n_substeps, outputs
-):
-    """Advance environment ``env`` by one control period; write its outputs row.
+def advance_env(sim, env, coil_current_a):
+    """Advance environment ``env`` of ``sim`` (``layout.SimArrays``) by one control period
+    with the coil current ``coil_current_a`` held; write its outputs row.
 
     ``n_substeps`` RK4 substeps, each split into equal parts where ``refinement`` finds the
     flow stiff, and at piston events (``_advance_interval``). The delay history is written
     at the substep boundaries only, so its length does not depend on the splitting.
     """
-    h = control_dt_s / n_substeps
-    c = env_constants(params, env, h)
+    state, history, n_substeps = sim.state, sim.history, sim.n_substeps
+    h = sim.control_dt_s / n_substeps
+    c = env_constants(sim.params, env, h)
     coil_current_a = spool_command(c.spool_play_band, state, env, coil_current_a)
     n_slots = history.shape[0]
     y = (
@@ -328,7 +328,7 @@ def advance_env(
     exhaust_node_pa = state[L.S_EXHAUST_NODE, env]
     bristle_m = state[L.S_BRISTLE, env]
     for sub in range(n_substeps):
-        head_sub = ring_slot(head + sub, n_slots)
+        head_sub = ring_slot(sim.head[0] + sub, n_slots)
         coil_now = coil[0] if c.coil_lag else coil_current_a  # the command without a lag
         coil_start = (coil_now, coil[1] if c.coil_force_lag else coil_now)
         y, bristle_m = _split_substep(
@@ -353,7 +353,7 @@ def advance_env(
             )
     state[L.S_EXHAUST_NODE, env] = exhaust_node_pa
     state[L.S_BRISTLE, env] = bristle_m
-    _store_state(c, state, env, y, coil, outputs)
+    _store_state(c, state, env, y, coil, sim.outputs)
 
 
 # the outputs that are state rows: (outputs row, state row)
