@@ -17,7 +17,7 @@ from . import layout as L
 from .chamber import chamber_volumes
 from .constants import env_constants
 from .effects import lugre_bristle_step, spool_play_current
-from .nodes import _scalar_area, _sent_wave, exhaust_pressure_at_valve, line_flows
+from .nodes import exhaust_pressure_at_valve, line_flows, scalar_area, sent_wave
 from .piston import (
     MODE_FIXED,
     apply_event,
@@ -30,13 +30,13 @@ from .piston import (
 )
 from .right_hand_side import (
     N_RK,
-    _arriving_waves,
-    _coil_at,
-    _inv_sqrt_temperatures,
     _rk4,
-    _sliding_friction,
-    _valve_inputs,
+    arriving_waves,
+    coil_at,
+    inv_sqrt_temperatures,
     ring_slot,
+    sliding_friction,
+    valve_inputs,
 )
 
 # advance_env integrates the state rows 0 .. S_T2 with RK4 and sets S_COIL, S_PLAY,
@@ -80,7 +80,7 @@ def refinement(c, y, h):
     chamber volume this substep can reach (``stiffness_ratio``). It is large only when a
     chamber is nearly empty (piston near a stop), where a fixed substep would chatter.
     With LuGre friction the parts also keep the bristles' explicit coupling to the rod
-    (``_split_substep``) within ``LUGRE_COUPLING_LIMIT``: h sqrt(sigma0 / M) for the
+    (``split_substep``) within ``LUGRE_COUPLING_LIMIT``: h sqrt(sigma0 / M) for the
     pre-sliding spring, h sigma1 / M for its damping.
     """
     ratio = stiffness_ratio(c, y, h)
@@ -196,7 +196,7 @@ def _advance_interval(
 
 
 @njit(cache=True)
-def _split_substep(
+def split_substep(
     c, history, env, head_sub, h, command_a, coil_start, y0, parts, exhaust_node_pa, bristle_m
 ):
     """One substep from ``y0`` by the general path, in ``parts`` equal parts
@@ -217,7 +217,7 @@ def _split_substep(
                 h / parts,
                 c.lugre_stiffness,
                 c.lugre_damping,
-                _sliding_friction(c, y[5]),
+                sliding_friction(c, y[5]),
             )
         y = _advance_interval(
             c,
@@ -246,19 +246,19 @@ def _record_history(history, env, slot, x_s, p1, p2):
 
 
 @njit(cache=True)
-def _close_substep(c, history, env, slot, y):
+def close_substep(c, history, env, slot, y):
     """The end of a substep: the inelastic stops (``end_of_substep``) and the delay history
     at the new boundary (written at substep boundaries only, whatever the splitting)."""
     x, v = end_of_substep(y[4], y[5], c.half_stroke)
     y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
     if c.waves:  # the waves the line ends send at this boundary
         flow_1, flow_2, _, port_1, q_1, port_2, q_2 = line_flows(
-            c, y[0], _arriving_waves(c, history, env, slot, 0.0), y[2], y[3]
+            c, y[0], arriving_waves(c, history, env, slot, 0.0), y[2], y[3]
         )
-        history[slot, L.H_WAVE_VALVE_1, env] = _sent_wave(c, port_1, q_1)
-        history[slot, L.H_WAVE_VALVE_2, env] = _sent_wave(c, port_2, q_2)
-        history[slot, L.H_WAVE_CHAMBER_1, env] = _sent_wave(c, y[2], -flow_1)
-        history[slot, L.H_WAVE_CHAMBER_2, env] = _sent_wave(c, y[3], -flow_2)
+        history[slot, L.H_WAVE_VALVE_1, env] = sent_wave(c, port_1, q_1)
+        history[slot, L.H_WAVE_VALVE_2, env] = sent_wave(c, port_2, q_2)
+        history[slot, L.H_WAVE_CHAMBER_1, env] = sent_wave(c, y[2], -flow_1)
+        history[slot, L.H_WAVE_CHAMBER_2, env] = sent_wave(c, y[3], -flow_2)
     _record_history(history, env, slot, y[0], y[2], y[3])
     return y
 
@@ -284,12 +284,12 @@ def exhaust_node_after_substep(c, history, env, slot, y, exhaust_node_pa, h):
     dP_e/dt = (R T / V) ``_exhaust_node_balance``(P_e) with the valve's inputs at the
     boundary ``slot`` (state ``y``), solved by ``exhaust_pressure_at_valve``; stable for
     any volume, and the quasi-static node as V -> 0."""
-    spool_delayed, valve_p1, valve_p2 = _valve_inputs(c, history, env, slot, 0.0, y, y)
-    inv_sqrt_t1, inv_sqrt_t2 = _inv_sqrt_temperatures(c, y[7], y[8])
+    spool_delayed, valve_p1, valve_p2 = valve_inputs(c, history, env, slot, 0.0, y, y)
+    inv_sqrt_t1, inv_sqrt_t2 = inv_sqrt_temperatures(c, y[7], y[8])
     return exhaust_pressure_at_valve(
         c,
-        _scalar_area(c, spool_delayed) + c.null_leak,
-        _scalar_area(c, -spool_delayed) + c.null_leak,
+        scalar_area(c, spool_delayed) + c.null_leak,
+        scalar_area(c, -spool_delayed) + c.null_leak,
         valve_p1,
         valve_p2,
         inv_sqrt_t1,
@@ -331,7 +331,7 @@ def advance_env(sim, env, coil_current_a):
         head_sub = ring_slot(sim.head[0] + sub, n_slots)
         coil_now = coil[0] if c.coil_lag else coil_current_a  # the command without a lag
         coil_start = (coil_now, coil[1] if c.coil_force_lag else coil_now)
-        y, bristle_m = _split_substep(
+        y, bristle_m = split_substep(
             c,
             history,
             env,
@@ -344,9 +344,9 @@ def advance_env(sim, env, coil_current_a):
             exhaust_node_pa,
             bristle_m,
         )
-        coil = _coil_at(c, coil_current_a, coil_start, 1.0)
+        coil = coil_at(c, coil_current_a, coil_start, 1.0)
         slot = ring_slot(head_sub + 1, n_slots)
-        y = _close_substep(c, history, env, slot, y)
+        y = close_substep(c, history, env, slot, y)
         if c.exhaust_vent > 0.0 and c.exhaust_capacity > 0.0:
             exhaust_node_pa = exhaust_node_after_substep(
                 c, history, env, slot, y, exhaust_node_pa, h

@@ -211,7 +211,7 @@ def exhaust_pressure_at_valve(
 
 
 @njit(cache=True)
-def _scalar_area(c, spool_m):
+def scalar_area(c, spool_m):
     """``orifice_area`` on the general (scalar) path, returning at once for a closed hole."""
     if spool_m <= c.half_width - c.hole_radius:
         return 0.0
@@ -243,8 +243,8 @@ def valve_chamber_flows(
     its quasi-static pressure (``exhaust_pressure_at_valve``).
     Returns (supply->1, 1->exhaust, supply->2, 2->exhaust) as flows at the chamber end.
     """
-    area_a = _scalar_area(c, spool_delayed_m) + c.null_leak
-    area_b = _scalar_area(c, -spool_delayed_m) + c.null_leak
+    area_a = scalar_area(c, spool_delayed_m) + c.null_leak
+    area_b = scalar_area(c, -spool_delayed_m) + c.null_leak
     supply_pa = c.supply_pa
     if c.supply_resistance > 0.0:
         supply_pa = supply_pressure_at_valve(
@@ -392,8 +392,8 @@ def line_flows(c, spool_m, arriving, p1_pa, p2_pa):
     valve's exhaust flow to the atmosphere, and the pressure and the flow into the line at
     valve end 1 and at valve end 2).
     """
-    area_a = _scalar_area(c, spool_m) + c.null_leak
-    area_b = _scalar_area(c, -spool_m) + c.null_leak
+    area_a = scalar_area(c, spool_m) + c.null_leak
+    area_b = scalar_area(c, -spool_m) + c.null_leak
     port_1, q_1, exhaust_1 = _line_valve_end(c, area_a, area_b, arriving[0])
     port_2, q_2, exhaust_2 = _line_valve_end(c, area_b, area_a, arriving[1])
     flow_1 = line_chamber_flow(
@@ -418,7 +418,7 @@ def line_flows(c, spool_m, arriving, p1_pa, p2_pa):
 
 
 @njit(cache=True)
-def _sent_wave(c, pressure_pa, mass_flow_into_line):
+def sent_wave(c, pressure_pa, mass_flow_into_line):
     """The wave a line end sends (``tube.line_end_wave``) with the line's friction there."""
     return line_end_wave(
         pressure_pa,

@@ -46,7 +46,7 @@ def _motion_and_spool(c, coil_current_a, x_s, v_s, p1, p2, x, velocity, directio
 
 
 @njit(cache=True, inline="always")
-def _sliding_friction(c, velocity):
+def sliding_friction(c, velocity):
     """The sliding friction's magnitude at ``velocity``: F_df (Eq. 47), or the Stribeck
     curve; Karnopp's while sliding, and the curve LuGre's bristles relax towards."""
     if c.stribeck:
@@ -94,7 +94,7 @@ def derivatives(
     ``valve_p*`` are then unused. With LuGre friction on, ``lugre_friction_n`` (held over
     the substep, ``lugre_bristle_step``) replaces the sliding friction.
     """
-    inv_sqrt_t1, inv_sqrt_t2 = _inv_sqrt_temperatures(c, t1, t2)
+    inv_sqrt_t1, inv_sqrt_t2 = inv_sqrt_temperatures(c, t1, t2)
     vented = 0.0
     if c.waves:  # a signed flow into each chamber from its line; the line's air at T_s
         supply_1, supply_2, vented, _, _, _, _ = line_flows(c, x_s, arriving, p1, p2)
@@ -178,7 +178,7 @@ def derivatives(
             dp1 = rate_with_isothermal_tube_air(dp1, v1, c.tube_air, c.alpha_in, c.alpha_out)
             dp2 = rate_with_isothermal_tube_air(dp2, v2, c.tube_air, c.alpha_in, c.alpha_out)
     # piston_acceleration applies friction * direction (+-1 while moving)
-    friction = lugre_friction_n * direction if c.lugre else _sliding_friction(c, velocity)
+    friction = lugre_friction_n * direction if c.lugre else sliding_friction(c, velocity)
     accel, a_s = _motion_and_spool(
         c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction, friction
     )
@@ -275,7 +275,7 @@ def delayed_value(
 
 
 @njit(cache=True, inline="always")
-def _valve_inputs(c, history, env, head, frac, y, y0):
+def valve_inputs(c, history, env, head, frac, y, y0):
     """What the valve sees ``frac`` of a substep after boundary ``head`` (state ``y``; ``y0``
     at the boundary): the delayed spool x_s(t - tau) and the chamber pressures its flow is
     evaluated with (the delayed ones with the literal Eq. 55, else the present ones)."""
@@ -290,7 +290,7 @@ def _valve_inputs(c, history, env, head, frac, y, y0):
 
 
 @njit(cache=True, inline="always")
-def _inv_sqrt_temperatures(c, t1, t2):
+def inv_sqrt_temperatures(c, t1, t2):
     """1/sqrt(T) of the chamber air: of the gas temperatures with the energy model, else
     of ``temperature_k`` (cached)."""
     if c.energy:
@@ -302,10 +302,10 @@ def _inv_sqrt_temperatures(c, t1, t2):
 def _stage(
     c, history, env, head, frac, coil_current_a, y, y0, direction, exhaust_node_pa, lugre_friction_n
 ):
-    spool_delayed, valve_p1, valve_p2 = _valve_inputs(c, history, env, head, frac, y, y0)
+    spool_delayed, valve_p1, valve_p2 = valve_inputs(c, history, env, head, frac, y, y0)
     arriving = (0.0, 0.0, 0.0, 0.0)
     if c.waves:
-        arriving = _arriving_waves(c, history, env, head, frac)
+        arriving = arriving_waves(c, history, env, head, frac)
     return derivatives(
         c,
         coil_current_a,
@@ -328,7 +328,7 @@ def _stage(
 
 
 @njit(cache=True)
-def _arriving_waves(c, history, env, head, frac):
+def arriving_waves(c, history, env, head, frac):
     """The waves at the four line ends ``frac`` of a substep after boundary ``head``: each
     sent by the other end one delay earlier (the delay is at least one substep)."""
     d = c.delay_substeps
@@ -356,7 +356,7 @@ def _axpy(y, h, k):
 
 
 @njit(cache=True, inline="always")
-def _coil_at(c, command_a, coil_start, frac):
+def coil_at(c, command_a, coil_start, frac):
     """(coil current, force current) ``frac`` of a substep after ``coil_start`` = their values
     at the substep's start: the exact solution of the coil lag and the force lag behind it
     (``lagged_coil_current``, ``lagged_coil_force_current``); the force current drives the
@@ -403,7 +403,7 @@ def _rk4(
     """One classical RK4 step over substep fractions [frac0, frac0 + dfrac] (h: substep, s).
 
     ``y0`` is the state at the substep boundary ``head`` (the delay interpolation's anchor);
-    ``coil_start`` the (coil, force) currents there (``_coil_at``); ``exhaust_node_pa``
+    ``coil_start`` the (coil, force) currents there (``coil_at``); ``exhaust_node_pa``
     the exhaust node's pressure and ``lugre_friction_n`` the LuGre friction, both held over
     the substep.
     """
@@ -416,7 +416,7 @@ def _rk4(
         env,
         head,
         frac0,
-        _coil_at(c, command_a, coil_start, frac0)[1],
+        coil_at(c, command_a, coil_start, frac0)[1],
         y,
         y0,
         direction,
@@ -429,7 +429,7 @@ def _rk4(
         env,
         head,
         fm,
-        _coil_at(c, command_a, coil_start, fm)[1],
+        coil_at(c, command_a, coil_start, fm)[1],
         _axpy(y, 0.5 * hh, k1),
         y0,
         direction,
@@ -442,7 +442,7 @@ def _rk4(
         env,
         head,
         fm,
-        _coil_at(c, command_a, coil_start, fm)[1],
+        coil_at(c, command_a, coil_start, fm)[1],
         _axpy(y, 0.5 * hh, k2),
         y0,
         direction,
@@ -455,7 +455,7 @@ def _rk4(
         env,
         head,
         fe,
-        _coil_at(c, command_a, coil_start, fe)[1],
+        coil_at(c, command_a, coil_start, fe)[1],
         _axpy(y, hh, k3),
         y0,
         direction,
