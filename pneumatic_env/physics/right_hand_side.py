@@ -9,6 +9,7 @@ substep of the base form.
 """
 
 import math
+from typing import NamedTuple
 
 from numba import njit
 
@@ -64,37 +65,51 @@ def _volumes(c, x):
     )
 
 
+class ValveInputs(NamedTuple):
+    """What the valve's flows are evaluated with (``valve_inputs``)."""
+
+    spool_m: float  # the delayed spool position x_s(t - tau)
+    p1_pa: float  # chamber 1's pressure as the valve sees it (delayed with the literal Eq. 55)
+    p2_pa: float  # chamber 2's, the same
+
+
 @njit(cache=True)
 def derivatives(
-    c,
-    coil_current_a,
-    x_s,
-    v_s,
-    p1,
-    p2,
-    x,
-    v,
-    t1,
-    t2,
-    direction,
-    spool_delayed,
-    valve_p1,
-    valve_p2,
-    arriving,
-    exhaust_node_pa,
-    lugre_friction_n=0.0,
+    c, coil_current_a, y, direction, valve, arriving, exhaust_node_pa, lugre_friction_n=0.0
 ):
-    """Right-hand side of the state (x_s, v_s, P1, P2, x, v, exhaust mass, T1, T2).
+    """Right-hand side of the RK4 state ``y`` = (x_s, v_s, P1, P2, x, v, exhaust mass, T1,
+    T2).
 
     The general form: all four valve paths, the leakage orifices and every effect.
     ``coil_current_a`` is the current driving the spool (lagged if the coil lag is on).
     T1, T2 change only with the energy model on (``wall_heat_transfer_w_per_k > 0``).
-    With the tubes as transmission lines (``tube_waves``) the chamber flows come from
-    ``line_flows`` and the waves ``arriving`` at the line ends; ``spool_delayed``,
-    ``valve_p*`` are then unused. With LuGre friction on, ``lugre_friction_n`` (held over
-    the substep, ``lugre_bristle_step``) replaces the sliding friction.
+    ``valve``: the ``ValveInputs``. With the tubes as transmission lines (``tube_waves``)
+    the chamber flows come from ``line_flows`` and the waves ``arriving`` at the line ends;
+    ``valve`` is then unused. With LuGre friction on, ``lugre_friction_n`` (held over the
+    substep, ``lugre_bristle_step``) replaces the sliding friction.
     """
+    x_s, v_s, p1, p2, x, v = y[0], y[1], y[2], y[3], y[4], y[5]
+    t1, t2 = y[7], y[8]
     inv_sqrt_t1, inv_sqrt_t2 = inv_sqrt_temperatures(c, t1, t2)
+    flows = _chamber_mass_flows(
+        c, x_s, p1, p2, valve, arriving, exhaust_node_pa, inv_sqrt_t1, inv_sqrt_t2
+    )
+    supply_1, exhaust_1, supply_2, exhaust_2, leak_12, seal_2, vented = flows
+    velocity = v if direction != 0.0 else 0.0
+    dp1, dp2, dt1, dt2 = _chamber_rates(c, p1, p2, x, t1, t2, velocity, flows)
+    # piston_acceleration applies friction * direction (+-1 while moving)
+    friction = lugre_friction_n * direction if c.lugre else sliding_friction(c, velocity)
+    accel, a_s = _motion_and_spool(
+        c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction, friction
+    )
+    exhaust_rate = max(exhaust_1, 0.0) + max(exhaust_2, 0.0) + max(seal_2, 0.0) + vented
+    return v_s, a_s, dp1, dp2, velocity, accel, exhaust_rate, dt1, dt2
+
+
+@njit(cache=True)
+def _chamber_mass_flows(c, x_s, p1, p2, valve, arriving, exhaust_node_pa, inv_sqrt_t1, inv_sqrt_t2):
+    """The signed mass flows of ``derivatives``: (supply -> 1, 1 -> exhaust, supply -> 2,
+    2 -> exhaust, leak 1 -> 2, rod seal 2 -> ambient, vented from the lines)."""
     vented = 0.0
     if c.waves:  # a signed flow into each chamber from its line; the line's air at T_s
         supply_1, supply_2, vented, _, _, _, _ = line_flows(c, x_s, arriving, p1, p2)
@@ -102,17 +117,24 @@ def derivatives(
         exhaust_2 = 0.0
     else:
         supply_1, exhaust_1, supply_2, exhaust_2 = valve_chamber_flows(
-            c, spool_delayed, valve_p1, valve_p2, p1, p2, inv_sqrt_t1, inv_sqrt_t2, exhaust_node_pa
+            c, valve[0], valve[1], valve[2], p1, p2, inv_sqrt_t1, inv_sqrt_t2, exhaust_node_pa
         )
     leak_12 = _flow(c, c.discharge, c.leak_area, p1, p2, inv_sqrt_t1, inv_sqrt_t2, c.flow_law)
     seal_2 = _flow(
         c, c.discharge, c.seal_leak, p2, c.ambient_pa, inv_sqrt_t2, c.inv_sqrt_t, c.flow_law
     )
+    return supply_1, exhaust_1, supply_2, exhaust_2, leak_12, seal_2, vented
+
+
+@njit(cache=True)
+def _chamber_rates(c, p1, p2, x, t1, t2, velocity, flows):
+    """(dP1, dP2, dT1, dT2) of ``derivatives`` from its ``_chamber_mass_flows``: Eq. 14/16,
+    or the energy model, with the isothermal tube air if on."""
+    supply_1, exhaust_1, supply_2, exhaust_2, leak_12, seal_2, _ = flows
     in_1 = max(supply_1, 0.0) + max(-exhaust_1, 0.0) + max(-leak_12, 0.0)
     out_1 = max(-supply_1, 0.0) + max(exhaust_1, 0.0) + max(leak_12, 0.0)
     in_2 = max(supply_2, 0.0) + max(-exhaust_2, 0.0) + max(leak_12, 0.0) + max(-seal_2, 0.0)
     out_2 = max(-supply_2, 0.0) + max(exhaust_2, 0.0) + max(-leak_12, 0.0) + max(seal_2, 0.0)
-    velocity = v if direction != 0.0 else 0.0
     v1, v2 = _volumes(c, x)
     if c.energy:
         # air from the supply or the atmosphere enters at temperature_k, leakage air at
@@ -149,41 +171,33 @@ def derivatives(
             c.heat_conductance,
             c.temperature,
         )
-    else:
-        dp1 = pressure_rate(
-            p1,
-            v1,
-            c.area_cap * velocity,
-            in_1,
-            out_1,
-            c.gas_rt,
-            c.alpha_in,
-            c.alpha_out,
-            c.alpha_motion,
-        )
-        dp2 = pressure_rate(
-            p2,
-            v2,
-            -c.area_rod * velocity,
-            in_2,
-            out_2,
-            c.gas_rt,
-            c.alpha_in,
-            c.alpha_out,
-            c.alpha_motion,
-        )
-        dt1 = 0.0
-        dt2 = 0.0
-        if c.tube_air > 0.0:
-            dp1 = rate_with_isothermal_tube_air(dp1, v1, c.tube_air, c.alpha_in, c.alpha_out)
-            dp2 = rate_with_isothermal_tube_air(dp2, v2, c.tube_air, c.alpha_in, c.alpha_out)
-    # piston_acceleration applies friction * direction (+-1 while moving)
-    friction = lugre_friction_n * direction if c.lugre else sliding_friction(c, velocity)
-    accel, a_s = _motion_and_spool(
-        c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction, friction
+        return dp1, dp2, dt1, dt2
+    dp1 = pressure_rate(
+        p1,
+        v1,
+        c.area_cap * velocity,
+        in_1,
+        out_1,
+        c.gas_rt,
+        c.alpha_in,
+        c.alpha_out,
+        c.alpha_motion,
     )
-    exhaust_rate = max(exhaust_1, 0.0) + max(exhaust_2, 0.0) + max(seal_2, 0.0) + vented
-    return v_s, a_s, dp1, dp2, velocity, accel, exhaust_rate, dt1, dt2
+    dp2 = pressure_rate(
+        p2,
+        v2,
+        -c.area_rod * velocity,
+        in_2,
+        out_2,
+        c.gas_rt,
+        c.alpha_in,
+        c.alpha_out,
+        c.alpha_motion,
+    )
+    if c.tube_air > 0.0:
+        dp1 = rate_with_isothermal_tube_air(dp1, v1, c.tube_air, c.alpha_in, c.alpha_out)
+        dp2 = rate_with_isothermal_tube_air(dp2, v2, c.tube_air, c.alpha_in, c.alpha_out)
+    return dp1, dp2, 0.0, 0.0
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
@@ -278,15 +292,16 @@ def delayed_value(
 def valve_inputs(c, history, env, head, frac, y, y0):
     """What the valve sees ``frac`` of a substep after boundary ``head`` (state ``y``; ``y0``
     at the boundary): the delayed spool x_s(t - tau) and the chamber pressures its flow is
-    evaluated with (the delayed ones with the literal Eq. 55, else the present ones)."""
+    evaluated with (the delayed ones with the literal Eq. 55, else the present ones): the
+    ``ValveInputs``."""
     spool_delayed = delayed_value(history, env, L.H_X_S, head, frac, c.delay_substeps, y0[0], y[0])
     if c.literal:
-        return (
+        return ValveInputs(
             spool_delayed,
             delayed_value(history, env, L.H_P1, head, frac, c.delay_substeps, y0[2], y[2]),
             delayed_value(history, env, L.H_P2, head, frac, c.delay_substeps, y0[3], y[3]),
         )
-    return spool_delayed, y[2], y[3]
+    return ValveInputs(spool_delayed, y[2], y[3])
 
 
 @njit(cache=True, inline="always")
@@ -302,28 +317,12 @@ def inv_sqrt_temperatures(c, t1, t2):
 def _stage(
     c, history, env, head, frac, coil_current_a, y, y0, direction, exhaust_node_pa, lugre_friction_n
 ):
-    spool_delayed, valve_p1, valve_p2 = valve_inputs(c, history, env, head, frac, y, y0)
+    valve = valve_inputs(c, history, env, head, frac, y, y0)
     arriving = (0.0, 0.0, 0.0, 0.0)
     if c.waves:
         arriving = arriving_waves(c, history, env, head, frac)
     return derivatives(
-        c,
-        coil_current_a,
-        y[0],
-        y[1],
-        y[2],
-        y[3],
-        y[4],
-        y[5],
-        y[7],
-        y[8],
-        direction,
-        spool_delayed,
-        valve_p1,
-        valve_p2,
-        arriving,
-        exhaust_node_pa,
-        lugre_friction_n,
+        c, coil_current_a, y, direction, valve, arriving, exhaust_node_pa, lugre_friction_n
     )
 
 
