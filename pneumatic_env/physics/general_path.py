@@ -30,11 +30,12 @@ from .piston import (
 )
 from .right_hand_side import (
     N_RK,
-    _rk4,
+    SubstepDrive,
     arriving_waves,
     coil_at,
     inv_sqrt_temperatures,
     ring_slot,
+    rk4_step,
     sliding_friction,
     valve_inputs,
 )
@@ -103,22 +104,9 @@ def refinement(c, y, h):
 
 
 @njit(cache=True)
-def _advance_interval(
-    c,
-    history,
-    env,
-    head,
-    frac_start,
-    frac_end,
-    h,
-    command_a,
-    coil_start,
-    y,
-    y0,
-    exhaust_node_pa,
-    lugre_friction_n,
-):
-    """Integrate substep fractions [frac_start, frac_end], splitting at piston events.
+def _advance_interval(c, drive, frac_start, frac_end, y, y0):
+    """Integrate substep fractions [frac_start, frac_end] of the ``SubstepDrive`` ``drive``,
+    splitting at piston events.
 
     When the sliding piston's attempted step crosses an end stop or its velocity reverses,
     the step is redone up to the event (located by linear interpolation), the event is
@@ -131,68 +119,23 @@ def _advance_interval(
             applied = (
                 pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
                 - external_force(c.mode, y[4], c.load_force, c.spring_k, c.spring_rest)
-                - lugre_friction_n
+                - drive.lugre_friction_n
             )
             direction = motion_direction(y[4], y[5], applied, c.stick_threshold, c.half_stroke)
         dfrac = frac_end - frac0
-        trial = _rk4(
-            c,
-            history,
-            env,
-            head,
-            frac0,
-            dfrac,
-            h,
-            command_a,
-            coil_start,
-            y,
-            y0,
-            direction,
-            exhaust_node_pa,
-            lugre_friction_n,
-        )
+        trial = rk4_step(c, drive, frac0, dfrac, y, y0, direction)
         theta = -1.0
         if direction != 0.0:
             theta = event_fraction(y[4], y[5], trial[4], trial[5], direction, c.half_stroke)
         if theta < 0.0:
             return trial
         if theta * dfrac > MIN_EVENT_FRACTION:
-            y = _rk4(
-                c,
-                history,
-                env,
-                head,
-                frac0,
-                theta * dfrac,
-                h,
-                command_a,
-                coil_start,
-                y,
-                y0,
-                direction,
-                exhaust_node_pa,
-                lugre_friction_n,
-            )
+            y = rk4_step(c, drive, frac0, theta * dfrac, y, y0, direction)
             frac0 += theta * dfrac
         x, v = apply_event(y[4], y[5], direction, c.half_stroke)
         y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
     # out of events: the rest of the interval with the piston held
-    return _rk4(
-        c,
-        history,
-        env,
-        head,
-        frac0,
-        frac_end - frac0,
-        h,
-        command_a,
-        coil_start,
-        y,
-        y0,
-        0.0,
-        exhaust_node_pa,
-        lugre_friction_n,
-    )
+    return rk4_step(c, drive, frac0, frac_end - frac0, y, y0, 0.0)
 
 
 @njit(cache=True)
@@ -219,21 +162,10 @@ def split_substep(
                 c.lugre_damping,
                 sliding_friction(c, y[5]),
             )
-        y = _advance_interval(
-            c,
-            history,
-            env,
-            head_sub,
-            part / parts,
-            (part + 1) / parts,
-            h,
-            command_a,
-            coil_start,
-            y,
-            y0,
-            exhaust_node_pa,
-            lugre_friction_n,
+        drive = SubstepDrive(
+            history, env, head_sub, h, command_a, coil_start, exhaust_node_pa, lugre_friction_n
         )
+        y = _advance_interval(c, drive, part / parts, (part + 1) / parts, y, y0)
     return y, bristle_m
 
 

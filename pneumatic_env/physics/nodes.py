@@ -245,6 +245,35 @@ def valve_chamber_flows(
     """
     area_a = scalar_area(c, spool_delayed_m) + c.null_leak
     area_b = scalar_area(c, -spool_delayed_m) + c.null_leak
+    supply_pa, exhaust_pa = _valve_supply_and_exhaust(
+        c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2, exhaust_node_pa
+    )
+    t_supply, law = c.inv_sqrt_t, c.flow_law
+    supply_1 = _tube(
+        c, _flow(c, c.discharge, area_a, supply_pa, valve_p1_pa, t_supply, inv_sqrt_t1, law), p1_pa
+    )
+    exhaust_1 = _tube(
+        c,
+        _flow(c, c.discharge_ex, area_b, valve_p1_pa, exhaust_pa, inv_sqrt_t1, t_supply, law),
+        p1_pa,
+    )
+    supply_2 = _tube(
+        c, _flow(c, c.discharge, area_b, supply_pa, valve_p2_pa, t_supply, inv_sqrt_t2, law), p2_pa
+    )
+    exhaust_2 = _tube(
+        c,
+        _flow(c, c.discharge_ex, area_a, valve_p2_pa, exhaust_pa, inv_sqrt_t2, t_supply, law),
+        p2_pa,
+    )
+    return supply_1, exhaust_1, supply_2, exhaust_2
+
+
+@njit(cache=True, forceinline=True)  # inlined: a call would pass every constant
+def _valve_supply_and_exhaust(
+    c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2, exhaust_node_pa
+):
+    """The pressures (Pa) at the valve's supply port (drooping with the supply flow) and
+    exhaust ports (behind a vent: the node's) for ``valve_chamber_flows``."""
     supply_pa = c.supply_pa
     if c.supply_resistance > 0.0:
         supply_pa = supply_pressure_at_valve(
@@ -265,49 +294,7 @@ def valve_chamber_flows(
                 0.0,
                 c.ambient_pa,
             )
-    supply_1 = _tube(
-        c,
-        _flow(
-            c, c.discharge, area_a, supply_pa, valve_p1_pa, c.inv_sqrt_t, inv_sqrt_t1, c.flow_law
-        ),
-        p1_pa,
-    )
-    exhaust_1 = _tube(
-        c,
-        _flow(
-            c,
-            c.discharge_ex,
-            area_b,
-            valve_p1_pa,
-            exhaust_pa,
-            inv_sqrt_t1,
-            c.inv_sqrt_t,
-            c.flow_law,
-        ),
-        p1_pa,
-    )
-    supply_2 = _tube(
-        c,
-        _flow(
-            c, c.discharge, area_b, supply_pa, valve_p2_pa, c.inv_sqrt_t, inv_sqrt_t2, c.flow_law
-        ),
-        p2_pa,
-    )
-    exhaust_2 = _tube(
-        c,
-        _flow(
-            c,
-            c.discharge_ex,
-            area_a,
-            valve_p2_pa,
-            exhaust_pa,
-            inv_sqrt_t2,
-            c.inv_sqrt_t,
-            c.flow_law,
-        ),
-        p2_pa,
-    )
-    return supply_1, exhaust_1, supply_2, exhaust_2
+    return supply_pa, exhaust_pa
 
 
 LINE_PRESSURE_RTOL = 1e-10  # solver accuracy of the line's valve-end pressure, relative to P_s

@@ -3,7 +3,7 @@
 ``derivatives`` is the general form (all four valve paths, the leakage orifices, every
 effect); ``base_derivatives`` the paper's model where ``constants.base_model_only`` holds,
 branch-free so that a loop over environments compiles to SIMD code. The delayed inputs are
-read from the ring buffer of substep boundaries (``delayed_value``); ``_rk4`` takes one RK4
+read from the ring buffer of substep boundaries (``delayed_value``); ``rk4_step`` takes one RK4
 step of the general form over a fraction of a substep, ``rk4_base_substep`` one whole
 substep of the base form.
 """
@@ -11,6 +11,7 @@ substep of the base form.
 import math
 from typing import NamedTuple
 
+import numpy as np
 from numba import njit
 
 from . import layout as L
@@ -106,7 +107,7 @@ def derivatives(
     return v_s, a_s, dp1, dp2, velocity, accel, exhaust_rate, dt1, dt2
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True)  # inlined: a call would pass every constant
 def _chamber_mass_flows(c, x_s, p1, p2, valve, arriving, exhaust_node_pa, inv_sqrt_t1, inv_sqrt_t2):
     """The signed mass flows of ``derivatives``: (supply -> 1, 1 -> exhaust, supply -> 2,
     2 -> exhaust, leak 1 -> 2, rod seal 2 -> ambient, vented from the lines)."""
@@ -126,7 +127,7 @@ def _chamber_mass_flows(c, x_s, p1, p2, valve, arriving, exhaust_node_pa, inv_sq
     return supply_1, exhaust_1, supply_2, exhaust_2, leak_12, seal_2, vented
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True)  # inlined: a call would pass every constant
 def _chamber_rates(c, p1, p2, x, t1, t2, velocity, flows):
     """(dP1, dP2, dT1, dT2) of ``derivatives`` from its ``_chamber_mass_flows``: Eq. 14/16,
     or the energy model, with the isothermal tube air if on."""
@@ -313,16 +314,35 @@ def inv_sqrt_temperatures(c, t1, t2):
     return c.inv_sqrt_t, c.inv_sqrt_t
 
 
+class SubstepDrive(NamedTuple):
+    """What drives the general path's RK4 over (part of) a substep besides the constants and
+    the state."""
+
+    history: np.ndarray  # the delay ring buffer (slots, N_HISTORY, n_envs)
+    env: int  # the environment's column
+    head: int  # ring slot of the substep's start boundary
+    h: float  # the substep, s
+    command_a: float  # the held coil current command, A
+    coil_start: tuple  # (coil, force) currents at the substep's start (``coil_at``), A
+    exhaust_node_pa: float  # the exhaust node's pressure, held over the substep
+    lugre_friction_n: float  # the LuGre friction, held over the part (0 with LuGre off)
+
+
 @njit(cache=True, inline="always")  # inlined: a call would pass every constant as an argument
-def _stage(
-    c, history, env, head, frac, coil_current_a, y, y0, direction, exhaust_node_pa, lugre_friction_n
-):
-    valve = valve_inputs(c, history, env, head, frac, y, y0)
+def _stage(c, drive, frac, coil_current_a, y, y0, direction):
+    valve = valve_inputs(c, drive.history, drive.env, drive.head, frac, y, y0)
     arriving = (0.0, 0.0, 0.0, 0.0)
     if c.waves:
-        arriving = arriving_waves(c, history, env, head, frac)
+        arriving = arriving_waves(c, drive.history, drive.env, drive.head, frac)
     return derivatives(
-        c, coil_current_a, y, direction, valve, arriving, exhaust_node_pa, lugre_friction_n
+        c,
+        coil_current_a,
+        y,
+        direction,
+        valve,
+        arriving,
+        drive.exhaust_node_pa,
+        drive.lugre_friction_n,
     )
 
 
@@ -383,83 +403,38 @@ def coil_at(c, command_a, coil_start, frac):
 
 
 @njit(cache=True)
-def _rk4(
-    c,
-    history,
-    env,
-    head,
-    frac0,
-    dfrac,
-    h,
-    command_a,
-    coil_start,
-    y,
-    y0,
-    direction,
-    exhaust_node_pa,
-    lugre_friction_n,
-):
-    """One classical RK4 step over substep fractions [frac0, frac0 + dfrac] (h: substep, s).
+def rk4_step(c, drive, frac0, dfrac, y, y0, direction):
+    """One classical RK4 step over substep fractions [frac0, frac0 + dfrac] of the
+    ``SubstepDrive`` ``drive``'s substep.
 
-    ``y0`` is the state at the substep boundary ``head`` (the delay interpolation's anchor);
-    ``coil_start`` the (coil, force) currents there (``coil_at``); ``exhaust_node_pa``
-    the exhaust node's pressure and ``lugre_friction_n`` the LuGre friction, both held over
-    the substep.
+    ``y0`` is the state at the substep boundary ``drive.head`` (the delay interpolation's
+    anchor).
     """
-    hh = dfrac * h
+    hh = dfrac * drive.h
     fm = frac0 + 0.5 * dfrac
     fe = frac0 + dfrac
-    k1 = _stage(
-        c,
-        history,
-        env,
-        head,
-        frac0,
-        coil_at(c, command_a, coil_start, frac0)[1],
-        y,
-        y0,
-        direction,
-        exhaust_node_pa,
-        lugre_friction_n,
-    )
+    command_a, coil_start = drive.command_a, drive.coil_start
+    k1 = _stage(c, drive, frac0, coil_at(c, command_a, coil_start, frac0)[1], y, y0, direction)
     k2 = _stage(
         c,
-        history,
-        env,
-        head,
+        drive,
         fm,
         coil_at(c, command_a, coil_start, fm)[1],
         _axpy(y, 0.5 * hh, k1),
         y0,
         direction,
-        exhaust_node_pa,
-        lugre_friction_n,
     )
     k3 = _stage(
         c,
-        history,
-        env,
-        head,
+        drive,
         fm,
         coil_at(c, command_a, coil_start, fm)[1],
         _axpy(y, 0.5 * hh, k2),
         y0,
         direction,
-        exhaust_node_pa,
-        lugre_friction_n,
     )
     k4 = _stage(
-        c,
-        history,
-        env,
-        head,
-        fe,
-        coil_at(c, command_a, coil_start, fe)[1],
-        _axpy(y, hh, k3),
-        y0,
-        direction,
-        exhaust_node_pa,
-        lugre_friction_n,
+        c, drive, fe, coil_at(c, command_a, coil_start, fe)[1], _axpy(y, hh, k3), y0, direction
     )
     return _rk4_combine(c, y, k1, k2, k3, k4, hh, direction)
 
