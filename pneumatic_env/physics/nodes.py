@@ -16,7 +16,7 @@ from .valve import orifice_area_inv_radius
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def _flow(c, discharge, area, p_from, p_to, inv_sqrt_t_from, inv_sqrt_t_to, flow_law):
+def path_mass_flow(c, discharge, area, p_from, p_to, inv_sqrt_t_from, inv_sqrt_t_to, flow_law):
     """Eq. 39 from node ``from`` to node ``to``, at the upstream node's temperature.
 
     A closed orifice returns at once on the general (scalar) path; in the vectorised loop
@@ -42,7 +42,7 @@ def _flow(c, discharge, area, p_from, p_to, inv_sqrt_t_from, inv_sqrt_t_to, flow
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def _tube(c, mass_flow, chamber_pa):
+def chamber_end_flow(c, mass_flow, chamber_pa):
     """The flow delivered at the chamber end of the tube (Eq. 30); none in, none out."""
     if mass_flow == 0.0:
         return 0.0
@@ -79,8 +79,10 @@ def _illinois_update(lo, f_lo, hi, f_hi, x, f, side):
 def _supply_flow(c, supply_pa, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2):
     """Total valve flow out of the supply (both paths, before the tubes), >= 0."""
     return max(
-        _flow(c, c.discharge, area_a, supply_pa, valve_p1_pa, c.inv_sqrt_t, inv_sqrt_t1, c.flow_law)
-        + _flow(
+        path_mass_flow(
+            c, c.discharge, area_a, supply_pa, valve_p1_pa, c.inv_sqrt_t, inv_sqrt_t1, c.flow_law
+        )
+        + path_mass_flow(
             c, c.discharge, area_b, supply_pa, valve_p2_pa, c.inv_sqrt_t, inv_sqrt_t2, c.flow_law
         ),
         0.0,
@@ -141,12 +143,12 @@ def _exhaust_node_balance(
     """Valve flow into the exhaust node (chamber 1 through path b, chamber 2 through path
     a, Eq. 39) minus the vent's flow out of it to the atmosphere (Eq. 39 with C_f = 1 on
     the effective vent area), kg/s; it decreases as ``exhaust_pa`` rises."""
-    into_node = _flow(
+    into_node = path_mass_flow(
         c, c.discharge_ex, area_b, valve_p1_pa, exhaust_pa, inv_sqrt_t1, c.inv_sqrt_t, c.flow_law
-    ) + _flow(
+    ) + path_mass_flow(
         c, c.discharge_ex, area_a, valve_p2_pa, exhaust_pa, inv_sqrt_t2, c.inv_sqrt_t, c.flow_law
     )
-    vented = _flow(
+    vented = path_mass_flow(
         c, 1.0, c.exhaust_vent, exhaust_pa, c.ambient_pa, c.inv_sqrt_t, c.inv_sqrt_t, c.flow_law
     )
     return into_node - vented
@@ -249,20 +251,28 @@ def valve_chamber_flows(
         c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2, exhaust_node_pa
     )
     t_supply, law = c.inv_sqrt_t, c.flow_law
-    supply_1 = _tube(
-        c, _flow(c, c.discharge, area_a, supply_pa, valve_p1_pa, t_supply, inv_sqrt_t1, law), p1_pa
-    )
-    exhaust_1 = _tube(
+    supply_1 = chamber_end_flow(
         c,
-        _flow(c, c.discharge_ex, area_b, valve_p1_pa, exhaust_pa, inv_sqrt_t1, t_supply, law),
+        path_mass_flow(c, c.discharge, area_a, supply_pa, valve_p1_pa, t_supply, inv_sqrt_t1, law),
         p1_pa,
     )
-    supply_2 = _tube(
-        c, _flow(c, c.discharge, area_b, supply_pa, valve_p2_pa, t_supply, inv_sqrt_t2, law), p2_pa
-    )
-    exhaust_2 = _tube(
+    exhaust_1 = chamber_end_flow(
         c,
-        _flow(c, c.discharge_ex, area_a, valve_p2_pa, exhaust_pa, inv_sqrt_t2, t_supply, law),
+        path_mass_flow(
+            c, c.discharge_ex, area_b, valve_p1_pa, exhaust_pa, inv_sqrt_t1, t_supply, law
+        ),
+        p1_pa,
+    )
+    supply_2 = chamber_end_flow(
+        c,
+        path_mass_flow(c, c.discharge, area_b, supply_pa, valve_p2_pa, t_supply, inv_sqrt_t2, law),
+        p2_pa,
+    )
+    exhaust_2 = chamber_end_flow(
+        c,
+        path_mass_flow(
+            c, c.discharge_ex, area_a, valve_p2_pa, exhaust_pa, inv_sqrt_t2, t_supply, law
+        ),
         p2_pa,
     )
     return supply_1, exhaust_1, supply_2, exhaust_2
@@ -304,10 +314,10 @@ LINE_PRESSURE_RTOL = 1e-10  # solver accuracy of the line's valve-end pressure, 
 def _port_flow_into_line(c, supply_area, exhaust_area, port_pa):
     """Net valve flow into a line at valve-end pressure ``port_pa``, and its exhaust part
     (port -> atmosphere, Eq. 39; the line's air at ``temperature_k``)."""
-    supply = _flow(
+    supply = path_mass_flow(
         c, c.discharge, supply_area, c.supply_pa, port_pa, c.inv_sqrt_t, c.inv_sqrt_t, c.flow_law
     )
-    exhaust = _flow(
+    exhaust = path_mass_flow(
         c,
         c.discharge_ex,
         exhaust_area,

@@ -25,7 +25,7 @@ from .effects import (
     stribeck_friction,
 )
 from .flow import FLOW_LAW_PAPER
-from .nodes import _flow, _tube, line_flows, valve_chamber_flows
+from .nodes import chamber_end_flow, line_flows, path_mass_flow, valve_chamber_flows
 from .piston import external_force, piston_acceleration, pneumatic_force
 from .valve import orifice_area_inv_radius, spool_acceleration
 
@@ -120,8 +120,10 @@ def _chamber_mass_flows(c, x_s, p1, p2, valve, arriving, exhaust_node_pa, inv_sq
         supply_1, exhaust_1, supply_2, exhaust_2 = valve_chamber_flows(
             c, valve[0], valve[1], valve[2], p1, p2, inv_sqrt_t1, inv_sqrt_t2, exhaust_node_pa
         )
-    leak_12 = _flow(c, c.discharge, c.leak_area, p1, p2, inv_sqrt_t1, inv_sqrt_t2, c.flow_law)
-    seal_2 = _flow(
+    leak_12 = path_mass_flow(
+        c, c.discharge, c.leak_area, p1, p2, inv_sqrt_t1, inv_sqrt_t2, c.flow_law
+    )
+    seal_2 = path_mass_flow(
         c, c.discharge, c.seal_leak, p2, c.ambient_pa, inv_sqrt_t2, c.inv_sqrt_t, c.flow_law
     )
     return supply_1, exhaust_1, supply_2, exhaust_2, leak_12, seal_2, vented
@@ -219,11 +221,19 @@ def base_derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, direction, spool
     node_2 = c.ambient_pa if to_chamber_1 else c.supply_pa
     discharge_1 = c.discharge if to_chamber_1 else c.discharge_ex
     discharge_2 = c.discharge_ex if to_chamber_1 else c.discharge
-    flow_1 = _tube(
-        c, _flow(c, discharge_1, area, node_1, p1, c.inv_sqrt_t, c.inv_sqrt_t, FLOW_LAW_PAPER), p1
+    flow_1 = chamber_end_flow(
+        c,
+        path_mass_flow(
+            c, discharge_1, area, node_1, p1, c.inv_sqrt_t, c.inv_sqrt_t, FLOW_LAW_PAPER
+        ),
+        p1,
     )
-    flow_2 = _tube(
-        c, _flow(c, discharge_2, area, node_2, p2, c.inv_sqrt_t, c.inv_sqrt_t, FLOW_LAW_PAPER), p2
+    flow_2 = chamber_end_flow(
+        c,
+        path_mass_flow(
+            c, discharge_2, area, node_2, p2, c.inv_sqrt_t, c.inv_sqrt_t, FLOW_LAW_PAPER
+        ),
+        p2,
     )
     velocity = v if direction != 0.0 else 0.0
     v1, v2 = _volumes(c, x)
