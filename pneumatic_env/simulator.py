@@ -359,8 +359,9 @@ class BatchSimulator:
         """Move the ring-buffer head and the clocks after the kernel advanced ``n_steps``
         control periods."""
         arrays = self.arrays
-        arrays.head[0] = (arrays.head[0] + n_steps * arrays.n_substeps) % arrays.history.shape[0]
-        self.time_s += n_steps * self.control_dt_s
+        head = arrays.head  # .item(): Python int arithmetic, faster than NumPy scalars
+        head[0] = (head.item() + n_steps * arrays.n_substeps) % arrays.history.shape[0]
+        self.time_s += n_steps * arrays.control_dt_s
 
     def rollout(self, coil_current_a: np.ndarray) -> np.ndarray:
         """Open-loop run of ``coil_current_a[step, env]`` in one jitted call.
