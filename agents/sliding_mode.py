@@ -22,12 +22,17 @@ the observation [p1, p2, x, f, ref, preview] and the parameters.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 from numba import njit, prange
 
+from pneumatic_env.params import parameter_array
 from pneumatic_env.physics.chamber import chamber_volumes, pressure_rate
-from pneumatic_env.physics.derived import orifice_gas_constants, piston_areas_m2, tube_delay_s
+from pneumatic_env.physics.constants import Constants, env_constants
+from pneumatic_env.physics.derived import tube_delay_s
 from pneumatic_env.physics.flow import orifice_mass_flow
+from pneumatic_env.physics.layout import EFFECT_NEUTRAL_VALUES
 from pneumatic_env.physics.tube import tube_attenuation
 from pneumatic_env.physics.valve import orifice_area
 from pneumatic_env.simulator import PARALLEL_MIN_ENVS
@@ -50,71 +55,13 @@ __all__ = [
 PARALLEL_MIN_ROWS = PARALLEL_MIN_ENVS
 
 
-# Nominal model constants of the controller (the paper's model, Eqs. 14, 30, 39, 44), one
-# float64 vector so the jitted functions take a single array.
-(
-    _RT,
-    _INV_SQRT_T,
-    _K,
-    _C1,
-    _C2,
-    _PCR,
-    _LIN_R,
-    _LIN_SLOPE,
-    _PS,
-    _PA,
-    _MU,
-    _A_IN,
-    _A_OUT,
-    _CF,
-    _RH,
-    _PW,
-    _NH,
-    _TAU,
-    _DT,
-    _RE_T,
-    _A1,
-    _A2,
-    _HALF,
-    _V01,
-    _V02,
-    _N_MODEL,
-) = range(26)
-
-
-def model_constants(params: dict) -> np.ndarray:
-    """The constants of the controller's nominal model from a parameter dict."""
-    p = params
-    gas, temp = p["gas_constant_j_per_kg_k"], p["temperature_k"]
-    inv_sqrt_t, k, c1, c2, pcr, lin, slope = orifice_gas_constants(
-        p["heat_capacity_ratio"], gas, temp, p["flow_linear_ratio"]
-    )
-    a1, a2, _ = piston_areas_m2(p["bore_diameter_m"], p["rod_diameter_m"])
-    m = np.empty(_N_MODEL)
-    m[[_RT, _INV_SQRT_T, _K, _C1, _C2, _PCR, _LIN_R]] = (
-        gas * temp,
-        inv_sqrt_t,
-        k,
-        c1,
-        c2,
-        pcr,
-        lin,
-    )
-    m[_LIN_SLOPE] = slope
-    m[[_PS, _PA, _MU, _A_IN, _A_OUT, _CF]] = (
-        p["supply_pressure_pa"],
-        p["ambient_pressure_pa"],
-        p["air_viscosity_pa_s"],
-        p["alpha_in"],
-        p["alpha_out"],
-        p["discharge_coefficient"],
-    )
-    m[[_RH, _PW, _NH]] = p["hole_radius_m"], p["spool_half_width_m"], p["holes_per_path"]
-    m[_TAU] = model_delay_s(p)[0]
-    m[[_DT, _RE_T]] = p["tube_inner_diameter_m"], p["reynolds_turbulent"]
-    m[[_A1, _A2, _HALF]] = a1, a2, 0.5 * p["stroke_m"]
-    m[[_V01, _V02]] = p["dead_volume_cap_m3"], p["dead_volume_rod_m3"]
-    return m
+def model_constants(params: Mapping[str, float]) -> Constants:
+    """The controller's nominal model: the kernel's ``Constants`` (``env_constants``) of
+    ``params`` with every effect beyond the paper's model off (``EFFECT_NEUTRAL_VALUES``).
+    The jitted functions below read its paper fields (Eqs. 14, 30, 39, 44) and take it as
+    a plain tuple (``tuple(model)``), which Numba's dispatcher types faster."""
+    paper = parameter_array({**params, **EFFECT_NEUTRAL_VALUES})
+    return env_constants(paper, 0, 1.0)  # the substep sets no field the model reads
 
 
 @njit(cache=True)
@@ -122,18 +69,20 @@ def _path_flow(m, area, p_from, p_to, p_chamber):
     """Valve path flow (Eq. 39, signed from -> to) attenuated by its tube (Eq. 30)."""
     q = orifice_mass_flow(
         area,
-        m[_CF],
+        m.discharge,
         p_from,
         p_to,
-        m[_INV_SQRT_T],
-        m[_K],
-        m[_C1],
-        m[_C2],
-        m[_PCR],
-        m[_LIN_R],
-        m[_LIN_SLOPE],
+        m.inv_sqrt_t,
+        m.k,
+        m.c1,
+        m.c2,
+        m.critical_ratio,
+        m.linear_ratio,
+        m.linear_slope,
     )
-    return q * tube_attenuation(q, p_chamber, m[_RT], m[_TAU], m[_DT], m[_MU], m[_RE_T])
+    return q * tube_attenuation(
+        q, p_chamber, m.gas_rt, m.delay_s, m.tube_diameter, m.viscosity, m.reynolds_turbulent
+    )
 
 
 @njit(cache=True)
@@ -144,22 +93,22 @@ def force_rate(m, p1, p2, x, spool_m):
     rates from Eq. 14/16 and the valve flows of Eqs. 39, 44 through the tubes (Eq. 30).
     Chamber 1 is fed through A(x_s) and exhausted through A(-x_s); chamber 2 the other way.
     """
-    area_a = orifice_area(spool_m, m[_RH], m[_PW], m[_NH])
-    area_b = orifice_area(-spool_m, m[_RH], m[_PW], m[_NH])
-    s1 = _path_flow(m, area_a, m[_PS], p1, p1)  # supply -> 1
-    e1 = _path_flow(m, area_b, p1, m[_PA], p1)  # 1 -> exhaust
-    s2 = _path_flow(m, area_b, m[_PS], p2, p2)  # supply -> 2
-    e2 = _path_flow(m, area_a, p2, m[_PA], p2)  # 2 -> exhaust
-    v1, v2 = chamber_volumes(x, m[_HALF], m[_A1], m[_A2], m[_V01], m[_V02])
+    area_a = orifice_area(spool_m, m.hole_radius, m.half_width, m.holes)
+    area_b = orifice_area(-spool_m, m.hole_radius, m.half_width, m.holes)
+    s1 = _path_flow(m, area_a, m.supply_pa, p1, p1)  # supply -> 1
+    e1 = _path_flow(m, area_b, p1, m.ambient_pa, p1)  # 1 -> exhaust
+    s2 = _path_flow(m, area_b, m.supply_pa, p2, p2)  # supply -> 2
+    e2 = _path_flow(m, area_a, p2, m.ambient_pa, p2)  # 2 -> exhaust
+    v1, v2 = chamber_volumes(x, m.half_stroke, m.area_cap, m.area_rod, m.dead_cap, m.dead_rod)
     dp1 = pressure_rate(
         p1,
         v1,
         0.0,
         max(s1, 0.0) + max(-e1, 0.0),
         max(-s1, 0.0) + max(e1, 0.0),
-        m[_RT],
-        m[_A_IN],
-        m[_A_OUT],
+        m.gas_rt,
+        m.alpha_in,
+        m.alpha_out,
         0.0,
     )
     dp2 = pressure_rate(
@@ -168,17 +117,17 @@ def force_rate(m, p1, p2, x, spool_m):
         0.0,
         max(s2, 0.0) + max(-e2, 0.0),
         max(-s2, 0.0) + max(e2, 0.0),
-        m[_RT],
-        m[_A_IN],
-        m[_A_OUT],
+        m.gas_rt,
+        m.alpha_in,
+        m.alpha_out,
         0.0,
     )
-    return m[_A1] * dp1 - m[_A2] * dp2
+    return m.area_cap * dp1 - m.area_rod * dp2
 
 
 @njit(cache=True)
 def _invert_one(m, p1, p2, x, fdot_des, openings, blend, refine_iterations):
-    overlap = m[_PW] - m[_RH]
+    overlap = m.half_width - m.hole_radius
     target = max(abs(fdot_des), blend)
     sign = 1.0 if fdot_des >= 0.0 else -1.0
     prev_open, prev_rate = 0.0, 0.0
@@ -224,6 +173,7 @@ def invert_force_rate(
     opening reaches it, the one with the largest rate. ``blend`` (N/s): below it the spool
     moves linearly through the overlap instead of jumping across it.
     """
+    m = Constants(*m)
     for i in range(p1.size):
         spool_out[i], rate_out[i] = _invert_one(
             m, p1[i], p2[i], x[i], fdot_des[i], openings, blend, refine_iterations
@@ -235,6 +185,7 @@ def invert_force_rate_parallel(
     m, p1, p2, x, fdot_des, openings, blend, spool_out, rate_out, refine_iterations=4
 ):
     """:func:`invert_force_rate` with the rows spread over Numba's threads."""
+    m = Constants(*m)
     for i in prange(p1.size):
         spool_out[i], rate_out[i] = _invert_one(
             m, p1[i], p2[i], x[i], fdot_des[i], openings, blend, refine_iterations
@@ -243,12 +194,14 @@ def invert_force_rate_parallel(
 
 @njit(cache=True)
 def _force_rates(m, p1, p2, x, spool, out):
+    m = Constants(*m)
     for i in range(p1.size):
         out[i] = force_rate(m, p1[i], p2[i], x[i], spool[i])
 
 
 @njit(cache=True, parallel=True)
 def _force_rates_parallel(m, p1, p2, x, spool, out):
+    m = Constants(*m)
     for i in prange(p1.size):
         out[i] = force_rate(m, p1[i], p2[i], x[i], spool[i])
 
@@ -325,6 +278,7 @@ class SlidingModeController(Controller):
         self.predictor = pred
         self.openings = np.linspace(0.0, 2.0 * p["hole_radius_m"], int(opening_grid_points))
         self.model = model_constants(p)
+        self._model_tuple = tuple(self.model)  # as the jitted functions take it
         self.i_per_m = 2.0 * p["spool_spring_n_per_m"] / p["coil_force_n_per_a"]  # Eq. 46
 
     def _allocate(self, n):
@@ -354,7 +308,7 @@ class SlidingModeController(Controller):
         spool, rate = np.empty(n), np.empty(n)
         invert = invert_force_rate_parallel if n >= PARALLEL_MIN_ROWS else invert_force_rate
         invert(
-            self.model,
+            self._model_tuple,
             np.ascontiguousarray(obs[:, OBS_P1]),
             np.ascontiguousarray(obs[:, OBS_P2]),
             np.ascontiguousarray(obs[:, OBS_X]),
@@ -405,7 +359,7 @@ class SlidingModeController(Controller):
         rate = np.empty(o.shape[0])
         rates = _force_rates_parallel if o.shape[0] >= PARALLEL_MIN_ROWS else _force_rates
         rates(
-            self.model,
+            self._model_tuple,
             np.ascontiguousarray(o[:, OBS_P1]),
             np.ascontiguousarray(o[:, OBS_P2]),
             np.ascontiguousarray(o[:, OBS_X]),

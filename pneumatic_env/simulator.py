@@ -14,6 +14,7 @@ import numpy as np
 from .physics import kernel
 from .physics import layout as L
 from .physics.derived import tube_delay_s
+from .physics.layout import SimArrays
 from .physics.piston import MODE_FIXED
 
 INITIAL_STATE_KEYS = ("p1", "p2", "x", "v", "x_s")
@@ -46,21 +47,17 @@ class BatchSimulator:
 
     Attributes
     ----------
+    arrays : the batch's ``layout.SimArrays``, as the step functions take them; its fields
+        are also attributes of the simulator:
     state : array (N_STATE, n_envs), rows ``layout.S_*``.
     outputs : array (N_OUTPUT, n_envs) after the last step, rows ``layout.O_*``.
     history : the tube-delay ring buffer (slots, N_HISTORY, n_envs); ``head`` its newest slot.
     time_s : array (n_envs,), simulated time since each environment's reset.
     """
 
-    params: np.ndarray
+    arrays: SimArrays
     n_envs: int
-    control_dt_s: float
-    n_substeps: int
     parallel: bool
-    state: np.ndarray
-    outputs: np.ndarray
-    history: np.ndarray
-    head: int
     time_s: np.ndarray
 
     def __init__(
@@ -86,22 +83,73 @@ class BatchSimulator:
             raise ValueError(f"control_dt_s = {control_dt_s} is not allowed: must be > 0")
         if int(n_substeps) != n_substeps or n_substeps < 1:
             raise ValueError(f"n_substeps = {n_substeps} is not allowed: must be an integer >= 1")
-        self.params = params
-        self.params.flags.writeable = False
+        params.flags.writeable = False
         self.n_envs = params.shape[1]
-        self.control_dt_s = float(control_dt_s)
-        self.n_substeps = int(n_substeps)
         self.parallel = self.n_envs >= PARALLEL_MIN_ENVS if parallel is None else bool(parallel)
-        self.state = np.zeros((L.N_STATE, self.n_envs))
-        self.outputs = np.zeros((L.N_OUTPUT, self.n_envs))
-        self.head = 0
-        self.history = np.zeros((self._slots_needed(), L.N_HISTORY, self.n_envs))
         # the kernel's per-environment constants, refreshed where set_params or set_parameter
         # marked them stale
-        self.constants_key, self.constants = kernel.constants_cache(self.n_envs)
+        constants_key, constants = kernel.constants_cache(self.n_envs)
+        no_history = np.zeros((0, L.N_HISTORY, self.n_envs))  # sized below, from the delays
+        self.arrays = SimArrays(
+            params,
+            np.zeros((L.N_STATE, self.n_envs)),
+            no_history,
+            np.zeros(1, dtype=np.int64),
+            np.zeros((L.N_OUTPUT, self.n_envs)),
+            constants_key,
+            constants,
+            float(control_dt_s),
+            int(n_substeps),
+        )
+        self.history = np.zeros((self._slots_needed(), L.N_HISTORY, self.n_envs))
         self.time_s = np.zeros(self.n_envs)
         self._check_tube_waves(range(self.n_envs))
         self.reset()
+
+    # -- the fields of ``arrays`` ---------------------------------------------------------
+    @property
+    def params(self) -> np.ndarray:
+        return self.arrays.params
+
+    @property
+    def state(self) -> np.ndarray:
+        return self.arrays.state
+
+    @property
+    def history(self) -> np.ndarray:
+        return self.arrays.history
+
+    @history.setter
+    def history(self, history: np.ndarray) -> None:
+        self.arrays = self.arrays._replace(history=history)
+
+    @property
+    def head(self) -> int:
+        return int(self.arrays.head[0])
+
+    @head.setter
+    def head(self, head: int) -> None:
+        self.arrays.head[0] = head
+
+    @property
+    def outputs(self) -> np.ndarray:
+        return self.arrays.outputs
+
+    @property
+    def constants_key(self) -> np.ndarray:
+        return self.arrays.constants_key
+
+    @property
+    def constants(self) -> np.ndarray:
+        return self.arrays.constants
+
+    @property
+    def control_dt_s(self) -> float:
+        return self.arrays.control_dt_s
+
+    @property
+    def n_substeps(self) -> int:
+        return self.arrays.n_substeps
 
     # -- parameters ----------------------------------------------------------------------
     def delays_s(self) -> np.ndarray:
@@ -274,20 +322,7 @@ class BatchSimulator:
         (a view)."""
         coil_current_a = self._check_currents(coil_current_a, (self.n_envs,))
         self.call_step_kernel(
-            kernel.step_serial,
-            kernel.step_parallel,
-            (
-                self.params,
-                self.state,
-                self.history,
-                self.head,
-                coil_current_a,
-                self.control_dt_s,
-                self.n_substeps,
-                self.outputs,
-                self.constants_key,
-                self.constants,
-            ),
+            kernel.step_serial, kernel.step_parallel, (tuple(self.arrays), coil_current_a)
         )
         self.advance_clock()
         return self.outputs
@@ -323,8 +358,10 @@ class BatchSimulator:
     def advance_clock(self, n_steps: int = 1) -> None:
         """Move the ring-buffer head and the clocks after the kernel advanced ``n_steps``
         control periods."""
-        self.head = (self.head + n_steps * self.n_substeps) % self.history.shape[0]
-        self.time_s += n_steps * self.control_dt_s
+        arrays = self.arrays
+        head = arrays.head  # .item(): Python int arithmetic, faster than NumPy scalars
+        head[0] = (head.item() + n_steps * arrays.n_substeps) % arrays.history.shape[0]
+        self.time_s += n_steps * arrays.control_dt_s
 
     def rollout(self, coil_current_a: np.ndarray) -> np.ndarray:
         """Open-loop run of ``coil_current_a[step, env]`` in one jitted call.
@@ -336,18 +373,7 @@ class BatchSimulator:
             currents = currents[:, None]
         currents = self._check_currents(currents, (currents.shape[0], self.n_envs))
         out = np.empty((currents.shape[0], L.N_OUTPUT, self.n_envs))
-        kernel.rollout_serial(
-            self.params,
-            self.state,
-            self.history,
-            self.head,
-            currents,
-            self.control_dt_s,
-            self.n_substeps,
-            out,
-            self.constants_key,
-            self.constants,
-        )
+        kernel.rollout_serial(tuple(self.arrays), currents, out)
         self.advance_clock(currents.shape[0])
         if currents.shape[0]:
             self.outputs[:] = out[-1]

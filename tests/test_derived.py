@@ -75,10 +75,12 @@ def test_valve_currents_of_the_default_valve():
 def test_orifice_gas_constants_of_air():
     """1/sqrt(T), k, C1, C2, P_cr (Eq. 40: 0.040418, 0.156174, 0.528 for air) and the slope
     of the linearised Eq. 52, which meets the subsonic branch at the linear ratio."""
-    inv_sqrt_t, k, c1, c2, p_cr, r_lin, slope = derived.orifice_gas_constants(
-        1.4, 287.0, 293.15, 0.995
-    )
-    assert inv_sqrt_t == 1.0 / math.sqrt(293.15) and k == 1.4 and r_lin == 0.995
+    gas = derived.orifice_gas_constants(1.4, 287.0, 293.15, 0.995)
+    assert isinstance(gas, derived.OrificeGas)
+    k, c1, c2, p_cr, r_lin, slope = gas[1:]  # the fields in orifice_mass_flow's order
+    assert (gas.k, gas.c1, gas.c2, gas.critical_ratio) == (k, c1, c2, p_cr)
+    assert (gas.linear_ratio, gas.linear_slope) == (r_lin, slope)
+    assert gas.inv_sqrt_t == 1.0 / math.sqrt(293.15) and k == 1.4 and r_lin == 0.995
     assert (c1, c2, p_cr) == flow_constants(1.4, 287.0)
     assert (c1, c2, p_cr) == pytest.approx((0.040418, 0.156174, 0.528), abs=5e-4)
     subsonic = c2 * r_lin ** (1 / k) * math.sqrt(1 - r_lin ** ((k - 1) / k))

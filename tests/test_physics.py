@@ -17,7 +17,7 @@ from scipy.integrate import quad
 
 from conftest import areas, first_crossing_time, run_batch, volumes
 from pneumatic_env.params import load_numerics, load_parameters, parameter_array
-from pneumatic_env.physics import kernel, vecmath
+from pneumatic_env.physics import batch_path, kernel, vecmath
 from pneumatic_env.physics import layout as L
 from pneumatic_env.physics.flow import flow_constants, orifice_mass_flow, reduced_flow
 from pneumatic_env.physics.tube import (
@@ -656,23 +656,10 @@ def test_base_model_rhs_equals_the_general_rhs():
             base = kernel.base_derivatives(
                 c, coil, x_s, v_s, p1, p2, x, v, direction, spool_delayed
             )
+            y = (x_s, v_s, p1, p2, x, v, 0.0, c.temperature, c.temperature)
+            valve = (spool_delayed, p1, p2)
             general = kernel.derivatives(
-                c,
-                coil,
-                x_s,
-                v_s,
-                p1,
-                p2,
-                x,
-                v,
-                c.temperature,
-                c.temperature,
-                direction,
-                spool_delayed,
-                p1,
-                p2,
-                (p1, p2, p1, p2),
-                c.ambient_pa,
+                c, coil, y, direction, valve, (p1, p2, p1, p2), c.ambient_pa
             )
             assert base == general
 
@@ -689,17 +676,7 @@ def test_batch_path_reproduces_the_general_path_bit_for_bit():
     for step_currents in currents:
         batch.step(np.ascontiguousarray(step_currents))
         for env in range(len(sets)):
-            kernel.advance_env(
-                general.params,
-                general.state,
-                general.history,
-                env,
-                general.head,
-                float(step_currents[env]),
-                general.control_dt_s,
-                general.n_substeps,
-                general.outputs,
-            )
+            kernel.advance_env(general.arrays, env, float(step_currents[env]))
         general.advance_clock()
         np.testing.assert_array_equal(batch.outputs, general.outputs)
         moved |= bool(np.any(batch.outputs[L.O_V, 1:] != 0.0))
@@ -708,11 +685,11 @@ def test_batch_path_reproduces_the_general_path_bit_for_bit():
 
 
 def test_vectorised_delay_reads_equal_delayed_value_bit_for_bit():
-    """The batch path's branch-free ring-buffer reads (``kernel._delayed_spool_rows``)
+    """The batch path's branch-free ring-buffer reads (``batch_path.delayed_spool_rows``)
     against ``kernel.delayed_value``, at every head slot (wrapping ends included) and for
     delays from exactly one substep (the read at head + 1 is the start's own value) to
     the longest the ring holds: lanes with delays of their own (gathers), and lanes that
-    share one delay (contiguous rows), which ``_same_delay`` tells apart."""
+    share one delay (contiguous rows), which ``lanes_share_delay`` tells apart."""
     rng = np.random.default_rng(5)
     n_slots, n = 9, kernel.CHUNK_ENVS
     history = rng.normal(size=(n_slots, L.N_HISTORY, n))
@@ -723,11 +700,11 @@ def test_vectorised_delay_reads_equal_delayed_value_bit_for_bit():
     for delays, same in cases:
         constants = np.zeros(kernel.N_CACHED_CONSTANTS * n)
         constants[kernel.C_DELAY_SUBSTEPS * n : (kernel.C_DELAY_SUBSTEPS + 1) * n] = delays
-        assert kernel._same_delay(constants, n) == same
+        assert batch_path.lanes_share_delay(constants, n) == same
         work = np.zeros(kernel.N_WORK * n)
         work[kernel.W_START * n : (kernel.W_START + 1) * n] = start = rng.normal(size=n)
         for head in range(n_slots):
-            kernel._delayed_spool_rows(constants, work, history, 0, n, head, same)
+            batch_path.delayed_spool_rows(constants, work, history, 0, n, head, same)
             for stage in range(3):
                 row = kernel.W_SPOOL_DELAYED + stage
                 want = [

@@ -57,10 +57,10 @@ def test_batch_loop_compiles_to_simd_code():
 
     found = vector_loop_instructions()
     assert found["vectorised"] and found["lanes"] >= 2  # every loop of VECTOR_LOOPS
-    rk4 = found["loops"]["_base_substeps_vectorised"]
+    rk4 = found["loops"]["base_substeps_vectorised"]
     assert rk4["vdiv"] > 0 and rk4["vsqrt"] > 0
     # only the loop body counts, per vector of lanes: the delayed spool read's body loads
     # two vectors and the start's, subtracts, multiplies and adds, selects and stores one;
     # the whole function (prologue, remainder loop, wrapper) counts several times that
-    interpolate = found["loops"]["_interpolate_row"]
+    interpolate = found["loops"]["interpolate_row"]
     assert 5 <= interpolate["vother"] <= 20 and interpolate["vdiv"] == interpolate["vsqrt"] == 0

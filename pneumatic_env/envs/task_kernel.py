@@ -6,7 +6,7 @@ one-element arrays, and the vector env loops over environments in compiled code,
 parallel region per step (each chunk observed while its rows are in cache).
 
 The step takes a few named tuples of arrays (gymnax style: parameters apart from state):
-:class:`SimArrays` (the simulator's), :class:`TaskParams` and the observation's
+``layout.SimArrays`` (the simulator's ``arrays``), :class:`TaskParams` and the observation's
 ``ObservationScales`` (fixed for the env's life), :class:`TaskState` (updated in place) and
 :class:`StepOutputs` (written by the step). Flat tuples: a parallel loop cannot take a
 tuple nested in a tuple. The entry points take them as plain tuples (``tuple(named)``)
@@ -21,47 +21,18 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from ..physics.kernel import CHUNK_ENVS, advance_chunk
+from ..physics.batch_path import advance_chunk
+from ..physics.constants import CHUNK_ENVS
+from ..physics.layout import SimArrays
 from .observation import ObservationScales, fill_observation_row
 
 __all__ = [
-    "SimArrays",
     "TaskParams",
     "TaskState",
     "StepOutputs",
-    "sim_arrays",
     "task_step_serial",
     "task_step_parallel",
 ]
-
-
-class SimArrays(NamedTuple):
-    """A ``BatchSimulator``'s arrays and step settings, as its step kernel takes them."""
-
-    params: np.ndarray  # (N_PARAMS, n_envs), layout.P_* rows
-    state: np.ndarray  # (N_STATE, n_envs), layout.S_* rows
-    history: np.ndarray  # ring buffer of the tube delay (slots, N_HISTORY, n_envs)
-    head: int  # the ring buffer's current slot
-    outputs: np.ndarray  # (N_OUTPUT, n_envs), layout.O_* rows
-    constants_key: np.ndarray  # (n_envs,): which cached constants are stale (NaN)
-    constants: np.ndarray  # the batch path's cached per-env constants
-    control_dt_s: float  # the coil current is held over it
-    n_substeps: int  # RK4 substeps per control period
-
-
-def sim_arrays(sim) -> SimArrays:
-    """The :class:`SimArrays` of ``sim`` (a ``BatchSimulator``) now (``head`` moves each step)."""
-    return SimArrays(
-        sim.params,
-        sim.state,
-        sim.history,
-        sim.head,
-        sim.outputs,
-        sim.constants_key,
-        sim.constants,
-        sim.control_dt_s,
-        sim.n_substeps,
-    )
 
 
 class TaskParams(NamedTuple):
@@ -103,20 +74,7 @@ def _chunk_step(first, stop, sim, task, scales, state, action, noise, out):
     for env in range(first, stop):
         applied[env] = min(max(action[env], -i_max), i_max)
     outputs = sim.outputs
-    advance_chunk(
-        sim.params,
-        sim.state,
-        sim.history,
-        first,
-        stop,
-        sim.head,
-        applied,
-        sim.control_dt_s,
-        sim.n_substeps,
-        outputs,
-        sim.constants_key,
-        sim.constants,
-    )
+    advance_chunk(sim, first, stop, applied)
     out_rows, lag, scale = task.out_rows, task.lag, scales.reference_scale
     references, step_count, measured = state.references, state.step_count, state.measured
     prev_action = state.prev_action
@@ -141,7 +99,7 @@ def _chunk_step(first, stop, sim, task, scales, state, action, noise, out):
 def task_step_serial(sim, task, scales, state, action, noise, out):
     """One control step of every env of the batch, on one thread.
 
-    ``sim``: :class:`SimArrays`; ``task``: :class:`TaskParams`; ``scales``: the
+    ``sim``: ``layout.SimArrays``; ``task``: :class:`TaskParams`; ``scales``: the
     observation's :class:`ObservationScales` (``reference_scale`` also scales the reward's
     error); ``state``: :class:`TaskState`; ``action``: coil currents (n_envs,) in A;
     ``noise``: sensor noise (n_envs, 4) added this step; ``out``: :class:`StepOutputs`; the

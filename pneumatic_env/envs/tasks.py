@@ -488,7 +488,7 @@ class TaskCore:
         sim.call_step_kernel(
             task_kernel.task_step_serial,
             task_kernel.task_step_parallel,
-            (tuple(task_kernel.sim_arrays(sim)), *self._step_fixed, coil_current_a, noise, out),
+            (tuple(sim.arrays), *self._step_fixed, coil_current_a, noise, out),
         )
         sim.advance_clock()
         if self.features is not None:

@@ -24,12 +24,13 @@ from .effects import spool_play_current
 from .general_path import (
     OUTPUT_STATE_ROWS,
     STIFFNESS_LIMIT,
-    _close_substep,
-    _split_substep,
     advance_env,
+    close_substep,
     refinement,
+    split_substep,
     stiffness_ratio,
 )
+from .layout import SimArrays
 from .piston import (
     MODE_FIXED,
     end_of_substep,
@@ -40,7 +41,7 @@ from .piston import (
     pneumatic_force,
 )
 from .right_hand_side import N_RK, ring_slot, rk4_base_substep
-from .vecmath import _float_to_bits
+from .vecmath import float_to_bits
 
 # The parallel steps run inside BatchSimulator.call_step_kernel, which has the threads
 # take chunks one at a time as each gets free (dynamic scheduling, numba's
@@ -91,7 +92,7 @@ def _set_work_rows(work, first_row, j, y):
 
 
 @njit(cache=True, error_model="numpy")
-def _begin_substeps(constants, work, n_lanes, h):
+def begin_substeps(constants, work, n_lanes, h):
     """Before a vectorised substep, for every lane of a chunk: keep the state at the
     substep's start, set the piston's direction over the substep (``motion_direction``;
     0 with the rod fixed), and mark the lane for the general path where ``refinement``
@@ -110,7 +111,7 @@ def _begin_substeps(constants, work, n_lanes, h):
 
 
 @njit(cache=True, error_model="numpy")
-def _base_substeps_vectorised(constants, work, n_lanes, h):
+def base_substeps_vectorised(constants, work, n_lanes, h):
     """RK4 substep of ``base_derivatives`` for every lane of a chunk; a loop LLVM vectorises.
 
     ``error_model="numpy"`` lets a division by zero give inf instead of raising, so the
@@ -132,7 +133,7 @@ def _base_substeps_vectorised(constants, work, n_lanes, h):
 
 
 @njit(cache=True, error_model="numpy")
-def _end_substeps(constants, work, n_lanes):
+def end_substeps(constants, work, n_lanes):
     """After a vectorised substep, for every lane of a chunk: mark the lane for the general
     path where the sliding piston met an event (a stop or a velocity reversal,
     ``event_fraction``), and apply the end stops (``end_of_substep``). A loop LLVM
@@ -149,7 +150,7 @@ def _end_substeps(constants, work, n_lanes):
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def _delay_slots(head_sub, stage, delay_substeps, n_slots):
+def delay_slots(head_sub, stage, delay_substeps, n_slots):
     """Where the batch path reads x_s(t - tau) at substep fraction ``stage / 2`` (0, 1/2,
     1; at or before head + 1): (query, lower slot, upper slot, weight of the upper)."""
     query = 0.5 * stage - delay_substeps
@@ -162,7 +163,7 @@ def _delay_slots(head_sub, stage, delay_substeps, n_slots):
 
 
 @njit(cache=True, error_model="numpy")
-def _same_delay(constants, n_lanes):
+def lanes_share_delay(constants, n_lanes):
     """Whether every lane of a chunk has the same tube delay (one tube length: the usual
     case), so that its delayed reads share their ring slots."""
     k = CHUNK_ENVS
@@ -174,7 +175,7 @@ def _same_delay(constants, n_lanes):
 
 
 @njit(cache=True, error_model="numpy")
-def _interpolate_row(work, lower_row, upper_row, n_lanes, row, weight, at_start):
+def interpolate_row(work, lower_row, upper_row, n_lanes, row, weight, at_start):
     """Work row ``row`` of every lane from two rows of the ring buffer, ``lower_row +
     weight * (upper_row - lower_row)``, or the substep's start (``at_start``: a delay of
     exactly one substep). A loop LLVM vectorises."""
@@ -186,11 +187,11 @@ def _interpolate_row(work, lower_row, upper_row, n_lanes, row, weight, at_start)
 
 
 @njit(cache=True, error_model="numpy")
-def _delayed_spool_rows(constants, work, history, first, n_lanes, head_sub, same_delay):
+def delayed_spool_rows(constants, work, history, first, n_lanes, head_sub, same_delay):
     """For every lane of a chunk, the delayed spool position x_s(t - tau) at the substep's
     start, middle and end (``delayed_value`` with a delay of at least one substep, as
-    ``base_model_only`` requires). With ``same_delay`` (``_same_delay``) the lanes read the
-    same ring slots, contiguous rows (``_interpolate_row``); otherwise each lane its own
+    ``base_model_only`` requires). With ``same_delay`` (``lanes_share_delay``) the lanes read the
+    same ring slots, contiguous rows (``interpolate_row``); otherwise each lane its own
     (branch-free, so no lane waits on a mispredicted branch; gathers, which LLVM keeps
     scalar)."""
     n_slots = history.shape[0]
@@ -198,10 +199,10 @@ def _delayed_spool_rows(constants, work, history, first, n_lanes, head_sub, same
     stop = first + n_lanes
     if same_delay:
         for stage in range(3):
-            query, lower_slot, upper_slot, weight = _delay_slots(
+            query, lower_slot, upper_slot, weight = delay_slots(
                 head_sub, stage, constants[C_DELAY_SUBSTEPS * k], n_slots
             )
-            _interpolate_row(
+            interpolate_row(
                 work,
                 history[lower_slot, L.H_X_S, first:stop],
                 history[upper_slot, L.H_X_S, first:stop],
@@ -215,7 +216,7 @@ def _delayed_spool_rows(constants, work, history, first, n_lanes, head_sub, same
         delay_substeps = constants[C_DELAY_SUBSTEPS * k + j]
         x_s = work[W_START * k + j]
         for stage in range(3):
-            query, lower_slot, upper_slot, weight = _delay_slots(
+            query, lower_slot, upper_slot, weight = delay_slots(
                 head_sub, stage, delay_substeps, n_slots
             )
             lower = history[lower_slot, L.H_X_S, first + j]
@@ -231,12 +232,12 @@ def _any_lane_set(work, row, n_lanes):
     a reduction LLVM vectorises, so the lanes are scanned one by one only when one is."""
     bits = 0
     for j in range(n_lanes):
-        bits |= _float_to_bits(work[row * CHUNK_ENVS + j])
+        bits |= float_to_bits(work[row * CHUNK_ENVS + j])
     return bits != 0
 
 
 @njit(cache=True, error_model="numpy")
-def _copy_fast_lanes(constants, work, n_lanes, work_row, target_row, keep_redone):
+def copy_fast_lanes(constants, work, n_lanes, work_row, target_row, keep_redone):
     """Copy row ``work_row`` of a chunk's lanes into ``target_row`` (one row of the chunk's
     state, outputs or delay history at one ring slot) for the lanes of the batch path;
     the lanes of ``advance_env`` keep theirs, and so do the lanes the general path redid
@@ -253,7 +254,7 @@ def _copy_fast_lanes(constants, work, n_lanes, work_row, target_row, keep_redone
 
 
 @njit(cache=True, error_model="numpy")
-def _fast_commands(constants, work, n_lanes, command_row, play_row):
+def fast_commands(constants, work, n_lanes, command_row, play_row):
     """The held command of each batch-path lane of a chunk as the spool sees it through
     its play (``spool_command``), into row ``W_CURRENT``; ``play_row`` is the chunk's
     state row ``spool_play_current_a`` (the lanes of ``advance_env`` keep theirs). A loop
@@ -267,7 +268,7 @@ def _fast_commands(constants, work, n_lanes, command_row, play_row):
 
 
 @njit(cache=True, error_model="numpy")
-def _fast_output_forces(constants, work, n_lanes, force_row):
+def fast_output_forces(constants, work, n_lanes, force_row):
     """The force output (Eq. 1, ``output_force``) of each batch-path lane of a chunk into
     ``force_row`` (the chunk's outputs row ``O_F``; the lanes of ``advance_env`` keep
     theirs). A loop LLVM vectorises."""
@@ -299,176 +300,142 @@ def chunk_work(state, first, stop):
 @njit(cache=True)
 def prepare_substep(constants, work, history, first, n_lanes, head_sub, same_delay, h):
     """The inputs of a chunk's RK4 loop for the substep after ring slot ``head_sub``: the
-    start state, direction and stiff lanes (``_begin_substeps``), then the delayed spool
-    positions (``_delayed_spool_rows``)."""
-    _begin_substeps(constants, work, n_lanes, h)
-    _delayed_spool_rows(constants, work, history, first, n_lanes, head_sub, same_delay)
+    start state, direction and stiff lanes (``begin_substeps``), then the delayed spool
+    positions (``delayed_spool_rows``)."""
+    begin_substeps(constants, work, n_lanes, h)
+    delayed_spool_rows(constants, work, history, first, n_lanes, head_sub, same_delay)
 
 
 @njit(cache=True)
-def advance_chunk(
-    params,
-    state,
-    history,
-    first,
-    stop,
-    head,
-    coil_current_a,
-    control_dt_s,
-    n_substeps,
-    outputs,
-    key,
-    constants,
-):
-    """Advance environments ``first .. stop-1`` by one control period; write their outputs.
+def advance_chunk(sim, first, stop, coil_current_a):
+    """Advance environments ``first .. stop-1`` of ``sim`` (``layout.SimArrays``) by one
+    control period with the coil currents ``coil_current_a`` (n_envs,) held; write their
+    outputs.
 
-    ``first`` is a multiple of ``CHUNK_ENVS``; ``key``, ``constants`` are the cache of
-    ``constants_cache``. Environments where ``base_model_only`` holds advance together:
-    per substep, one vectorised loop keeps the start state and finds the piston's
-    direction and the stiff lanes (``_begin_substeps``), the delayed spool positions are
-    read (``_delayed_spool_rows``), one vectorised RK4 substep
-    (``_base_substeps_vectorised``) advances every lane, and one vectorised loop finds the
-    lanes whose piston met an event and applies the stops (``_end_substeps``). A lane
+    ``first`` is a multiple of ``CHUNK_ENVS``. Environments where ``base_model_only``
+    holds advance together: per substep, one vectorised loop keeps the start state and
+    finds the piston's direction and the stiff lanes (``begin_substeps``), the delayed
+    spool positions are read (``delayed_spool_rows``), one vectorised RK4 substep
+    (``base_substeps_vectorised``) advances every lane, and one vectorised loop finds the
+    lanes whose piston met an event and applies the stops (``end_substeps``). A lane
     whose substep needs splitting (stiff flow, ``refinement``) or crosses a piston event
-    is redone from the substep's start by the general path (``_split_substep``). Other
+    is redone from the substep's start by the general path (``split_substep``). Other
     environments take ``advance_env``. Either way an environment's result does not depend
     on the rest of the batch.
     """
     n = stop - first
-    h = control_dt_s / n_substeps
+    state, history, n_substeps = sim.state, sim.history, sim.n_substeps
+    h = sim.control_dt_s / n_substeps
     n_slots = history.shape[0]
-    chunk_constants = constants[first // CHUNK_ENVS]
-    refresh_constants(params, first, stop, h, key, chunk_constants)
+    chunk_constants = sim.constants[first // CHUNK_ENVS]
+    refresh_constants(sim.params, first, stop, h, sim.constants_key, chunk_constants)
     fast = chunk_constants[C_BASE_ONLY * CHUNK_ENVS :]
     for j in range(n):
-        env = first + j
         if fast[j] == 0.0:
-            advance_env(
-                params,
-                state,
-                history,
-                env,
-                head,
-                coil_current_a[env],
-                control_dt_s,
-                n_substeps,
-                outputs,
-            )
+            advance_env(sim, first + j, coil_current_a[first + j])
     # lanes advance_env advanced are computed below too, and ignored
     work = chunk_work(state, first, stop)
-    _fast_commands(
-        chunk_constants, work, n, coil_current_a[first:stop], state[L.S_PLAY, first:stop]
-    )
-    same_delay = _same_delay(chunk_constants, n)
+    fast_commands(chunk_constants, work, n, coil_current_a[first:stop], state[L.S_PLAY, first:stop])
+    same_delay = lanes_share_delay(chunk_constants, n)
     for sub in range(n_substeps):
-        head_sub = ring_slot(head + sub, n_slots)
+        head_sub = ring_slot(sim.head[0] + sub, n_slots)
         prepare_substep(chunk_constants, work, history, first, n, head_sub, same_delay, h)
-        _base_substeps_vectorised(chunk_constants, work, n, h)
-        _end_substeps(chunk_constants, work, n)
+        base_substeps_vectorised(chunk_constants, work, n, h)
+        end_substeps(chunk_constants, work, n)
         slot = ring_slot(head_sub + 1, n_slots)
         for row, channel in ((L.S_X_S, L.H_X_S), (L.S_P1, L.H_P1), (L.S_P2, L.H_P2)):
-            _copy_fast_lanes(
-                chunk_constants, work, n, row, history[slot, channel, first:stop], True
-            )
-        for j in range(n if _any_lane_set(work, W_REDO, n) else 0):
-            if fast[j] != 0.0 and work[W_REDO * CHUNK_ENVS + j] != 0.0:
-                env = first + j
-                c = load_constants(chunk_constants, j)
-                y0 = _work_rows(work, W_START, j)
-                current = work[W_CURRENT * CHUNK_ENVS + j]
-                y, _ = _split_substep(
-                    c,
-                    history,
-                    env,
-                    head_sub,
-                    h,
-                    current,
-                    (current, current),
-                    y0,
-                    refinement(c, y0, h),
-                    c.ambient_pa,
-                    0.0,
-                )
-                _set_work_rows(work, 0, j, _close_substep(c, history, env, slot, y))
-    # the batch path's lanes: state and outputs as _store_state writes them
-    for row in range(N_RK):
-        _copy_fast_lanes(chunk_constants, work, n, row, state[row, first:stop], False)
-    for row in (L.S_COIL, L.S_COIL_FORCE):  # no coil lag on the batch path
-        _copy_fast_lanes(chunk_constants, work, n, W_CURRENT, state[row, first:stop], False)
-    for output_row, row in OUTPUT_STATE_ROWS:
-        _copy_fast_lanes(chunk_constants, work, n, row, outputs[output_row, first:stop], False)
-    _fast_output_forces(chunk_constants, work, n, outputs[L.O_F, first:stop])
+            copy_fast_lanes(chunk_constants, work, n, row, history[slot, channel, first:stop], True)
+        if _any_lane_set(work, W_REDO, n):
+            _redo_lanes(chunk_constants, work, history, first, n, head_sub, slot, h)
+    _store_fast_lanes(chunk_constants, work, state, sim.outputs, first, stop)
 
 
 @njit(cache=True)
-def step_serial(
-    params, state, history, head, coil_current_a, control_dt_s, n_substeps, outputs, key, constants
-):
-    """Advance every environment of the batch by one control period on one thread."""
-    n_envs = state.shape[1]
+def _redo_lanes(chunk_constants, work, history, first, n_lanes, head_sub, slot, h):
+    """Redo by the general path (``split_substep``) the substep after ring slot
+    ``head_sub`` of the batch-path lanes of a chunk marked in work row ``W_REDO`` (stiff,
+    or a piston event), from the substep's start."""
+    fast = chunk_constants[C_BASE_ONLY * CHUNK_ENVS :]
+    for j in range(n_lanes):
+        if fast[j] != 0.0 and work[W_REDO * CHUNK_ENVS + j] != 0.0:
+            env = first + j
+            c = load_constants(chunk_constants, j)
+            y0 = _work_rows(work, W_START, j)
+            current = work[W_CURRENT * CHUNK_ENVS + j]
+            y, _ = split_substep(
+                c,
+                history,
+                env,
+                head_sub,
+                h,
+                current,
+                (current, current),
+                y0,
+                refinement(c, y0, h),
+                c.ambient_pa,
+                0.0,
+            )
+            _set_work_rows(work, 0, j, close_substep(c, history, env, slot, y))
+
+
+@njit(cache=True)
+def _store_fast_lanes(chunk_constants, work, state, outputs, first, stop):
+    """The state and outputs of the batch-path lanes of environments ``first .. stop-1``
+    (one chunk) as ``general_path._store_state`` writes them."""
+    n = stop - first
+    for row in range(N_RK):
+        copy_fast_lanes(chunk_constants, work, n, row, state[row, first:stop], False)
+    for row in (L.S_COIL, L.S_COIL_FORCE):  # no coil lag on the batch path
+        copy_fast_lanes(chunk_constants, work, n, W_CURRENT, state[row, first:stop], False)
+    for output_row, row in OUTPUT_STATE_ROWS:
+        copy_fast_lanes(chunk_constants, work, n, row, outputs[output_row, first:stop], False)
+    fast_output_forces(chunk_constants, work, n, outputs[L.O_F, first:stop])
+
+
+@njit(cache=True)
+def step_serial(sim, coil_current_a):
+    """Advance every environment of ``sim`` (``layout.SimArrays``, or its plain tuple, which
+    Numba's dispatcher types faster) by one control period on one thread, the coil
+    currents ``coil_current_a`` (n_envs,) held."""
+    sim = SimArrays(*sim)
+    n_envs = sim.state.shape[1]
     for first in range(0, n_envs, CHUNK_ENVS):
-        advance_chunk(
-            params,
-            state,
-            history,
-            first,
-            min(first + CHUNK_ENVS, n_envs),
-            head,
-            coil_current_a,
-            control_dt_s,
-            n_substeps,
-            outputs,
-            key,
-            constants,
-        )
+        advance_chunk(sim, first, min(first + CHUNK_ENVS, n_envs), coil_current_a)
 
 
 @njit(cache=True, parallel=True)
-def step_parallel(
-    params, state, history, head, coil_current_a, control_dt_s, n_substeps, outputs, key, constants
-):
-    """Advance every environment of the batch by one control period, chunks in parallel
-    (``BatchSimulator.call_step_kernel`` hands them out)."""
-    n_envs = state.shape[1]
+def step_parallel(sim, coil_current_a):
+    """As ``step_serial``, chunks in parallel (``BatchSimulator.call_step_kernel`` hands
+    them out)."""
+    sim = SimArrays(*sim)
+    n_envs = sim.state.shape[1]
     for chunk in prange((n_envs + CHUNK_ENVS - 1) // CHUNK_ENVS):
         first = chunk * CHUNK_ENVS
-        advance_chunk(
-            params,
-            state,
-            history,
-            first,
-            min(first + CHUNK_ENVS, n_envs),
-            head,
-            coil_current_a,
-            control_dt_s,
-            n_substeps,
-            outputs,
-            key,
-            constants,
-        )
+        advance_chunk(sim, first, min(first + CHUNK_ENVS, n_envs), coil_current_a)
 
 
 @njit(cache=True)
-def rollout_serial(
-    params, state, history, head, coil_current_a, control_dt_s, n_substeps, outputs, key, constants
-):
-    """Run a whole open-loop current sequence ``coil_current_a[step, env]`` in one call.
-
-    ``outputs[step, O_*, env]`` receives the outputs after each control period.
-    """
+def rollout_serial(sim, coil_current_a, outputs):
+    """Run a whole open-loop current sequence ``coil_current_a[step, env]`` through ``sim``
+    (as ``step_serial``) in one call; ``outputs[step, O_*, env]`` receives the outputs
+    after each control period. ``sim.head`` is left where it was."""
+    sim = SimArrays(*sim)
+    head = sim.head[0]
     for step in range(coil_current_a.shape[0]):
-        step_serial(
-            params,
-            state,
-            history,
-            head + step * n_substeps,
-            coil_current_a[step],
-            control_dt_s,
-            n_substeps,
+        sim.head[0] = head + step * sim.n_substeps
+        at_step = SimArrays(
+            sim.params,
+            sim.state,
+            sim.history,
+            sim.head,
             outputs[step],
-            key,
-            constants,
+            sim.constants_key,
+            sim.constants,
+            sim.control_dt_s,
+            sim.n_substeps,
         )
+        step_serial(at_step, coil_current_a[step])
+    sim.head[0] = head
 
 
 def history_slots(max_delay_s, control_dt_s, n_substeps):

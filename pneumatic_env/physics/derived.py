@@ -10,6 +10,7 @@ diameters), and the tests compare outputs bit for bit.
 """
 
 import math
+from typing import NamedTuple
 
 from numba import njit
 
@@ -29,6 +30,7 @@ __all__ = [
     "force_scale_n",
     "valve_currents_a",
     "linear_flow_slope",
+    "OrificeGas",
     "orifice_gas_constants",
     "tube_delay_s",
 ]
@@ -85,16 +87,29 @@ def linear_flow_slope(
     return subsonic_reduced_flow(linear_ratio, heat_capacity_ratio, c2) / (1.0 - linear_ratio)
 
 
+class OrificeGas(NamedTuple):
+    """The gas's arguments of ``flow.orifice_mass_flow`` after the pressures, in its order
+    (``orifice_mass_flow(area, discharge, p_from, p_to, *gas)``), for the paper's flow law
+    (Eqs. 39, 40, 52)."""
+
+    inv_sqrt_t: float  # 1 / sqrt(T) of the gas, 1/sqrt(K)
+    k: float  # heat capacity ratio
+    c1: float  # C1 of Eq. 40 (flow_constants)
+    c2: float  # C2 of Eq. 40
+    critical_ratio: float  # P_cr of Eq. 40
+    linear_ratio: float  # the flow law's linear ratio (flow_linear_ratio, Eq. 52)
+    linear_slope: float  # its slope (linear_flow_slope)
+
+
 @njit(cache=True)
 def orifice_gas_constants(
     heat_capacity_ratio, gas_constant_j_per_kg_k, temperature_k, flow_linear_ratio
 ):
-    """The gas's arguments of ``flow.orifice_mass_flow`` after the pressures, for the
-    paper's flow law (Eqs. 39, 40, 52): (1/sqrt(T), k, C1, C2, P_cr, the linear ratio, its
-    slope ``linear_flow_slope``)."""
+    """The ``OrificeGas`` of a gas at ``temperature_k`` (the linear ratio's slope from
+    ``linear_flow_slope``)."""
     c1, c2, critical_ratio = flow_constants(heat_capacity_ratio, gas_constant_j_per_kg_k)
     slope = linear_flow_slope(flow_linear_ratio, heat_capacity_ratio, c1, c2, critical_ratio)
-    return (
+    return OrificeGas(
         1.0 / math.sqrt(temperature_k),
         heat_capacity_ratio,
         c1,

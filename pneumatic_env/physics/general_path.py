@@ -17,7 +17,7 @@ from . import layout as L
 from .chamber import chamber_volumes
 from .constants import env_constants
 from .effects import lugre_bristle_step, spool_play_current
-from .nodes import _scalar_area, _sent_wave, exhaust_pressure_at_valve, line_flows
+from .nodes import exhaust_pressure_at_valve, line_flows, scalar_area, sent_wave
 from .piston import (
     MODE_FIXED,
     apply_event,
@@ -30,13 +30,14 @@ from .piston import (
 )
 from .right_hand_side import (
     N_RK,
-    _arriving_waves,
-    _coil_at,
-    _inv_sqrt_temperatures,
-    _rk4,
-    _sliding_friction,
-    _valve_inputs,
+    SubstepDrive,
+    arriving_waves,
+    coil_at,
+    inv_sqrt_temperatures,
     ring_slot,
+    rk4_step,
+    sliding_friction,
+    valve_inputs,
 )
 
 # advance_env integrates the state rows 0 .. S_T2 with RK4 and sets S_COIL, S_PLAY,
@@ -80,7 +81,7 @@ def refinement(c, y, h):
     chamber volume this substep can reach (``stiffness_ratio``). It is large only when a
     chamber is nearly empty (piston near a stop), where a fixed substep would chatter.
     With LuGre friction the parts also keep the bristles' explicit coupling to the rod
-    (``_split_substep``) within ``LUGRE_COUPLING_LIMIT``: h sqrt(sigma0 / M) for the
+    (``split_substep``) within ``LUGRE_COUPLING_LIMIT``: h sqrt(sigma0 / M) for the
     pre-sliding spring, h sigma1 / M for its damping.
     """
     ratio = stiffness_ratio(c, y, h)
@@ -103,22 +104,9 @@ def refinement(c, y, h):
 
 
 @njit(cache=True)
-def _advance_interval(
-    c,
-    history,
-    env,
-    head,
-    frac_start,
-    frac_end,
-    h,
-    command_a,
-    coil_start,
-    y,
-    y0,
-    exhaust_node_pa,
-    lugre_friction_n,
-):
-    """Integrate substep fractions [frac_start, frac_end], splitting at piston events.
+def _advance_interval(c, drive, frac_start, frac_end, y, y0):
+    """Integrate substep fractions [frac_start, frac_end] of the ``SubstepDrive`` ``drive``,
+    splitting at piston events.
 
     When the sliding piston's attempted step crosses an end stop or its velocity reverses,
     the step is redone up to the event (located by linear interpolation), the event is
@@ -131,72 +119,27 @@ def _advance_interval(
             applied = (
                 pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area, c.ambient_pa)
                 - external_force(c.mode, y[4], c.load_force, c.spring_k, c.spring_rest)
-                - lugre_friction_n
+                - drive.lugre_friction_n
             )
             direction = motion_direction(y[4], y[5], applied, c.stick_threshold, c.half_stroke)
         dfrac = frac_end - frac0
-        trial = _rk4(
-            c,
-            history,
-            env,
-            head,
-            frac0,
-            dfrac,
-            h,
-            command_a,
-            coil_start,
-            y,
-            y0,
-            direction,
-            exhaust_node_pa,
-            lugre_friction_n,
-        )
+        trial = rk4_step(c, drive, frac0, dfrac, y, y0, direction)
         theta = -1.0
         if direction != 0.0:
             theta = event_fraction(y[4], y[5], trial[4], trial[5], direction, c.half_stroke)
         if theta < 0.0:
             return trial
         if theta * dfrac > MIN_EVENT_FRACTION:
-            y = _rk4(
-                c,
-                history,
-                env,
-                head,
-                frac0,
-                theta * dfrac,
-                h,
-                command_a,
-                coil_start,
-                y,
-                y0,
-                direction,
-                exhaust_node_pa,
-                lugre_friction_n,
-            )
+            y = rk4_step(c, drive, frac0, theta * dfrac, y, y0, direction)
             frac0 += theta * dfrac
         x, v = apply_event(y[4], y[5], direction, c.half_stroke)
         y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
     # out of events: the rest of the interval with the piston held
-    return _rk4(
-        c,
-        history,
-        env,
-        head,
-        frac0,
-        frac_end - frac0,
-        h,
-        command_a,
-        coil_start,
-        y,
-        y0,
-        0.0,
-        exhaust_node_pa,
-        lugre_friction_n,
-    )
+    return rk4_step(c, drive, frac0, frac_end - frac0, y, y0, 0.0)
 
 
 @njit(cache=True)
-def _split_substep(
+def split_substep(
     c, history, env, head_sub, h, command_a, coil_start, y0, parts, exhaust_node_pa, bristle_m
 ):
     """One substep from ``y0`` by the general path, in ``parts`` equal parts
@@ -217,23 +160,12 @@ def _split_substep(
                 h / parts,
                 c.lugre_stiffness,
                 c.lugre_damping,
-                _sliding_friction(c, y[5]),
+                sliding_friction(c, y[5]),
             )
-        y = _advance_interval(
-            c,
-            history,
-            env,
-            head_sub,
-            part / parts,
-            (part + 1) / parts,
-            h,
-            command_a,
-            coil_start,
-            y,
-            y0,
-            exhaust_node_pa,
-            lugre_friction_n,
+        drive = SubstepDrive(
+            history, env, head_sub, h, command_a, coil_start, exhaust_node_pa, lugre_friction_n
         )
+        y = _advance_interval(c, drive, part / parts, (part + 1) / parts, y, y0)
     return y, bristle_m
 
 
@@ -246,19 +178,19 @@ def _record_history(history, env, slot, x_s, p1, p2):
 
 
 @njit(cache=True)
-def _close_substep(c, history, env, slot, y):
+def close_substep(c, history, env, slot, y):
     """The end of a substep: the inelastic stops (``end_of_substep``) and the delay history
     at the new boundary (written at substep boundaries only, whatever the splitting)."""
     x, v = end_of_substep(y[4], y[5], c.half_stroke)
     y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
     if c.waves:  # the waves the line ends send at this boundary
         flow_1, flow_2, _, port_1, q_1, port_2, q_2 = line_flows(
-            c, y[0], _arriving_waves(c, history, env, slot, 0.0), y[2], y[3]
+            c, y[0], arriving_waves(c, history, env, slot, 0.0), y[2], y[3]
         )
-        history[slot, L.H_WAVE_VALVE_1, env] = _sent_wave(c, port_1, q_1)
-        history[slot, L.H_WAVE_VALVE_2, env] = _sent_wave(c, port_2, q_2)
-        history[slot, L.H_WAVE_CHAMBER_1, env] = _sent_wave(c, y[2], -flow_1)
-        history[slot, L.H_WAVE_CHAMBER_2, env] = _sent_wave(c, y[3], -flow_2)
+        history[slot, L.H_WAVE_VALVE_1, env] = sent_wave(c, port_1, q_1)
+        history[slot, L.H_WAVE_VALVE_2, env] = sent_wave(c, port_2, q_2)
+        history[slot, L.H_WAVE_CHAMBER_1, env] = sent_wave(c, y[2], -flow_1)
+        history[slot, L.H_WAVE_CHAMBER_2, env] = sent_wave(c, y[3], -flow_2)
     _record_history(history, env, slot, y[0], y[2], y[3])
     return y
 
@@ -284,12 +216,12 @@ def exhaust_node_after_substep(c, history, env, slot, y, exhaust_node_pa, h):
     dP_e/dt = (R T / V) ``_exhaust_node_balance``(P_e) with the valve's inputs at the
     boundary ``slot`` (state ``y``), solved by ``exhaust_pressure_at_valve``; stable for
     any volume, and the quasi-static node as V -> 0."""
-    spool_delayed, valve_p1, valve_p2 = _valve_inputs(c, history, env, slot, 0.0, y, y)
-    inv_sqrt_t1, inv_sqrt_t2 = _inv_sqrt_temperatures(c, y[7], y[8])
+    spool_delayed, valve_p1, valve_p2 = valve_inputs(c, history, env, slot, 0.0, y, y)
+    inv_sqrt_t1, inv_sqrt_t2 = inv_sqrt_temperatures(c, y[7], y[8])
     return exhaust_pressure_at_valve(
         c,
-        _scalar_area(c, spool_delayed) + c.null_leak,
-        _scalar_area(c, -spool_delayed) + c.null_leak,
+        scalar_area(c, spool_delayed) + c.null_leak,
+        scalar_area(c, -spool_delayed) + c.null_leak,
         valve_p1,
         valve_p2,
         inv_sqrt_t1,
@@ -300,17 +232,17 @@ def exhaust_node_after_substep(c, history, env, slot, y, exhaust_node_pa, h):
 
 
 @njit(cache=True)
-def advance_env(
-    params, state, history, env, head, coil_current_a, control_dt_s, n_substeps, outputs
-):
-    """Advance environment ``env`` by one control period; write its outputs row.
+def advance_env(sim, env, coil_current_a):
+    """Advance environment ``env`` of ``sim`` (``layout.SimArrays``) by one control period
+    with the coil current ``coil_current_a`` held; write its outputs row.
 
     ``n_substeps`` RK4 substeps, each split into equal parts where ``refinement`` finds the
     flow stiff, and at piston events (``_advance_interval``). The delay history is written
     at the substep boundaries only, so its length does not depend on the splitting.
     """
-    h = control_dt_s / n_substeps
-    c = env_constants(params, env, h)
+    state, history, n_substeps = sim.state, sim.history, sim.n_substeps
+    h = sim.control_dt_s / n_substeps
+    c = env_constants(sim.params, env, h)
     coil_current_a = spool_command(c.spool_play_band, state, env, coil_current_a)
     n_slots = history.shape[0]
     y = (
@@ -328,10 +260,10 @@ def advance_env(
     exhaust_node_pa = state[L.S_EXHAUST_NODE, env]
     bristle_m = state[L.S_BRISTLE, env]
     for sub in range(n_substeps):
-        head_sub = ring_slot(head + sub, n_slots)
+        head_sub = ring_slot(sim.head[0] + sub, n_slots)
         coil_now = coil[0] if c.coil_lag else coil_current_a  # the command without a lag
         coil_start = (coil_now, coil[1] if c.coil_force_lag else coil_now)
-        y, bristle_m = _split_substep(
+        y, bristle_m = split_substep(
             c,
             history,
             env,
@@ -344,16 +276,16 @@ def advance_env(
             exhaust_node_pa,
             bristle_m,
         )
-        coil = _coil_at(c, coil_current_a, coil_start, 1.0)
+        coil = coil_at(c, coil_current_a, coil_start, 1.0)
         slot = ring_slot(head_sub + 1, n_slots)
-        y = _close_substep(c, history, env, slot, y)
+        y = close_substep(c, history, env, slot, y)
         if c.exhaust_vent > 0.0 and c.exhaust_capacity > 0.0:
             exhaust_node_pa = exhaust_node_after_substep(
                 c, history, env, slot, y, exhaust_node_pa, h
             )
     state[L.S_EXHAUST_NODE, env] = exhaust_node_pa
     state[L.S_BRISTLE, env] = bristle_m
-    _store_state(c, state, env, y, coil, outputs)
+    _store_state(c, state, env, y, coil, sim.outputs)
 
 
 # the outputs that are state rows: (outputs row, state row)

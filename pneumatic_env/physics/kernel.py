@@ -48,19 +48,6 @@ from .batch_path import (
     step_parallel,
     step_serial,
 )
-
-# the batch path's vectorised loops, which studies/speed/ceiling.py compiles afresh to read
-# their SIMD instructions, and the ring-buffer reads tests/test_physics.py checks
-from .batch_path import _base_substeps_vectorised as _base_substeps_vectorised
-from .batch_path import _begin_substeps as _begin_substeps
-from .batch_path import _copy_fast_lanes as _copy_fast_lanes
-from .batch_path import _delay_slots as _delay_slots
-from .batch_path import _delayed_spool_rows as _delayed_spool_rows
-from .batch_path import _end_substeps as _end_substeps
-from .batch_path import _fast_commands as _fast_commands
-from .batch_path import _fast_output_forces as _fast_output_forces
-from .batch_path import _interpolate_row as _interpolate_row
-from .batch_path import _same_delay as _same_delay
 from .constants import (
     C_BASE_ONLY,
     C_DELAY_SUBSTEPS,

@@ -12,7 +12,13 @@ A physical effect that the paper's model lacks is a sub-model with its own param
 rows whose neutral value switches it off (a zero area, a zero time constant, ...), so
 one parameter set can switch an effect on for some environments of a batch and not
 for others without recompiling the kernel.
+
+``SimArrays`` bundles a batch's arrays and step settings as the step functions take them.
 """
+
+from typing import NamedTuple
+
+import numpy as np
 
 PARAMETER_NAMES = (
     # air and thermodynamics (Sec. 2.2, Eq. 14, Eq. 40)
@@ -288,3 +294,18 @@ def _check_rows(namespace: dict) -> None:
 
 
 _check_rows(globals())
+
+
+class SimArrays(NamedTuple):
+    """A batch's arrays and step settings (``BatchSimulator.arrays``), as the step functions
+    (``batch_path``) take them."""
+
+    params: np.ndarray  # (N_PARAMS, n_envs), P_* rows
+    state: np.ndarray  # (N_STATE, n_envs), S_* rows
+    history: np.ndarray  # ring buffer of the tube delay (slots, N_HISTORY, n_envs)
+    head: np.ndarray  # (1,) int64: the ring buffer's newest slot (moved in place each step)
+    outputs: np.ndarray  # (N_OUTPUT, n_envs), O_* rows
+    constants_key: np.ndarray  # (n_envs,): substep of each env's cached constants (NaN: stale)
+    constants: np.ndarray  # the batch path's cached per-env constants (constants_cache)
+    control_dt_s: float  # the coil current is held over it
+    n_substeps: int  # RK4 substeps per control period

@@ -16,7 +16,7 @@ from .valve import orifice_area_inv_radius
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def _flow(c, discharge, area, p_from, p_to, inv_sqrt_t_from, inv_sqrt_t_to, flow_law):
+def path_mass_flow(c, discharge, area, p_from, p_to, inv_sqrt_t_from, inv_sqrt_t_to, flow_law):
     """Eq. 39 from node ``from`` to node ``to``, at the upstream node's temperature.
 
     A closed orifice returns at once on the general (scalar) path; in the vectorised loop
@@ -42,7 +42,7 @@ def _flow(c, discharge, area, p_from, p_to, inv_sqrt_t_from, inv_sqrt_t_to, flow
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def _tube(c, mass_flow, chamber_pa):
+def chamber_end_flow(c, mass_flow, chamber_pa):
     """The flow delivered at the chamber end of the tube (Eq. 30); none in, none out."""
     if mass_flow == 0.0:
         return 0.0
@@ -79,8 +79,10 @@ def _illinois_update(lo, f_lo, hi, f_hi, x, f, side):
 def _supply_flow(c, supply_pa, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2):
     """Total valve flow out of the supply (both paths, before the tubes), >= 0."""
     return max(
-        _flow(c, c.discharge, area_a, supply_pa, valve_p1_pa, c.inv_sqrt_t, inv_sqrt_t1, c.flow_law)
-        + _flow(
+        path_mass_flow(
+            c, c.discharge, area_a, supply_pa, valve_p1_pa, c.inv_sqrt_t, inv_sqrt_t1, c.flow_law
+        )
+        + path_mass_flow(
             c, c.discharge, area_b, supply_pa, valve_p2_pa, c.inv_sqrt_t, inv_sqrt_t2, c.flow_law
         ),
         0.0,
@@ -141,12 +143,12 @@ def _exhaust_node_balance(
     """Valve flow into the exhaust node (chamber 1 through path b, chamber 2 through path
     a, Eq. 39) minus the vent's flow out of it to the atmosphere (Eq. 39 with C_f = 1 on
     the effective vent area), kg/s; it decreases as ``exhaust_pa`` rises."""
-    into_node = _flow(
+    into_node = path_mass_flow(
         c, c.discharge_ex, area_b, valve_p1_pa, exhaust_pa, inv_sqrt_t1, c.inv_sqrt_t, c.flow_law
-    ) + _flow(
+    ) + path_mass_flow(
         c, c.discharge_ex, area_a, valve_p2_pa, exhaust_pa, inv_sqrt_t2, c.inv_sqrt_t, c.flow_law
     )
-    vented = _flow(
+    vented = path_mass_flow(
         c, 1.0, c.exhaust_vent, exhaust_pa, c.ambient_pa, c.inv_sqrt_t, c.inv_sqrt_t, c.flow_law
     )
     return into_node - vented
@@ -211,7 +213,7 @@ def exhaust_pressure_at_valve(
 
 
 @njit(cache=True)
-def _scalar_area(c, spool_m):
+def scalar_area(c, spool_m):
     """``orifice_area`` on the general (scalar) path, returning at once for a closed hole."""
     if spool_m <= c.half_width - c.hole_radius:
         return 0.0
@@ -243,8 +245,45 @@ def valve_chamber_flows(
     its quasi-static pressure (``exhaust_pressure_at_valve``).
     Returns (supply->1, 1->exhaust, supply->2, 2->exhaust) as flows at the chamber end.
     """
-    area_a = _scalar_area(c, spool_delayed_m) + c.null_leak
-    area_b = _scalar_area(c, -spool_delayed_m) + c.null_leak
+    area_a = scalar_area(c, spool_delayed_m) + c.null_leak
+    area_b = scalar_area(c, -spool_delayed_m) + c.null_leak
+    supply_pa, exhaust_pa = _valve_supply_and_exhaust(
+        c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2, exhaust_node_pa
+    )
+    t_supply, law = c.inv_sqrt_t, c.flow_law
+    supply_1 = chamber_end_flow(
+        c,
+        path_mass_flow(c, c.discharge, area_a, supply_pa, valve_p1_pa, t_supply, inv_sqrt_t1, law),
+        p1_pa,
+    )
+    exhaust_1 = chamber_end_flow(
+        c,
+        path_mass_flow(
+            c, c.discharge_ex, area_b, valve_p1_pa, exhaust_pa, inv_sqrt_t1, t_supply, law
+        ),
+        p1_pa,
+    )
+    supply_2 = chamber_end_flow(
+        c,
+        path_mass_flow(c, c.discharge, area_b, supply_pa, valve_p2_pa, t_supply, inv_sqrt_t2, law),
+        p2_pa,
+    )
+    exhaust_2 = chamber_end_flow(
+        c,
+        path_mass_flow(
+            c, c.discharge_ex, area_a, valve_p2_pa, exhaust_pa, inv_sqrt_t2, t_supply, law
+        ),
+        p2_pa,
+    )
+    return supply_1, exhaust_1, supply_2, exhaust_2
+
+
+@njit(cache=True, forceinline=True)  # inlined: a call would pass every constant
+def _valve_supply_and_exhaust(
+    c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2, exhaust_node_pa
+):
+    """The pressures (Pa) at the valve's supply port (drooping with the supply flow) and
+    exhaust ports (behind a vent: the node's) for ``valve_chamber_flows``."""
     supply_pa = c.supply_pa
     if c.supply_resistance > 0.0:
         supply_pa = supply_pressure_at_valve(
@@ -265,49 +304,7 @@ def valve_chamber_flows(
                 0.0,
                 c.ambient_pa,
             )
-    supply_1 = _tube(
-        c,
-        _flow(
-            c, c.discharge, area_a, supply_pa, valve_p1_pa, c.inv_sqrt_t, inv_sqrt_t1, c.flow_law
-        ),
-        p1_pa,
-    )
-    exhaust_1 = _tube(
-        c,
-        _flow(
-            c,
-            c.discharge_ex,
-            area_b,
-            valve_p1_pa,
-            exhaust_pa,
-            inv_sqrt_t1,
-            c.inv_sqrt_t,
-            c.flow_law,
-        ),
-        p1_pa,
-    )
-    supply_2 = _tube(
-        c,
-        _flow(
-            c, c.discharge, area_b, supply_pa, valve_p2_pa, c.inv_sqrt_t, inv_sqrt_t2, c.flow_law
-        ),
-        p2_pa,
-    )
-    exhaust_2 = _tube(
-        c,
-        _flow(
-            c,
-            c.discharge_ex,
-            area_a,
-            valve_p2_pa,
-            exhaust_pa,
-            inv_sqrt_t2,
-            c.inv_sqrt_t,
-            c.flow_law,
-        ),
-        p2_pa,
-    )
-    return supply_1, exhaust_1, supply_2, exhaust_2
+    return supply_pa, exhaust_pa
 
 
 LINE_PRESSURE_RTOL = 1e-10  # solver accuracy of the line's valve-end pressure, relative to P_s
@@ -317,10 +314,10 @@ LINE_PRESSURE_RTOL = 1e-10  # solver accuracy of the line's valve-end pressure, 
 def _port_flow_into_line(c, supply_area, exhaust_area, port_pa):
     """Net valve flow into a line at valve-end pressure ``port_pa``, and its exhaust part
     (port -> atmosphere, Eq. 39; the line's air at ``temperature_k``)."""
-    supply = _flow(
+    supply = path_mass_flow(
         c, c.discharge, supply_area, c.supply_pa, port_pa, c.inv_sqrt_t, c.inv_sqrt_t, c.flow_law
     )
-    exhaust = _flow(
+    exhaust = path_mass_flow(
         c,
         c.discharge_ex,
         exhaust_area,
@@ -392,8 +389,8 @@ def line_flows(c, spool_m, arriving, p1_pa, p2_pa):
     valve's exhaust flow to the atmosphere, and the pressure and the flow into the line at
     valve end 1 and at valve end 2).
     """
-    area_a = _scalar_area(c, spool_m) + c.null_leak
-    area_b = _scalar_area(c, -spool_m) + c.null_leak
+    area_a = scalar_area(c, spool_m) + c.null_leak
+    area_b = scalar_area(c, -spool_m) + c.null_leak
     port_1, q_1, exhaust_1 = _line_valve_end(c, area_a, area_b, arriving[0])
     port_2, q_2, exhaust_2 = _line_valve_end(c, area_b, area_a, arriving[1])
     flow_1 = line_chamber_flow(
@@ -418,7 +415,7 @@ def line_flows(c, spool_m, arriving, p1_pa, p2_pa):
 
 
 @njit(cache=True)
-def _sent_wave(c, pressure_pa, mass_flow_into_line):
+def sent_wave(c, pressure_pa, mass_flow_into_line):
     """The wave a line end sends (``tube.line_end_wave``) with the line's friction there."""
     return line_end_wave(
         pressure_pa,

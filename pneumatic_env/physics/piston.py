@@ -85,7 +85,7 @@ def event_fraction(x0_m, v0_m_per_s, x1_m, v1_m_per_s, direction, half_stroke_m)
 
     Linear interpolation of the attempted step's position (stop) and velocity (reversal);
     -1 when neither happens within the step. Inlined and free of raising divisions, so the
-    batch path's event test (``kernel._end_substeps``) vectorises.
+    batch path's event test (``batch_path.end_substeps``) vectorises.
     """
     theta = -1.0
     stop = direction * half_stroke_m
@@ -114,7 +114,7 @@ def apply_event(piston_position_m, piston_velocity_m_per_s, direction, half_stro
 @njit(cache=True, forceinline=True, error_model="numpy")
 def end_of_substep(piston_position_m, piston_velocity_m_per_s, half_stroke_m):
     """Keep the piston within +-L/2 (inelastic stops) after a substep (inlined: it
-    vectorises in ``kernel._end_substeps``)."""
+    vectorises in ``batch_path.end_substeps``)."""
     x = piston_position_m
     v = piston_velocity_m_per_s
     if x >= half_stroke_m:

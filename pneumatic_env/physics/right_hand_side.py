@@ -3,13 +3,15 @@
 ``derivatives`` is the general form (all four valve paths, the leakage orifices, every
 effect); ``base_derivatives`` the paper's model where ``constants.base_model_only`` holds,
 branch-free so that a loop over environments compiles to SIMD code. The delayed inputs are
-read from the ring buffer of substep boundaries (``delayed_value``); ``_rk4`` takes one RK4
+read from the ring buffer of substep boundaries (``delayed_value``); ``rk4_step`` takes one RK4
 step of the general form over a fraction of a substep, ``rk4_base_substep`` one whole
 substep of the base form.
 """
 
 import math
+from typing import NamedTuple
 
+import numpy as np
 from numba import njit
 
 from . import layout as L
@@ -23,7 +25,7 @@ from .effects import (
     stribeck_friction,
 )
 from .flow import FLOW_LAW_PAPER
-from .nodes import _flow, _tube, line_flows, valve_chamber_flows
+from .nodes import chamber_end_flow, line_flows, path_mass_flow, valve_chamber_flows
 from .piston import external_force, piston_acceleration, pneumatic_force
 from .valve import orifice_area_inv_radius, spool_acceleration
 
@@ -46,7 +48,7 @@ def _motion_and_spool(c, coil_current_a, x_s, v_s, p1, p2, x, velocity, directio
 
 
 @njit(cache=True, inline="always")
-def _sliding_friction(c, velocity):
+def sliding_friction(c, velocity):
     """The sliding friction's magnitude at ``velocity``: F_df (Eq. 47), or the Stribeck
     curve; Karnopp's while sliding, and the curve LuGre's bristles relax towards."""
     if c.stribeck:
@@ -64,37 +66,51 @@ def _volumes(c, x):
     )
 
 
+class ValveInputs(NamedTuple):
+    """What the valve's flows are evaluated with (``valve_inputs``)."""
+
+    spool_m: float  # the delayed spool position x_s(t - tau)
+    p1_pa: float  # chamber 1's pressure as the valve sees it (delayed with the literal Eq. 55)
+    p2_pa: float  # chamber 2's, the same
+
+
 @njit(cache=True)
 def derivatives(
-    c,
-    coil_current_a,
-    x_s,
-    v_s,
-    p1,
-    p2,
-    x,
-    v,
-    t1,
-    t2,
-    direction,
-    spool_delayed,
-    valve_p1,
-    valve_p2,
-    arriving,
-    exhaust_node_pa,
-    lugre_friction_n=0.0,
+    c, coil_current_a, y, direction, valve, arriving, exhaust_node_pa, lugre_friction_n=0.0
 ):
-    """Right-hand side of the state (x_s, v_s, P1, P2, x, v, exhaust mass, T1, T2).
+    """Right-hand side of the RK4 state ``y`` = (x_s, v_s, P1, P2, x, v, exhaust mass, T1,
+    T2).
 
     The general form: all four valve paths, the leakage orifices and every effect.
     ``coil_current_a`` is the current driving the spool (lagged if the coil lag is on).
     T1, T2 change only with the energy model on (``wall_heat_transfer_w_per_k > 0``).
-    With the tubes as transmission lines (``tube_waves``) the chamber flows come from
-    ``line_flows`` and the waves ``arriving`` at the line ends; ``spool_delayed``,
-    ``valve_p*`` are then unused. With LuGre friction on, ``lugre_friction_n`` (held over
-    the substep, ``lugre_bristle_step``) replaces the sliding friction.
+    ``valve``: the ``ValveInputs``. With the tubes as transmission lines (``tube_waves``)
+    the chamber flows come from ``line_flows`` and the waves ``arriving`` at the line ends;
+    ``valve`` is then unused. With LuGre friction on, ``lugre_friction_n`` (held over the
+    substep, ``lugre_bristle_step``) replaces the sliding friction.
     """
-    inv_sqrt_t1, inv_sqrt_t2 = _inv_sqrt_temperatures(c, t1, t2)
+    x_s, v_s, p1, p2, x, v = y[0], y[1], y[2], y[3], y[4], y[5]
+    t1, t2 = y[7], y[8]
+    inv_sqrt_t1, inv_sqrt_t2 = inv_sqrt_temperatures(c, t1, t2)
+    flows = _chamber_mass_flows(
+        c, x_s, p1, p2, valve, arriving, exhaust_node_pa, inv_sqrt_t1, inv_sqrt_t2
+    )
+    supply_1, exhaust_1, supply_2, exhaust_2, leak_12, seal_2, vented = flows
+    velocity = v if direction != 0.0 else 0.0
+    dp1, dp2, dt1, dt2 = _chamber_rates(c, p1, p2, x, t1, t2, velocity, flows)
+    # piston_acceleration applies friction * direction (+-1 while moving)
+    friction = lugre_friction_n * direction if c.lugre else sliding_friction(c, velocity)
+    accel, a_s = _motion_and_spool(
+        c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction, friction
+    )
+    exhaust_rate = max(exhaust_1, 0.0) + max(exhaust_2, 0.0) + max(seal_2, 0.0) + vented
+    return v_s, a_s, dp1, dp2, velocity, accel, exhaust_rate, dt1, dt2
+
+
+@njit(cache=True, forceinline=True)  # inlined: a call would pass every constant
+def _chamber_mass_flows(c, x_s, p1, p2, valve, arriving, exhaust_node_pa, inv_sqrt_t1, inv_sqrt_t2):
+    """The signed mass flows of ``derivatives``: (supply -> 1, 1 -> exhaust, supply -> 2,
+    2 -> exhaust, leak 1 -> 2, rod seal 2 -> ambient, vented from the lines)."""
     vented = 0.0
     if c.waves:  # a signed flow into each chamber from its line; the line's air at T_s
         supply_1, supply_2, vented, _, _, _, _ = line_flows(c, x_s, arriving, p1, p2)
@@ -102,17 +118,26 @@ def derivatives(
         exhaust_2 = 0.0
     else:
         supply_1, exhaust_1, supply_2, exhaust_2 = valve_chamber_flows(
-            c, spool_delayed, valve_p1, valve_p2, p1, p2, inv_sqrt_t1, inv_sqrt_t2, exhaust_node_pa
+            c, valve[0], valve[1], valve[2], p1, p2, inv_sqrt_t1, inv_sqrt_t2, exhaust_node_pa
         )
-    leak_12 = _flow(c, c.discharge, c.leak_area, p1, p2, inv_sqrt_t1, inv_sqrt_t2, c.flow_law)
-    seal_2 = _flow(
+    leak_12 = path_mass_flow(
+        c, c.discharge, c.leak_area, p1, p2, inv_sqrt_t1, inv_sqrt_t2, c.flow_law
+    )
+    seal_2 = path_mass_flow(
         c, c.discharge, c.seal_leak, p2, c.ambient_pa, inv_sqrt_t2, c.inv_sqrt_t, c.flow_law
     )
+    return supply_1, exhaust_1, supply_2, exhaust_2, leak_12, seal_2, vented
+
+
+@njit(cache=True, forceinline=True)  # inlined: a call would pass every constant
+def _chamber_rates(c, p1, p2, x, t1, t2, velocity, flows):
+    """(dP1, dP2, dT1, dT2) of ``derivatives`` from its ``_chamber_mass_flows``: Eq. 14/16,
+    or the energy model, with the isothermal tube air if on."""
+    supply_1, exhaust_1, supply_2, exhaust_2, leak_12, seal_2, _ = flows
     in_1 = max(supply_1, 0.0) + max(-exhaust_1, 0.0) + max(-leak_12, 0.0)
     out_1 = max(-supply_1, 0.0) + max(exhaust_1, 0.0) + max(leak_12, 0.0)
     in_2 = max(supply_2, 0.0) + max(-exhaust_2, 0.0) + max(leak_12, 0.0) + max(-seal_2, 0.0)
     out_2 = max(-supply_2, 0.0) + max(exhaust_2, 0.0) + max(-leak_12, 0.0) + max(seal_2, 0.0)
-    velocity = v if direction != 0.0 else 0.0
     v1, v2 = _volumes(c, x)
     if c.energy:
         # air from the supply or the atmosphere enters at temperature_k, leakage air at
@@ -149,41 +174,33 @@ def derivatives(
             c.heat_conductance,
             c.temperature,
         )
-    else:
-        dp1 = pressure_rate(
-            p1,
-            v1,
-            c.area_cap * velocity,
-            in_1,
-            out_1,
-            c.gas_rt,
-            c.alpha_in,
-            c.alpha_out,
-            c.alpha_motion,
-        )
-        dp2 = pressure_rate(
-            p2,
-            v2,
-            -c.area_rod * velocity,
-            in_2,
-            out_2,
-            c.gas_rt,
-            c.alpha_in,
-            c.alpha_out,
-            c.alpha_motion,
-        )
-        dt1 = 0.0
-        dt2 = 0.0
-        if c.tube_air > 0.0:
-            dp1 = rate_with_isothermal_tube_air(dp1, v1, c.tube_air, c.alpha_in, c.alpha_out)
-            dp2 = rate_with_isothermal_tube_air(dp2, v2, c.tube_air, c.alpha_in, c.alpha_out)
-    # piston_acceleration applies friction * direction (+-1 while moving)
-    friction = lugre_friction_n * direction if c.lugre else _sliding_friction(c, velocity)
-    accel, a_s = _motion_and_spool(
-        c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction, friction
+        return dp1, dp2, dt1, dt2
+    dp1 = pressure_rate(
+        p1,
+        v1,
+        c.area_cap * velocity,
+        in_1,
+        out_1,
+        c.gas_rt,
+        c.alpha_in,
+        c.alpha_out,
+        c.alpha_motion,
     )
-    exhaust_rate = max(exhaust_1, 0.0) + max(exhaust_2, 0.0) + max(seal_2, 0.0) + vented
-    return v_s, a_s, dp1, dp2, velocity, accel, exhaust_rate, dt1, dt2
+    dp2 = pressure_rate(
+        p2,
+        v2,
+        -c.area_rod * velocity,
+        in_2,
+        out_2,
+        c.gas_rt,
+        c.alpha_in,
+        c.alpha_out,
+        c.alpha_motion,
+    )
+    if c.tube_air > 0.0:
+        dp1 = rate_with_isothermal_tube_air(dp1, v1, c.tube_air, c.alpha_in, c.alpha_out)
+        dp2 = rate_with_isothermal_tube_air(dp2, v2, c.tube_air, c.alpha_in, c.alpha_out)
+    return dp1, dp2, 0.0, 0.0
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
@@ -204,11 +221,19 @@ def base_derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, direction, spool
     node_2 = c.ambient_pa if to_chamber_1 else c.supply_pa
     discharge_1 = c.discharge if to_chamber_1 else c.discharge_ex
     discharge_2 = c.discharge_ex if to_chamber_1 else c.discharge
-    flow_1 = _tube(
-        c, _flow(c, discharge_1, area, node_1, p1, c.inv_sqrt_t, c.inv_sqrt_t, FLOW_LAW_PAPER), p1
+    flow_1 = chamber_end_flow(
+        c,
+        path_mass_flow(
+            c, discharge_1, area, node_1, p1, c.inv_sqrt_t, c.inv_sqrt_t, FLOW_LAW_PAPER
+        ),
+        p1,
     )
-    flow_2 = _tube(
-        c, _flow(c, discharge_2, area, node_2, p2, c.inv_sqrt_t, c.inv_sqrt_t, FLOW_LAW_PAPER), p2
+    flow_2 = chamber_end_flow(
+        c,
+        path_mass_flow(
+            c, discharge_2, area, node_2, p2, c.inv_sqrt_t, c.inv_sqrt_t, FLOW_LAW_PAPER
+        ),
+        p2,
     )
     velocity = v if direction != 0.0 else 0.0
     v1, v2 = _volumes(c, x)
@@ -275,22 +300,23 @@ def delayed_value(
 
 
 @njit(cache=True, inline="always")
-def _valve_inputs(c, history, env, head, frac, y, y0):
+def valve_inputs(c, history, env, head, frac, y, y0):
     """What the valve sees ``frac`` of a substep after boundary ``head`` (state ``y``; ``y0``
     at the boundary): the delayed spool x_s(t - tau) and the chamber pressures its flow is
-    evaluated with (the delayed ones with the literal Eq. 55, else the present ones)."""
+    evaluated with (the delayed ones with the literal Eq. 55, else the present ones): the
+    ``ValveInputs``."""
     spool_delayed = delayed_value(history, env, L.H_X_S, head, frac, c.delay_substeps, y0[0], y[0])
     if c.literal:
-        return (
+        return ValveInputs(
             spool_delayed,
             delayed_value(history, env, L.H_P1, head, frac, c.delay_substeps, y0[2], y[2]),
             delayed_value(history, env, L.H_P2, head, frac, c.delay_substeps, y0[3], y[3]),
         )
-    return spool_delayed, y[2], y[3]
+    return ValveInputs(spool_delayed, y[2], y[3])
 
 
 @njit(cache=True, inline="always")
-def _inv_sqrt_temperatures(c, t1, t2):
+def inv_sqrt_temperatures(c, t1, t2):
     """1/sqrt(T) of the chamber air: of the gas temperatures with the energy model, else
     of ``temperature_k`` (cached)."""
     if c.energy:
@@ -298,37 +324,40 @@ def _inv_sqrt_temperatures(c, t1, t2):
     return c.inv_sqrt_t, c.inv_sqrt_t
 
 
+class SubstepDrive(NamedTuple):
+    """What drives the general path's RK4 over (part of) a substep besides the constants and
+    the state."""
+
+    history: np.ndarray  # the delay ring buffer (slots, N_HISTORY, n_envs)
+    env: int  # the environment's column
+    head: int  # ring slot of the substep's start boundary
+    h: float  # the substep, s
+    command_a: float  # the held coil current command, A
+    coil_start: tuple  # (coil, force) currents at the substep's start (``coil_at``), A
+    exhaust_node_pa: float  # the exhaust node's pressure, held over the substep
+    lugre_friction_n: float  # the LuGre friction, held over the part (0 with LuGre off)
+
+
 @njit(cache=True, inline="always")  # inlined: a call would pass every constant as an argument
-def _stage(
-    c, history, env, head, frac, coil_current_a, y, y0, direction, exhaust_node_pa, lugre_friction_n
-):
-    spool_delayed, valve_p1, valve_p2 = _valve_inputs(c, history, env, head, frac, y, y0)
+def _stage(c, drive, frac, coil_current_a, y, y0, direction):
+    valve = valve_inputs(c, drive.history, drive.env, drive.head, frac, y, y0)
     arriving = (0.0, 0.0, 0.0, 0.0)
     if c.waves:
-        arriving = _arriving_waves(c, history, env, head, frac)
+        arriving = arriving_waves(c, drive.history, drive.env, drive.head, frac)
     return derivatives(
         c,
         coil_current_a,
-        y[0],
-        y[1],
-        y[2],
-        y[3],
-        y[4],
-        y[5],
-        y[7],
-        y[8],
+        y,
         direction,
-        spool_delayed,
-        valve_p1,
-        valve_p2,
+        valve,
         arriving,
-        exhaust_node_pa,
-        lugre_friction_n,
+        drive.exhaust_node_pa,
+        drive.lugre_friction_n,
     )
 
 
 @njit(cache=True)
-def _arriving_waves(c, history, env, head, frac):
+def arriving_waves(c, history, env, head, frac):
     """The waves at the four line ends ``frac`` of a substep after boundary ``head``: each
     sent by the other end one delay earlier (the delay is at least one substep)."""
     d = c.delay_substeps
@@ -356,7 +385,7 @@ def _axpy(y, h, k):
 
 
 @njit(cache=True, inline="always")
-def _coil_at(c, command_a, coil_start, frac):
+def coil_at(c, command_a, coil_start, frac):
     """(coil current, force current) ``frac`` of a substep after ``coil_start`` = their values
     at the substep's start: the exact solution of the coil lag and the force lag behind it
     (``lagged_coil_current``, ``lagged_coil_force_current``); the force current drives the
@@ -384,83 +413,38 @@ def _coil_at(c, command_a, coil_start, frac):
 
 
 @njit(cache=True)
-def _rk4(
-    c,
-    history,
-    env,
-    head,
-    frac0,
-    dfrac,
-    h,
-    command_a,
-    coil_start,
-    y,
-    y0,
-    direction,
-    exhaust_node_pa,
-    lugre_friction_n,
-):
-    """One classical RK4 step over substep fractions [frac0, frac0 + dfrac] (h: substep, s).
+def rk4_step(c, drive, frac0, dfrac, y, y0, direction):
+    """One classical RK4 step over substep fractions [frac0, frac0 + dfrac] of the
+    ``SubstepDrive`` ``drive``'s substep.
 
-    ``y0`` is the state at the substep boundary ``head`` (the delay interpolation's anchor);
-    ``coil_start`` the (coil, force) currents there (``_coil_at``); ``exhaust_node_pa``
-    the exhaust node's pressure and ``lugre_friction_n`` the LuGre friction, both held over
-    the substep.
+    ``y0`` is the state at the substep boundary ``drive.head`` (the delay interpolation's
+    anchor).
     """
-    hh = dfrac * h
+    hh = dfrac * drive.h
     fm = frac0 + 0.5 * dfrac
     fe = frac0 + dfrac
-    k1 = _stage(
-        c,
-        history,
-        env,
-        head,
-        frac0,
-        _coil_at(c, command_a, coil_start, frac0)[1],
-        y,
-        y0,
-        direction,
-        exhaust_node_pa,
-        lugre_friction_n,
-    )
+    command_a, coil_start = drive.command_a, drive.coil_start
+    k1 = _stage(c, drive, frac0, coil_at(c, command_a, coil_start, frac0)[1], y, y0, direction)
     k2 = _stage(
         c,
-        history,
-        env,
-        head,
+        drive,
         fm,
-        _coil_at(c, command_a, coil_start, fm)[1],
+        coil_at(c, command_a, coil_start, fm)[1],
         _axpy(y, 0.5 * hh, k1),
         y0,
         direction,
-        exhaust_node_pa,
-        lugre_friction_n,
     )
     k3 = _stage(
         c,
-        history,
-        env,
-        head,
+        drive,
         fm,
-        _coil_at(c, command_a, coil_start, fm)[1],
+        coil_at(c, command_a, coil_start, fm)[1],
         _axpy(y, 0.5 * hh, k2),
         y0,
         direction,
-        exhaust_node_pa,
-        lugre_friction_n,
     )
     k4 = _stage(
-        c,
-        history,
-        env,
-        head,
-        fe,
-        _coil_at(c, command_a, coil_start, fe)[1],
-        _axpy(y, hh, k3),
-        y0,
-        direction,
-        exhaust_node_pa,
-        lugre_friction_n,
+        c, drive, fe, coil_at(c, command_a, coil_start, fe)[1], _axpy(y, hh, k3), y0, direction
     )
     return _rk4_combine(c, y, k1, k2, k3, k4, hh, direction)
 

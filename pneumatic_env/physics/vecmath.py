@@ -51,7 +51,7 @@ def _bits_to_float(typingctx, bits):
 
 
 @intrinsic
-def _float_to_bits(typingctx, value):
+def float_to_bits(typingctx, value):
     """Reinterpret a float64's bits as an int64 (an LLVM bitcast; vectorises)."""
     sig = types.int64(types.float64)
 
@@ -91,7 +91,7 @@ def exp_(x):
 @njit(cache=True, forceinline=True, error_model="numpy")
 def log_(x):
     """ln x for a positive normal double."""
-    bits = _float_to_bits(x)
+    bits = float_to_bits(x)
     e = np.int32((bits >> MANTISSA_BITS) - EXPONENT_BIAS)
     m = _bits_to_float((bits & MANTISSA_MASK) | ONE_BITS)  # in [1, 2)
     big = m > 2.0 * SQRT_HALF

@@ -127,7 +127,7 @@ def run(args) -> int:
             ns / kernel_ceiling(instructions, ops, serial["substeps"])["total_ns"]
             for ns, ops, _ in pairs
         ]
-        rk4 = instructions["loops"]["_base_substeps_vectorised"]
+        rk4 = instructions["loops"]["base_substeps_vectorised"]
         rk4_ceilings = [sum(count * ops[op] for op, count in rk4.items()) for _, ops, _ in pairs]
         ceiling.update(
             op_ns=op_ns,

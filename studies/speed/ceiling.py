@@ -11,6 +11,7 @@ import time
 import numpy as np
 from numba import njit, types
 
+from pneumatic_env.physics import batch_path
 from pneumatic_env.physics import kernel as K
 from pneumatic_env.physics import layout as L
 from pneumatic_env.physics.kernel import N_RK, OUTPUT_STATE_ROWS
@@ -27,14 +28,14 @@ VECTOR_OPS = ("vdiv", "vsqrt", "vother")  # SIMD instructions of the vectorised 
 
 # The batch path (kernel.advance_chunk) advances an environment in two parts.
 # 1. The vectorised loops (VECTOR_LOOPS, every branch computed and selected): per
-#    substep, kernel._begin_substeps (start state, piston direction, stiffness test),
-#    kernel._interpolate_row (the delayed spool position at the substep's start, middle
+#    substep, batch_path.begin_substeps (start state, piston direction, stiffness test),
+#    batch_path.interpolate_row (the delayed spool position at the substep's start, middle
 #    and end, from the ring buffer's rows: the benchmark's lanes share one tube delay),
-#    kernel._base_substeps_vectorised (one RK4 substep of kernel.base_derivatives for every
-#    lane), kernel._end_substeps (event test, end stops) and kernel._copy_fast_lanes (the
-#    delay history, once per channel); per control period, kernel._fast_commands (the spool
-#    play) and the state and outputs (kernel._copy_fast_lanes per row,
-#    kernel._fast_output_forces). Their work is not counted by hand:
+#    batch_path.base_substeps_vectorised (one RK4 substep of kernel.base_derivatives for every
+#    lane), batch_path.end_substeps (event test, end stops) and batch_path.copy_fast_lanes (the
+#    delay history, once per channel); per control period, batch_path.fast_commands (the spool
+#    play) and the state and outputs (batch_path.copy_fast_lanes per row,
+#    batch_path.fast_output_forces). Their work is not counted by hand:
 #    vector_loop_instructions() reads the SIMD instructions of the compiled loops
 #    (divisions, square roots, the rest).
 # 2. Scalar work per lane, counted here by reading pneumatic_env/physics/batch_path.py with
@@ -42,7 +43,7 @@ VECTOR_OPS = ("vdiv", "vsqrt", "vother")  # SIMD instructions of the vectorised 
 #    multiply, compare, select, min, max, abs, floor or conversion; "div" a floating-point
 #    division; "imod" an integer modulo; pow (``**``) counts as one exp and one log.
 #    Expressions of the per-environment constants alone, and the work done once per chunk
-#    (e.g. kernel._delay_slots for lanes that share their delay), are not counted. Update
+#    (e.g. batch_path.delay_slots for lanes that share their delay), are not counted. Update
 #    this table when advance_chunk changes.
 KERNEL_WORK = {
     # per lane and substep: advance_chunk's two tests of the lane's path (general path or
@@ -50,20 +51,20 @@ KERNEL_WORK = {
     "lane_substep:fixed": {"flop": 2},
     # per lane and control period: kernel.refresh_constants testing the key (the substep
     # the constants were derived for; kernel.env_constants runs only when it differs),
-    # kernel._same_delay's compare and advance_chunk's test of the lane's path
+    # batch_path.lanes_share_delay's compare and advance_chunk's test of the lane's path
     "control_step:cache": {"flop": 3},
 }
-# the vectorised loops in kernel: calls per substep and per control period
+# the vectorised loops in batch_path: calls per substep and per control period
 VECTOR_LOOPS = {
-    "_begin_substeps": (1, 0),
-    "_interpolate_row": (3, 0),
-    "_base_substeps_vectorised": (1, 0),
-    "_end_substeps": (1, 0),
-    "_fast_commands": (0, 1),
-    "_fast_output_forces": (0, 1),
+    "begin_substeps": (1, 0),
+    "interpolate_row": (3, 0),
+    "base_substeps_vectorised": (1, 0),
+    "end_substeps": (1, 0),
+    "fast_commands": (0, 1),
+    "fast_output_forces": (0, 1),
     # 3 history channels per substep; per period the RK4 state rows, the two
     # coil rows and the outputs that are state rows
-    "_copy_fast_lanes": (3, N_RK + 2 + len(OUTPUT_STATE_ROWS)),
+    "copy_fast_lanes": (3, N_RK + 2 + len(OUTPUT_STATE_ROWS)),
 }
 
 
@@ -88,11 +89,11 @@ def _repeat_rk4_loop(constants, work, start, n_lanes, h, reps, run_loop):
     for _ in range(reps):
         work[:] = start
         if run_loop:
-            K._base_substeps_vectorised(constants, work, n_lanes, h)
+            batch_path.base_substeps_vectorised(constants, work, n_lanes, h)
 
 
 def _rk4_loop_ns(sim, currents: np.ndarray, seconds: float) -> float:
-    """ns per env-substep of the RK4 loop alone (``kernel._base_substeps_vectorised``) on
+    """ns per env-substep of the RK4 loop alone (``batch_path.base_substeps_vectorised``) on
     the batch's first chunk, its inputs set up as ``kernel.advance_chunk`` does (start
     state, direction, delayed spool positions), minus the time of restoring them."""
     n = min(K.CHUNK_ENVS, sim.n_envs)
@@ -107,7 +108,7 @@ def _rk4_loop_ns(sim, currents: np.ndarray, seconds: float) -> float:
         0,
         n,
         K.ring_slot(sim.head, sim.history.shape[0]),
-        K._same_delay(constants, n),
+        batch_path.lanes_share_delay(constants, n),
         h,
     )
     start = work.copy()
@@ -379,20 +380,18 @@ def _vector_body(asm: str, register: str) -> tuple[list, int]:
 def vector_loop_instructions() -> dict:
     """SIMD instructions of the batch path's vectorised loops, by class (from their assembly).
 
-    The functions of ``VECTOR_LOOPS`` in ``kernel`` are compiled afresh (Numba does not
+    The functions of ``VECTOR_LOOPS`` in ``batch_path`` are compiled afresh (Numba does not
     show the assembly of cached code) with the argument types the kernel passes. The
     instructions of each one's vector loop body (``_vector_body``) on the widest vector
     registers present count, scaled to one vector of lanes (on x86 with AVX2, 4 lanes: a
     body LLVM interleaved to serve 16 elements counts a quarter). Returns the counts per
     class of each loop, the lanes per vector and whether every loop was vectorised.
     """
-    from pneumatic_env.physics import kernel
-
     loops = {}
     found = []
     for name in VECTOR_LOOPS:
         counts = loops[name] = dict.fromkeys(VECTOR_OPS, 0.0)
-        py_func = getattr(kernel, name).py_func
+        py_func = getattr(batch_path, name).py_func
         fn = njit(error_model="numpy")(py_func)
         arguments = py_func.__code__.co_varnames[: py_func.__code__.co_argcount]
         signature = tuple(_LOOP_ARGUMENT_TYPES[a] for a in arguments)

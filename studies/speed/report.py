@@ -444,7 +444,7 @@ def _ceiling_lines(res: dict, plan: Plan) -> list[str]:
             "such load). The table above uses the medians over the pairs (and further "
             "operation samples).",
             "",
-            f"Where the gap is: the RK4 loop alone (`kernel._base_substeps_vectorised` "
+            f"Where the gap is: the RK4 loop alone (`batch_path.base_substeps_vectorised` "
             f"on the batch's first chunk, its inputs as `advance_chunk` sets them up, "
             f"timed in the same pairs) takes {_fmt(c['rk4_ns'])} ns per env-substep "
             f"against its own ceiling of {_fmt(c['rk4_ceiling_ns'])} ns (median ratio "
