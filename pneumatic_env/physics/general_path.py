@@ -132,7 +132,10 @@ def _advance_interval(c, drive, frac_start, frac_end, y, y0):
         if theta * dfrac > MIN_EVENT_FRACTION:
             y = rk4_step(c, drive, frac0, theta * dfrac, y, y0, direction)
             frac0 += theta * dfrac
-        x, v = apply_event(y[4], y[5], direction, c.half_stroke)
+        stop_reached = (trial[4] - direction * c.half_stroke) * direction >= 0.0 and (
+            trial[5] * direction > 0.0
+        )
+        x, v = apply_event(y[4], y[5], direction, c.half_stroke, stop_reached)
         y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
     # out of events: the rest of the interval with the piston held
     return rk4_step(c, drive, frac0, frac_end - frac0, y, y0, 0.0)

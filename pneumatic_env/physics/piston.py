@@ -99,14 +99,21 @@ def event_fraction(x0_m, v0_m_per_s, x1_m, v1_m_per_s, direction, half_stroke_m)
 
 
 @njit(cache=True)
-def apply_event(piston_position_m, piston_velocity_m_per_s, direction, half_stroke_m):
+def apply_event(
+    piston_position_m, piston_velocity_m_per_s, direction, half_stroke_m, stop_reached=False
+):
     """The state right after an event found by ``event_fraction``.
 
     At a stop the piston stops there (inelastic); otherwise the velocity has reached zero
     and ``motion_direction`` decides next whether static friction holds it.
+    ``stop_reached``: the attempted step crossed the stop still moving toward it, so the
+    event is the stop. The piston is put on it even where the interpolated event left it
+    short by rounding (picometres): a piston left just short, at rest and pushed on, would
+    start every later substep with the same event again (issue 34: a free rod resting on
+    its stop cost 5 RK4 steps per substep).
     """
     x = piston_position_m
-    if (x - direction * half_stroke_m) * direction >= -1e-12 * half_stroke_m:
+    if stop_reached or (x - direction * half_stroke_m) * direction >= -1e-12 * half_stroke_m:
         x = direction * half_stroke_m
     return min(max(x, -half_stroke_m), half_stroke_m), 0.0
 
