@@ -10,6 +10,7 @@ import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -131,7 +132,7 @@ def write_results(
     written.append(out / "results.csv")
     (out / "results.md").write_text(results_markdown(rows, command, suite), encoding="utf-8")
     written.append(out / "results.md")
-    meta = {
+    meta: dict[str, Any] = {
         "suite_version": suite.version,
         "suite_path": suite.path,
         "command": command,

@@ -28,6 +28,7 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -117,7 +118,7 @@ def evaluate_seeds(
     suite = suite or load_suite()
     if not variants:
         variants = [LearnedActor(actors[0]).meta["variant"]]
-    result = {
+    result: dict[str, Any] = {
         "baseline": baseline,
         "suite_version": suite.version,
         "actors": [str(a) for a in actors],

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +30,7 @@ __all__ = [
     "load_policy_spec",
 ]
 
-_ACTIVATIONS = {
+_ACTIVATIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
     "Tanh": np.tanh,
     "ReLU": lambda x: np.maximum(x, 0.0),
     "Identity": lambda x: x,
@@ -253,8 +254,12 @@ def export_from_zip(path: str | Path) -> Path:
             f"model; re-run pneumatic-env train or export by hand"
         )
     info = json.loads(info_path.read_text())
-    cls = {"ppo": PPO, "sac": SAC}[info["algo"]]
-    model = cls.load(path, device="cpu")
+    algos: dict[str, type[PPO] | type[SAC]] = {"ppo": PPO, "sac": SAC}
+    if info.get("algo") not in algos:
+        raise ValueError(
+            f"{info_path}: algo = {info.get('algo')!r} is not allowed: use one of {sorted(algos)}"
+        )
+    model = algos[info["algo"]].load(path, device="cpu")
     return export_policy(model, path.with_suffix(".npz"), **info["policy_env"])
 
 

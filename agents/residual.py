@@ -181,6 +181,7 @@ class ResidualCore:
         if hasattr(self.base, "peek"):
             current, error = self.base.peek(o, rows)
         else:  # a copy of the controller acts on the batch with those rows replaced
+            assert self._obs is not None, "peek before the first act"
             batch = self._obs.copy()
             batch[rows] = o
             current = copy.deepcopy(self.base).act(batch)[rows]

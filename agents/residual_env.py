@@ -67,7 +67,9 @@ class ResidualWrapper(gym.Wrapper):
         super().__init__(env)
         self.residual = residual_core(env, base, ResidualConfig(**config))
         self.action_space = ACTION_SPACE
-        self.observation_space = _box(env.observation_space.shape[0] + len(RESIDUAL_COLUMNS))
+        self.observation_space = _box(
+            gym.spaces.flatdim(env.observation_space) + len(RESIDUAL_COLUMNS)
+        )
 
     def reset(self, *, seed=None, options=None):
         obs, info = self.env.reset(seed=seed, options=options)
@@ -98,7 +100,7 @@ class ResidualVectorWrapper(gym.vector.VectorWrapper):
         self.single_action_space = ACTION_SPACE
         self.action_space = batch_space(ACTION_SPACE, env.num_envs)
         self.single_observation_space = _box(
-            env.single_observation_space.shape[0] + len(RESIDUAL_COLUMNS)
+            gym.spaces.flatdim(env.single_observation_space) + len(RESIDUAL_COLUMNS)
         )
         self.observation_space = batch_space(self.single_observation_space, env.num_envs)
 

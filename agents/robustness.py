@@ -22,7 +22,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-from pneumatic_env.params import load_parameters
+from pneumatic_env.params import DEFAULT_CYLINDER, load_parameters
 
 from .bench import run_suite
 from .bench_results import markdown_table
@@ -38,7 +38,7 @@ NOMINAL = "nominal"
 def perturbed_plants(config: dict, variant: str) -> dict[str, dict[str, float]]:
     """``{perturbation: plant parameters}`` for ``variant`` (nominal first, empty)."""
     env = gym.make(parse_variant(variant))
-    nominal = dict(env.unwrapped.base_params)
+    nominal = dict(env.get_wrapper_attr("base_params"))
     env.close()
     plants: dict[str, dict[str, float]] = {NOMINAL: {}}
     for name, spec in config["perturbations"].items():
@@ -49,7 +49,7 @@ def perturbed_plants(config: dict, variant: str) -> dict[str, dict[str, float]]:
             )
         plant = {k: float(f) * float(nominal[k]) for k, f in spec.get("factor", {}).items()}
         plant.update(spec.get("set", {}))
-        load_parameters(params=nominal, **plant)  # names, units and ranges checked here
+        load_parameters(DEFAULT_CYLINDER, None, nominal, **plant)  # names, units, ranges checked
         plants[name] = plant
     return plants
 

@@ -118,8 +118,9 @@ class Candidate:
         suffix = "@" + "|".join(self.rod_modes)
         return {k + suffix: v for k, v in self.set.items()}
 
-    def neutral(self) -> dict[str, float]:
-        """Parameter values that switch the effect off."""
+    def neutral(self) -> dict[str, float | None]:
+        """Parameter values that switch the effect off (None: a switched effect's parameter
+        with no "off" value)."""
         return {p.name: p.neutral for p in self.parameters}
 
 

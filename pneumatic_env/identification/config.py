@@ -120,7 +120,7 @@ def _parse_parameter(
 
 def _entry_numbers(where: str, name: str, entry: Mapping) -> dict[str, float]:
     """The entry's numeric keys as floats (a neutral value may be infinite or null)."""
-    nums = {}
+    nums: dict[str, float] = {}
     for key in (
         "lower",
         "upper",

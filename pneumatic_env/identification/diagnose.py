@@ -286,7 +286,7 @@ def diagnose(
     max_effects: int | None = None,
     quick: bool = False,
     jobs: int | None = None,
-    on_round: Callable[[Diagnosis], None] | None = None,
+    on_round: Callable[[Diagnosis], object] | None = None,
 ) -> Diagnosis:
     """Calibrate, screen the candidates, refit the promising ones, select effects.
 

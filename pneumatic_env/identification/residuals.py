@@ -112,10 +112,10 @@ def residual_analysis(
     for c, acc in per_channel.items():
         e = np.concatenate(acc["e"])
         u = np.concatenate(acc["u"])
-        phases = {}
+        phase_stats: dict[str, dict] = {}
         for ph in PHASES:
             x = np.concatenate(acc[ph])
-            phases[ph] = {
+            phase_stats[ph] = {
                 "n": int(x.size),
                 "nrmse": float(np.sqrt(np.mean(x**2))) if x.size else None,
                 "bias": float(np.mean(x)) if x.size else None,
@@ -124,7 +124,7 @@ def residual_analysis(
             "nrmse": float(np.sqrt(np.mean(e**2))) if e.size else None,
             "bias": float(np.mean(e)) if e.size else None,
             "n": int(e.size),
-            "phases": phases,
+            "phases": phase_stats,
             "whiteness": _whiteness(e, max_lag, alpha),
             "input_correlation": _input_correlation(e, u, max_lag, alpha),
         }

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.stats import norm
@@ -44,7 +44,7 @@ class FitResult:
     n_eff: float
     nfev: int
     message: str
-    u: np.ndarray = field(repr=False, default=None)
+    u: np.ndarray | None = field(repr=False, default=None)
     scopes: dict[str, tuple[str, ...]] = field(default_factory=dict)
     cost_history: list[float] = field(default_factory=list)  # robust cost, accepted points
     n_jacobians: int = 0
@@ -52,7 +52,9 @@ class FitResult:
     def plant_values(self) -> dict[str, float | str]:
         """Fixed and fitted kernel parameters (overrides on the datasets' sets; a text value
         names the dataset's parameter to use, see :func:`dataset_overrides`)."""
-        out = {k: v for k, v in self.fixed.items() if kernel_name(k) in _ROW}
+        out: dict[str, float | str] = {
+            k: v for k, v in self.fixed.items() if kernel_name(k) in _ROW
+        }
         out.update((p.name, self.values[p.name]) for p in self.parameters if p.kind == "plant")
         return out
 
@@ -166,7 +168,7 @@ def _statistics(problem: FitProblem, u: np.ndarray, r: np.ndarray, J: np.ndarray
     level = cfg.number("fit", "confidence_level", positive=True)
     z = float(norm.ppf(0.5 + 0.5 * level))
     lo_b, hi_b = problem.bounds()
-    out = {"std": {}, "ci": {}, "identified": {}, "plausible": {}, "flags": {}}
+    out: dict[str, Any] = {"std": {}, "ci": {}, "identified": {}, "plausible": {}, "flags": {}}
     for j, par in enumerate(problem.free):
         value = par.from_u(u[j])
         flags = []

@@ -78,8 +78,10 @@ def heldout_improvement(
 
 def unique(params: Sequence[FitParameter]) -> list[FitParameter]:
     """``params`` without repeated names (first occurrence kept)."""
-    seen: set[str] = set()
-    return [p for p in params if not (p.name in seen or seen.add(p.name))]
+    first: dict[str, FitParameter] = {}
+    for p in params:
+        first.setdefault(p.name, p)
+    return list(first.values())
 
 
 @dataclass
@@ -195,6 +197,7 @@ def improvement_is_the_basin(
     held-out error does not fall. Then the base parameters are where they are because the
     effect takes up its part of the data (an exhaust muffler that biased the calibrated
     discharge coefficient), and the improvement is the effect's."""
+    assert score.fit is not None  # a refitted score
     values = score.fit.all_values()
     fixed = {**current.fixed, **{p.name: values[p.name] for p in current.parameters}}
     problem = split.training_problem(
@@ -420,7 +423,8 @@ def _refit(
     )
     fixed = {k: v for k, v in current.all_values().items() if k not in {p.name for p in free}}
     fixed.update(cand.scoped_set())
-    start = {p.name: current.all_values()[p.name] for p in free if p.name in current.all_values()}
+    values = current.all_values()
+    start = {p.name: float(values[p.name]) for p in free if p.name in values}
     problem = split.training_problem(
         free, fixed, f"{cand.name} (round {rnd})", {**current.scopes, **cand.scopes()}
     )
