@@ -11,9 +11,12 @@ re-filter the unperturbed simulation). The optimiser that minimises it is
 from __future__ import annotations
 
 import logging
+import os
 from collections import OrderedDict
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 
+import numba
 import numpy as np
 
 from pneumatic_env.ids import MODE_FIXED
@@ -33,6 +36,113 @@ PREDICTED_CHANNELS_ORDER = tuple(PREDICTED_CHANNELS)
 FRICTION_NAMES = ("static_friction_n", "dynamic_friction_n", "viscous_friction_n_s_per_m")
 
 
+#: One simulation job: a dataset, its columns of overrides, the samples to simulate, the
+#: scopes of every column and, optionally, each column's own (see :func:`_simulate`).
+SimulationJob = tuple[
+    Dataset,
+    Sequence[Mapping[str, float]],
+    int,
+    Mapping[str, Sequence[str]] | None,
+    Sequence[Mapping[str, Sequence[str]]] | None,
+]
+_pools: dict[int, ThreadPoolExecutor] = {}  # thread count -> its pool
+
+
+def _threads() -> int:
+    """Threads the simulations share out over: numba's thread count (``NUMBA_NUM_THREADS``,
+    by default one per core), the package's one threading setting."""
+    return max(1, int(numba.get_num_threads()))
+
+
+def _forget_pool() -> None:
+    """After a fork the child has none of the parent's pool threads: start a new pool."""
+    _pools.clear()
+
+
+os.register_at_fork(after_in_child=_forget_pool)
+
+
+def _plant_array(
+    ds: Dataset,
+    columns: Sequence[Mapping[str, float]],
+    scopes: Mapping[str, Sequence[str]] | None,
+    column_scopes: Sequence[Mapping[str, Sequence[str]]] | None,
+) -> np.ndarray:
+    """Kernel parameter array ``(n_params, m)`` of ``ds`` with each column's overrides."""
+    m = len(columns)
+    arr = np.repeat(parameter_array([ds.values]), m, axis=1)
+    for j, overrides in enumerate(columns):
+        sc = scopes if column_scopes is None else column_scopes[j]
+        for name, v in dataset_overrides(ds, overrides, sc).items():
+            arr[_ROW[name], j] = v
+    return arr
+
+
+def _rollout_piece(ds: Dataset, params: np.ndarray, n_samples: int, substeps: int) -> np.ndarray:
+    """Outputs ``(n_samples, O_*, m)`` of one batch rollout of ``ds``'s current over the
+    parameter columns ``params`` (``rollout_serial`` releases the GIL: pieces run in
+    threads side by side). Each column's result does not depend on the others'."""
+    sim = BatchSimulator(np.ascontiguousarray(params), ds.dt_s, substeps)
+    if ds.initial:
+        sim.reset(initial=ds.initial)
+    first = sim.outputs.copy()
+    currents = np.repeat(ds.recording.i_c[: n_samples - 1, None], params.shape[1], axis=1)
+    return np.concatenate([first[None], sim.rollout(currents)], axis=0)
+
+
+def _pieces(ds: Dataset, arr: np.ndarray, n_threads: int) -> list[tuple[np.ndarray, int]]:
+    """The column groups of one job, each as (column indices, substeps): columns whose rod
+    moves and columns whose rod is clamped apart, each at its own substep, each cut into
+    up to ``n_threads`` contiguous parts."""
+    moving = arr[_ROW["piston_mode"]] != MODE_FIXED
+    pieces = []
+    for group in (np.flatnonzero(~moving), np.flatnonzero(moving)):
+        if group.size == 0:
+            continue
+        substeps = ds.substeps_moving if moving[group[0]] and ds.substeps_moving else ds.substeps
+        for part in np.array_split(group, min(n_threads, group.size)):
+            pieces.append((part, substeps))
+    return pieces
+
+
+def _run_pieces(calls: Sequence[tuple], n_threads: int) -> Iterator[np.ndarray]:
+    """:func:`_rollout_piece` of every argument tuple, in order: on a pool of ``n_threads``
+    threads (one per thread count, made on first use), or here when one suffices."""
+    if n_threads < 2 or len(calls) < 2:
+        return (_rollout_piece(*call) for call in calls)
+    if n_threads not in _pools:
+        _pools[n_threads] = ThreadPoolExecutor(n_threads, thread_name_prefix="identification")
+    futures = [_pools[n_threads].submit(_rollout_piece, *call) for call in calls]
+    return (future.result() for future in futures)
+
+
+def simulate_jobs(jobs: Sequence[SimulationJob]) -> list[dict[str, np.ndarray]]:
+    """:func:`_simulate` of every job, all of them at once: their batch rollouts are cut
+    into column pieces and shared out over :func:`_threads` threads, the largest first.
+    The results are bit-identical to one rollout per job. The work done is reported to
+    :mod:`.progress`."""
+    n_threads = _threads()
+    arrays, outs, tasks = [], [], []
+    for k, (ds, columns, n_samples, scopes, column_scopes) in enumerate(jobs):
+        arr = _plant_array(ds, columns, scopes, column_scopes)
+        arrays.append(arr)
+        outs.append(np.empty((n_samples, len(PREDICTED_CHANNELS_ORDER), len(columns))))
+        for part, substeps in _pieces(ds, arr, n_threads):
+            tasks.append((n_samples * substeps * part.size, k, part, substeps))
+    tasks.sort(key=lambda task: -task[0])
+    rows = [PREDICTED_CHANNELS[c] for c in PREDICTED_CHANNELS_ORDER]
+    calls = [
+        (jobs[k][0], arrays[k][:, part], jobs[k][2], substeps) for _, k, part, substeps in tasks
+    ]
+    for (work, k, part, _), piece in zip(tasks, _run_pieces(calls, n_threads)):
+        outs[k][:, :, part] = piece[:, rows, :]
+        progress.advance(work)
+    return [
+        {ch: out[:, PREDICTED_CHANNELS_ORDER.index(ch), :] for ch in job[0].channels}
+        for job, out in zip(jobs, outs)
+    ]
+
+
 def _simulate(
     ds: Dataset,
     columns: Sequence[Mapping[str, float]],
@@ -44,30 +154,9 @@ def _simulate(
 
     ``column_scopes[j]`` (default: ``scopes`` for every column) scopes column j's values.
     Columns whose rod moves and columns whose rod is clamped are simulated in separate
-    batches, each at its own substep. The work done is reported to :mod:`.progress`.
+    batches, each at its own substep (:func:`simulate_jobs`, over both cores).
     """
-    m = len(columns)
-    base = parameter_array([ds.values])
-    arr = np.repeat(base, m, axis=1)
-    for j, overrides in enumerate(columns):
-        sc = scopes if column_scopes is None else column_scopes[j]
-        for name, v in dataset_overrides(ds, overrides, sc).items():
-            arr[_ROW[name], j] = v
-    moving = arr[_ROW["piston_mode"]] != MODE_FIXED
-    out = np.empty((n_samples, len(PREDICTED_CHANNELS_ORDER), m))
-    for group in (np.flatnonzero(~moving), np.flatnonzero(moving)):
-        if group.size == 0:
-            continue
-        substeps = ds.substeps_moving if moving[group[0]] and ds.substeps_moving else ds.substeps
-        sim = BatchSimulator(np.ascontiguousarray(arr[:, group]), ds.dt_s, substeps)
-        if ds.initial:
-            sim.reset(initial=ds.initial)
-        first = sim.outputs.copy()
-        currents = np.repeat(ds.recording.i_c[: n_samples - 1, None], group.size, axis=1)
-        rows = np.concatenate([first[None], sim.rollout(currents)], axis=0)
-        out[:, :, group] = rows[:, [PREDICTED_CHANNELS[c] for c in PREDICTED_CHANNELS_ORDER], :]
-        progress.advance(n_samples * substeps * group.size)
-    return {ch: out[:, PREDICTED_CHANNELS_ORDER.index(ch), :] for ch in ds.channels}
+    return simulate_jobs([(ds, columns, n_samples, scopes, column_scopes)])[0]
 
 
 def simulate_unique(
@@ -188,14 +277,21 @@ class FitProblem:
         return plant, sensor
 
     # -- simulation -----------------------------------------------------------------------
+    def _simulate_each(
+        self, columns: Sequence[Mapping[str, float]], n_samples: Sequence[int]
+    ) -> list[dict[str, np.ndarray]]:
+        """:func:`_simulate` of ``columns`` on every dataset (``n_samples[k]`` of dataset
+        k), all datasets in one :func:`simulate_jobs` call."""
+        return simulate_jobs(
+            [(ds, columns, n, self.scopes, None) for ds, n in zip(self.datasets, n_samples)]
+        )
+
     def _plant(self, u: np.ndarray) -> list[dict[str, np.ndarray]]:
         key = np.asarray(u, float).tobytes()
         if key in self._cache:
             return self._cache[key]
         plant, _ = self._split(self.values(u))
-        out = [
-            _simulate(ds, [plant], n, self.scopes) for ds, n in zip(self.datasets, self.n_samples)
-        ]
+        out = self._simulate_each([plant], self.n_samples)
         self._cache[key] = out
         while len(self._cache) > 4:
             self._cache.popitem(last=False)
@@ -213,9 +309,7 @@ class FitProblem:
         if n_samples is None:
             sims = self._plant(u)
         else:
-            sims = [
-                _simulate(ds, [plant], n, self.scopes) for ds, n in zip(self.datasets, n_samples)
-            ]
+            sims = self._simulate_each([plant], n_samples)
         return [
             {c: y[:, 0] for c, y in apply_sensor_model(sim, [sensor], ds.dt_s).items()}
             for ds, sim in zip(self.datasets, sims)
@@ -299,11 +393,9 @@ class FitProblem:
         base_res = self.residual(u)
         J = np.empty((base_res.size, len(self.free)))
         col_preds = [dict() for _ in self.datasets]  # per dataset: channel -> (n, n_free)
-        for k, (ds, n) in enumerate(zip(self.datasets, self.n_samples)):
-            columns = []
-            for j in plant_idx:
-                columns.append({**plant, self.free[j].name: perturbed[j]})
-            sims = _simulate(ds, columns, n, self.scopes) if columns else {}
+        columns = [{**plant, self.free[j].name: perturbed[j]} for j in plant_idx]
+        plant_sims = self._simulate_each(columns, self.n_samples)
+        for k, (ds, sims) in enumerate(zip(self.datasets, plant_sims)):
             sensor_cols = [sensor] * len(plant_idx)
             for j in sensor_idx:
                 sensor_cols.append({**sensor, self.free[j].name: perturbed[j]})

@@ -448,7 +448,7 @@ def step_parallel(
         )
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def rollout_serial(
     params, state, history, head, coil_current_a, control_dt_s, n_substeps, outputs, key, constants
 ):
