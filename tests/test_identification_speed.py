@@ -1,6 +1,7 @@
-"""Identification speed: the fit's simulations shared out over threads, bit for bit.
+"""Identification speed: the fit's simulations shared out over threads, bit for bit; the
+screening from a base fit stopped early.
 
-The recordings come from the virtual rig (synthetic, never measured), 0.3 s long.
+The recordings come from the virtual rig (synthetic, never measured), 0.3-1 s long.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pneumatic_env.identification import problem as fit_problem
 from pneumatic_env.identification.checks import read_checked
 from pneumatic_env.identification.config import load_config
 from pneumatic_env.identification.datasets import base_fit_parameters, prepare_datasets
+from pneumatic_env.identification.diagnose import diagnose, stopped_early
 from pneumatic_env.studies.virtual_rig import make_recording
 
 ROLLOUT_PIECE = fit_problem._rollout_piece
@@ -72,3 +74,22 @@ def test_simulate_jobs_splits_columns_and_keeps_their_order(clamped_and_spring, 
             alone = fit_problem.simulate_jobs([(ds, [column], 200, None, None)])[0]
             for c in ds.channels:
                 assert np.array_equal(sims[c][:, j], alone[c][:, 0])
+
+
+def test_early_screening_ranks_the_true_effect_first(tmp_path):
+    """The base fit stops for the screening once its cost has stopped falling fast
+    (``screening.early_relative_decrease``), and the screening from that point still
+    ranks the rig's leak first; with ``quick`` the base fit is left there."""
+    paths = [
+        make_recording(
+            tmp_path, name=piston, effect="leakage", seed=1, duration_s=1.0, piston=piston
+        )
+        for piston in ("fixed", "spring")
+    ]
+    candidates = ["leakage", "pressure_sensor_offset", "pressure_sensor_lag", "supply_droop"]
+    diag = diagnose([read_checked(p) for p in paths], candidates=candidates, quick=True)
+    assert stopped_early(diag.base)
+    n_min = load_config().number("screening", "early_min_jacobians")
+    assert diag.base.n_jacobians >= n_min
+    ranking = [entry["name"] for entry in diag.screening[0]["ranking"]]
+    assert ranking[0] == "leakage"

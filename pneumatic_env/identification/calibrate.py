@@ -52,7 +52,7 @@ from .datasets import (
     dataset_overrides,
     prepare_datasets,
 )
-from .problem import FitProblem, simulate_unique
+from .problem import CostLevelledOff, FitProblem, simulate_unique
 from .results import FitResult, _statistics, pooled_lag1
 
 __all__ = [
@@ -177,6 +177,7 @@ def run_fit(
     friction_restarts: bool = True,
     tolerance: float | None = None,
     basin_search: Sequence[str] = (),
+    early_stop: tuple[float, int] | None = None,
 ) -> FitResult:
     """Least-squares fit of ``problem`` from the warm start; statistics at the optimum.
 
@@ -191,7 +192,12 @@ def run_fit(
     at most ``(1 + friction_searches) max_nfev``; ``message`` states why it stopped.
     ``tolerance``: the relative change of cost and parameters below which it stops.
     ``basin_search``: free parameters of a friction law searched (:func:`_basin_search`)
-    before the first least-squares fit, on data with a moving rod.
+    before the first least-squares fit, on data with a moving rod. ``early_stop``
+    (relative decrease, Jacobians): stop the first least-squares fit at the first
+    Jacobian, from the given count on, where the robust cost fell by less than that
+    relative amount since the previous one (:class:`.problem.CostLevelledOff`; no friction
+    search after it; ``message`` starts with "stopped early"): the point where screening
+    may start, finished by a fit from it.
     """
     cfg = problem.config
     u0 = problem.initial_u(start)
@@ -202,7 +208,13 @@ def run_fit(
         and any(ds.moving for ds in problem.datasets)
     )
     if problem.free:
-        u, nfev, message = _fit_free(problem, u0, start, max_nfev, search, tolerance, basin_search)
+        problem.early_stop = early_stop
+        try:
+            u, nfev, message = _fit_free(
+                problem, u0, start, max_nfev, search, tolerance, basin_search
+            )
+        finally:
+            problem.early_stop = None
     else:
         u, nfev, message = u0, 1, "nothing to fit"
     r = problem.residual(u)
@@ -261,7 +273,10 @@ def _fit_free(
     if basin_search and any(ds.moving for ds in problem.datasets):
         u0, cost0 = _basin_search(problem, u0, basin_search)
         problem.cost_history.append(cost0)
-    sol = _least_squares(problem, u0, max_nfev, tolerance)
+    try:
+        sol = _least_squares(problem, u0, max_nfev, tolerance)
+    except CostLevelledOff as stop:  # the rest is the caller's (a fit from this point)
+        return stop.u, problem.n_jacobians, f"stopped early: {stop}"
     nfev = int(sol.nfev)
     u, cost = sol.x, float(sol.cost)
     message = str(sol.message)

@@ -293,19 +293,19 @@ def diagnose(
     settings = _settings(cfg, max_effects, jobs)
     pool, skipped = _candidate_pool(datasets, candidates, cfg)
     plan = _plan_work(datasets, split, base_params, refit, pool, cfg, settings, quick, issues)
-    base = _fit_base(split, base_params, cfg, settings, plan)
+    base = _fit_base(split, base_params, cfg, settings, plan, early=True)
     timings = {"base_fit": time.monotonic() - t0}
-    baseline_nrmse, base_preds = split.heldout_nrmse(base)
-    base_per = split.per_recording(base_preds)
     ctx = RoundContext(
         cfg, settings, datasets, split, base_params, refit, plan, quick, base, timings
     )
-    state = Selection(
-        base, mean_nrmse(baseline_nrmse), {k: mean_nrmse(v) for k, v in base_per.items()}
-    )
+    ctx.after_screening = None if quick else _finish_base
+    state = Selection(base, *_heldout_means(split, base))
     for rnd in range(1, settings.max_effects + 1):
         if not selection_round(ctx, state, pool, rnd):
             break
+    base = ctx.base
+    baseline_nrmse, base_preds = split.heldout_nrmse(base)
+    base_per = split.per_recording(base_preds)
     winner, runner_up, suggestion = winner_and_runner_up(state, cfg, settings.min_rel, quick)
     after_nrmse, after_preds = split.heldout_nrmse(state.current)
     after_per = split.per_recording(after_preds)
@@ -347,8 +347,14 @@ def _fit_base(
     cfg: IdentificationConfig,
     settings: Settings,
     plan: WorkPlan,
+    early: bool = False,
+    start: FitResult | None = None,
 ) -> FitResult:
-    """Calibrate the base model on the training data."""
+    """Calibrate the base model on the training data (from ``start``'s values if given).
+
+    ``early``: stop where the cost has stopped falling fast (``screening.
+    early_relative_decrease`` after ``screening.early_min_jacobians``), for the screening;
+    the fit's ``message`` then starts with "stopped early" (:func:`_finish_base`)."""
     progress.stage("base fit", plan.base + plan.round)
     log.info(
         "diagnosis: calibrating the base model (%s) on the training data",
@@ -357,7 +363,43 @@ def _fit_base(
     base_problem = FitProblem(
         split.train, base_params, n_samples=split.train_n, config=cfg, label="base"
     )
-    return run_fit(base_problem, tolerance=settings.tolerance)
+    decrease = cfg.number("screening", "early_relative_decrease", minimum=0.0)
+    n_min = int(cfg.number("screening", "early_min_jacobians", positive=True))
+    return run_fit(
+        base_problem,
+        start=None if start is None else start.values,
+        tolerance=settings.tolerance,
+        early_stop=(decrease, n_min) if early and decrease > 0 else None,
+    )
+
+
+def stopped_early(fit: FitResult) -> bool:
+    """The fit was stopped for the screening before it converged (:func:`_fit_base`)."""
+    return fit.message.startswith("stopped early")
+
+
+def _heldout_means(split: Holdout, fit: FitResult) -> tuple[float, dict]:
+    """``fit``'s mean held-out NRMSE, overall and per held-out recording."""
+    nrmse, preds = split.heldout_nrmse(fit)
+    return mean_nrmse(nrmse), {k: mean_nrmse(v) for k, v in split.per_recording(preds).items()}
+
+
+def _finish_base(ctx: RoundContext, state: Selection, screens: Sequence) -> None:
+    """After the first screening, finish a base fit stopped early for it: fit on from its
+    point, and make the result the base and the current model the refits are held
+    against (a no-op once finished, or when an effect has been adopted). The screens'
+    predicted training drops are restated against the finished base."""
+    if not stopped_early(ctx.base) or state.current is not ctx.base:
+        return
+    t0 = time.monotonic()
+    early = ctx.base
+    base = _fit_base(ctx.split, ctx.base_params, ctx.cfg, ctx.settings, ctx.plan, start=early)
+    for s in screens:
+        s.predicted_train = 1.0 - (1.0 - s.predicted_train) * early.rss / base.rss
+    ctx.base = base
+    state.current = base
+    state.current_mean, state.current_per = _heldout_means(ctx.split, base)
+    ctx.timings["base_fit_finish"] = time.monotonic() - t0
 
 
 def _heldout_residuals(split: Holdout, fit: FitResult, preds, cfg: IdentificationConfig) -> dict:

@@ -48,6 +48,16 @@ SimulationJob = tuple[
 _pools: dict[int, ThreadPoolExecutor] = {}  # thread count -> its pool
 
 
+class CostLevelledOff(Exception):
+    """Raised by :meth:`FitProblem.jacobian` when the cost has stopped falling fast
+    (:attr:`FitProblem.early_stop`): the fit stops at ``u``, an accepted point."""
+
+    def __init__(self, u: np.ndarray, relative_decrease: float):
+        super().__init__(f"cost fell by {relative_decrease:.3g} relative in the last step")
+        self.u = u
+        self.relative_decrease = relative_decrease
+
+
 def _threads() -> int:
     """Threads the simulations share out over: numba's thread count (``NUMBA_NUM_THREADS``,
     by default one per core), the package's one threading setting."""
@@ -239,6 +249,10 @@ class FitProblem:
         self._jac_cache: OrderedDict = OrderedDict()
         self.n_jacobians = 0
         self.cost_history: list[float] = []  # robust cost at each Jacobian (accepted points)
+        #: (relative decrease, Jacobians): stop once the robust cost fell by less than this
+        #: from one Jacobian to the next, after at least that many (None: never)
+        self.early_stop: tuple[float, int] | None = None
+        self._jacobian_costs: list[float] = []
         self.blocks = self._blocks()
 
     # -- parameter vectors ----------------------------------------------------------------
@@ -427,4 +441,16 @@ class FitProblem:
         self._jac_cache[key] = J
         while len(self._jac_cache) > 2:
             self._jac_cache.popitem(last=False)
+        self._check_early_stop(u)
         return J
+
+    def _check_early_stop(self, u: np.ndarray) -> None:
+        """Raise :class:`CostLevelledOff` when :attr:`early_stop` says the fit may stop at
+        ``u`` (the point of the latest Jacobian)."""
+        self._jacobian_costs.append(self.cost_history[-1])
+        if self.early_stop is None or len(self._jacobian_costs) < max(2, self.early_stop[1]):
+            return
+        before, now = self._jacobian_costs[-2:]
+        decrease = (before - now) / before if before > 0 else 0.0
+        if decrease < self.early_stop[0]:
+            raise CostLevelledOff(np.array(u, dtype=float), decrease)
