@@ -64,6 +64,7 @@ from .scoring import (
     score,
     unique,
 )
+from .screening import coarse_dataset
 from .selection import (
     RoundContext,
     Selection,
@@ -352,17 +353,30 @@ def _fit_base(
 ) -> FitResult:
     """Calibrate the base model on the training data (from ``start``'s values if given).
 
-    ``early``: stop where the cost has stopped falling fast (``screening.
-    early_relative_decrease`` after ``screening.early_min_jacobians``), for the screening;
-    the fit's ``message`` then starts with "stopped early" (:func:`_finish_base`)."""
-    progress.stage("base fit", plan.base + plan.round)
+    ``early``: at the screening's coarser substep of a moving rod
+    (:func:`.screening.coarse_dataset`), and stop where the cost has stopped falling fast
+    (``screening.early_relative_decrease`` after ``screening.early_min_jacobians``), for
+    the screening; the fit's ``message`` then starts with "stopped early"
+    (:func:`_finish_base` fits on at the fine substep)."""
+    progress.stage(
+        "base fit" if start is None else "finishing the base fit", plan.base + plan.round
+    )
     log.info(
-        "diagnosis: calibrating the base model (%s) on the training data",
+        "diagnosis: %s the base model (%s) on the training data",
+        "calibrating" if start is None else "finishing the fit of",
         ", ".join(p.name for p in base_params),
     )
-    base_problem = FitProblem(
-        split.train, base_params, n_samples=split.train_n, config=cfg, label="base"
-    )
+    train = [coarse_dataset(ds, cfg) for ds in split.train] if early else split.train
+    base_problem = FitProblem(train, base_params, n_samples=split.train_n, config=cfg, label="base")
+    if start is not None:  # the coarse answer checked against the fine model
+        fine = base_problem.robust_cost(base_problem.residual(base_problem.initial_u(start.values)))
+        log.info(
+            "diagnosis: the base fit's cost at its early point: %.6g at the coarse substep, "
+            "%.6g at the fine one (%+.2f %%)",
+            start.cost_history[-1],
+            fine,
+            100 * (fine / start.cost_history[-1] - 1),
+        )
     decrease = cfg.number("screening", "early_relative_decrease", minimum=0.0)
     n_min = int(cfg.number("screening", "early_min_jacobians", positive=True))
     return run_fit(
