@@ -366,6 +366,9 @@ def _fit_base(
         "calibrating" if start is None else "finishing the fit of",
         ", ".join(p.name for p in base_params),
     )
+    decrease = cfg.number("screening", "early_relative_decrease", minimum=0.0)
+    n_min = int(cfg.number("screening", "early_min_jacobians", positive=True))
+    early = early and decrease > 0  # 0: one fit at the fine substep, as before
     train = [coarse_dataset(ds, cfg) for ds in split.train] if early else split.train
     base_problem = FitProblem(train, base_params, n_samples=split.train_n, config=cfg, label="base")
     if start is not None:  # the coarse answer checked against the fine model
@@ -377,13 +380,11 @@ def _fit_base(
             fine,
             100 * (fine / start.cost_history[-1] - 1),
         )
-    decrease = cfg.number("screening", "early_relative_decrease", minimum=0.0)
-    n_min = int(cfg.number("screening", "early_min_jacobians", positive=True))
     return run_fit(
         base_problem,
         start=None if start is None else start.values,
         tolerance=settings.tolerance,
-        early_stop=(decrease, n_min) if early and decrease > 0 else None,
+        early_stop=(decrease, n_min) if early else None,
     )
 
 
