@@ -41,7 +41,7 @@ def tuned_config_path(name: str, variant: str) -> Path:
 
 
 def _classical(
-    name: str, variant: str, config: str | None, preview_steps: int | None
+    name: str, variant: str, config: str | Path | None, preview_steps: int | None
 ) -> ControllerSpec:
     classes = {"pid": PIDController, "sliding_mode": SlidingModeController}
     if config is None:

@@ -52,7 +52,7 @@ from .datasets import (
     dataset_overrides,
     prepare_datasets,
 )
-from .problem import FitProblem, simulate_unique
+from .problem import CostLevelledOff, FitProblem, simulate_unique
 from .results import FitResult, _statistics, pooled_lag1
 
 __all__ = [
@@ -172,11 +172,12 @@ def _friction_search(
 
 def run_fit(
     problem: FitProblem,
-    start: Mapping[str, float] | None = None,
+    start: Mapping[str, float | str] | None = None,
     max_nfev: int | None = None,
     friction_restarts: bool = True,
     tolerance: float | None = None,
     basin_search: Sequence[str] = (),
+    early_stop: tuple[float, int] | None = None,
 ) -> FitResult:
     """Least-squares fit of ``problem`` from the warm start; statistics at the optimum.
 
@@ -191,7 +192,12 @@ def run_fit(
     at most ``(1 + friction_searches) max_nfev``; ``message`` states why it stopped.
     ``tolerance``: the relative change of cost and parameters below which it stops.
     ``basin_search``: free parameters of a friction law searched (:func:`_basin_search`)
-    before the first least-squares fit, on data with a moving rod.
+    before the first least-squares fit, on data with a moving rod. ``early_stop``
+    (relative decrease, Jacobians): stop the first least-squares fit at the first
+    Jacobian, from the given count on, where the robust cost fell by less than that
+    relative amount since the previous one (:class:`.problem.CostLevelledOff`; no friction
+    search after it; ``message`` starts with "stopped early"): the point where screening
+    may start, finished by a fit from it.
     """
     cfg = problem.config
     u0 = problem.initial_u(start)
@@ -202,7 +208,13 @@ def run_fit(
         and any(ds.moving for ds in problem.datasets)
     )
     if problem.free:
-        u, nfev, message = _fit_free(problem, u0, start, max_nfev, search, tolerance, basin_search)
+        problem.early_stop = early_stop
+        try:
+            u, nfev, message = _fit_free(
+                problem, u0, start, max_nfev, search, tolerance, basin_search
+            )
+        finally:
+            problem.early_stop = None
     else:
         u, nfev, message = u0, 1, "nothing to fit"
     r = problem.residual(u)
@@ -246,7 +258,7 @@ def run_fit(
 def _fit_free(
     problem: FitProblem,
     u0: np.ndarray,
-    start: Mapping[str, float] | None,
+    start: Mapping[str, float | str] | None,
     max_nfev: int,
     search: bool,
     tolerance: float | None,
@@ -261,7 +273,10 @@ def _fit_free(
     if basin_search and any(ds.moving for ds in problem.datasets):
         u0, cost0 = _basin_search(problem, u0, basin_search)
         problem.cost_history.append(cost0)
-    sol = _least_squares(problem, u0, max_nfev, tolerance)
+    try:
+        sol = _least_squares(problem, u0, max_nfev, tolerance)
+    except CostLevelledOff as stop:  # the rest is the caller's (a fit from this point)
+        return stop.u, problem.n_jacobians, f"stopped early: {stop}"
     nfev = int(sol.nfev)
     u, cost = sol.x, float(sol.cost)
     message = str(sol.message)
@@ -342,6 +357,7 @@ class Calibration:
     def predict(self, n_samples: Sequence[int] | None = None) -> list[dict[str, np.ndarray]]:
         """Predicted recorded channels of every dataset (whole recordings by default)."""
         n = n_samples or [ds.n_samples for ds in self.datasets]
+        assert self.result.u is not None  # a fit's result keeps its point
         return self.problem.predict(self.result.u, n)
 
     def save(self, path: str | os.PathLike, notes: str = "") -> None:

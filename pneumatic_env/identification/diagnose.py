@@ -37,6 +37,8 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from pneumatic_env.recording import Recording
 
 from . import progress
@@ -67,6 +69,7 @@ from .scoring import (
     score,
     unique,
 )
+from .screening import coarse_dataset
 from .selection import (
     RoundContext,
     Selection,
@@ -266,7 +269,7 @@ def _plan_work(
     plan_round = w_all * n_screen + (0 if quick else settings.top_k * refit_work)
     progress.stage("timing a simulation of the data", w_all, later=plan_base + plan_round)
     t_probe = time.monotonic()
-    FitProblem(datasets, [], config=cfg, label="probe").residual([])
+    FitProblem(datasets, [], config=cfg, label="probe").residual(np.empty(0))
     per_column = (time.monotonic() - t_probe) / max(w_all, 1.0)
     issue = _size_issue(datasets, cfg, per_column, plan_base + plan_round)
     if issue is not None:
@@ -310,17 +313,14 @@ def diagnose(
     settings = _settings(cfg, max_effects, jobs)
     pool, skipped = _candidate_pool(datasets, candidates, cfg)
     plan = _plan_work(datasets, split, base_params, refit, pool, cfg, settings, quick, issues)
-    base = _fit_base(split, base_params, cfg, settings, plan)
+    base = _fit_base(split, base_params, cfg, settings, plan, early=True)
     timings = {"base_fit": time.monotonic() - t0}
-    baseline_nrmse, base_preds = split.heldout_nrmse(base)
-    base_per = split.per_recording(base_preds)
     ctx = RoundContext(
         cfg, settings, datasets, split, base_params, refit, plan, quick, base, timings
     )
-    state = Selection(
-        base, mean_nrmse(baseline_nrmse), {k: mean_nrmse(v) for k, v in base_per.items()}
-    )
-    before = _Before(t0, issues, skipped, baseline_nrmse, base_preds, base_per)
+    ctx.after_screening = None if quick else _finish_base
+    state = Selection(base, *_heldout_means(split, base))
+    before = _Before(t0, issues, skipped)
     for rnd in range(1, settings.max_effects + 1):
         if on_round is not None:  # the report so far, before each round
             on_round(_assemble(ctx, state, before, pool, rnd))
@@ -333,15 +333,13 @@ def diagnose(
 
 @dataclass
 class _Before:
-    """What :func:`diagnose` knows before the rounds: the start time, the data issues,
-    the skipped candidates, and the base model's held-out error and predictions."""
+    """What :func:`diagnose` knows before the rounds: the start time, the data issues and
+    the skipped candidates (the base model's held-out error is taken at each assembly:
+    a base fit stopped early for the screening is finished after it)."""
 
     t0: float
     issues: list
     skipped: dict
-    baseline_nrmse: dict
-    base_preds: list
-    base_per: dict
 
 
 def _assemble(
@@ -357,6 +355,8 @@ def _assemble(
     winner, runner_up, suggestion = winner_and_runner_up(
         state, cfg, ctx.settings.min_rel, ctx.quick
     )
+    baseline_nrmse, base_preds = split.heldout_nrmse(base)
+    base_per = split.per_recording(base_preds)
     after_nrmse, after_preds = split.heldout_nrmse(state.current)
     after_per = split.per_recording(after_preds)
     ctx.timings["total"] = time.monotonic() - before.t0
@@ -369,8 +369,8 @@ def _assemble(
         holdout=split.info,
         issues=before.issues,
         base=base,
-        baseline_nrmse=before.baseline_nrmse,
-        baseline_residuals=_heldout_residuals(split, base, before.base_preds, cfg),
+        baseline_nrmse=baseline_nrmse,
+        baseline_residuals=_heldout_residuals(split, base, base_preds, cfg),
         scores=list(state.scores),
         skipped=before.skipped,
         selected=[c.name for c in state.selected],
@@ -392,7 +392,7 @@ def _assemble(
         screening=list(state.screening),
         confidence=list(state.confidence),
         freer_forms=list(state.freer_forms),
-        per_recording=_per_recording_before_after(before.base_per, after_per),
+        per_recording=_per_recording_before_after(base_per, after_per),
         quick=ctx.quick,
         timings=dict(ctx.timings),
         status=status,
@@ -415,17 +415,73 @@ def _fit_base(
     cfg: IdentificationConfig,
     settings: Settings,
     plan: WorkPlan,
+    early: bool = False,
+    start: FitResult | None = None,
 ) -> FitResult:
-    """Calibrate the base model on the training data."""
-    progress.stage("base fit", plan.base, later=plan.round)
+    """Calibrate the base model on the training data (from ``start``'s values if given).
+
+    ``early``: at the screening's coarser substep of a moving rod
+    (:func:`.screening.coarse_dataset`), and stop where the cost has stopped falling fast
+    (``screening.early_relative_decrease`` after ``screening.early_min_jacobians``), for
+    the screening; the fit's ``message`` then starts with "stopped early"
+    (:func:`_finish_base` fits on at the fine substep)."""
+    progress.stage(
+        "base fit" if start is None else "finishing the base fit", plan.base, later=plan.round
+    )
     log.info(
-        "diagnosis: calibrating the base model (%s) on the training data",
+        "diagnosis: %s the base model (%s) on the training data",
+        "calibrating" if start is None else "finishing the fit of",
         ", ".join(p.name for p in base_params),
     )
-    base_problem = FitProblem(
-        split.train, base_params, n_samples=split.train_n, config=cfg, label="base"
+    decrease = cfg.number("screening", "early_relative_decrease", minimum=0.0)
+    n_min = int(cfg.number("screening", "early_min_jacobians", positive=True))
+    early = early and decrease > 0  # 0: one fit at the fine substep, as before
+    train = [coarse_dataset(ds, cfg) for ds in split.train] if early else split.train
+    base_problem = FitProblem(train, base_params, n_samples=split.train_n, config=cfg, label="base")
+    if start is not None:  # the coarse answer checked against the fine model
+        fine = base_problem.robust_cost(base_problem.residual(base_problem.initial_u(start.values)))
+        log.info(
+            "diagnosis: the base fit's cost at its early point: %.6g at the coarse substep, "
+            "%.6g at the fine one (%+.2f %%)",
+            start.cost_history[-1],
+            fine,
+            100 * (fine / start.cost_history[-1] - 1),
+        )
+    return run_fit(
+        base_problem,
+        start=None if start is None else start.values,
+        tolerance=settings.tolerance,
+        early_stop=(decrease, n_min) if early else None,
     )
-    return run_fit(base_problem, tolerance=settings.tolerance)
+
+
+def stopped_early(fit: FitResult) -> bool:
+    """The fit was stopped for the screening before it converged (:func:`_fit_base`)."""
+    return fit.message.startswith("stopped early")
+
+
+def _heldout_means(split: Holdout, fit: FitResult) -> tuple[float, dict]:
+    """``fit``'s mean held-out NRMSE, overall and per held-out recording."""
+    nrmse, preds = split.heldout_nrmse(fit)
+    return mean_nrmse(nrmse), {k: mean_nrmse(v) for k, v in split.per_recording(preds).items()}
+
+
+def _finish_base(ctx: RoundContext, state: Selection, screens: Sequence) -> None:
+    """After the first screening, finish a base fit stopped early for it: fit on from its
+    point, and make the result the base and the current model the refits are held
+    against (a no-op once finished, or when an effect has been adopted). The screens'
+    predicted training drops are restated against the finished base."""
+    if not stopped_early(ctx.base) or state.current is not ctx.base:
+        return
+    t0 = time.monotonic()
+    early = ctx.base
+    base = _fit_base(ctx.split, ctx.base_params, ctx.cfg, ctx.settings, ctx.plan, start=early)
+    for s in screens:
+        s.predicted_train = 1.0 - (1.0 - s.predicted_train) * early.rss / base.rss
+    ctx.base = base
+    state.current = base
+    state.current_mean, state.current_per = _heldout_means(ctx.split, base)
+    ctx.timings["base_fit_finish"] = time.monotonic() - t0
 
 
 def _heldout_residuals(split: Holdout, fit: FitResult, preds, cfg: IdentificationConfig) -> dict:

@@ -11,9 +11,13 @@ re-filter the unperturbed simulation). The optimiser that minimises it is
 from __future__ import annotations
 
 import logging
+import os
 from collections import OrderedDict
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
+import numba
 import numpy as np
 
 from pneumatic_env.ids import MODE_FIXED
@@ -33,6 +37,123 @@ PREDICTED_CHANNELS_ORDER = tuple(PREDICTED_CHANNELS)
 FRICTION_NAMES = ("static_friction_n", "dynamic_friction_n", "viscous_friction_n_s_per_m")
 
 
+#: One simulation job: a dataset, its columns of overrides, the samples to simulate, the
+#: scopes of every column and, optionally, each column's own (see :func:`_simulate`).
+SimulationJob = tuple[
+    Dataset,
+    Sequence[Mapping[str, float]],
+    int,
+    Mapping[str, Sequence[str]] | None,
+    Sequence[Mapping[str, Sequence[str]]] | None,
+]
+_pools: dict[int, ThreadPoolExecutor] = {}  # thread count -> its pool
+
+
+class CostLevelledOff(Exception):
+    """Raised by :meth:`FitProblem.jacobian` when the cost has stopped falling fast
+    (:attr:`FitProblem.early_stop`): the fit stops at ``u``, an accepted point."""
+
+    def __init__(self, u: np.ndarray, relative_decrease: float):
+        super().__init__(f"cost fell by {relative_decrease:.3g} relative in the last step")
+        self.u = u
+        self.relative_decrease = relative_decrease
+
+
+def _threads() -> int:
+    """Threads the simulations share out over: numba's thread count (``NUMBA_NUM_THREADS``,
+    by default one per core), the package's one threading setting."""
+    return max(1, int(numba.get_num_threads()))
+
+
+def _forget_pool() -> None:
+    """After a fork the child has none of the parent's pool threads: start a new pool."""
+    _pools.clear()
+
+
+os.register_at_fork(after_in_child=_forget_pool)
+
+
+def _plant_array(
+    ds: Dataset,
+    columns: Sequence[Mapping[str, float]],
+    scopes: Mapping[str, Sequence[str]] | None,
+    column_scopes: Sequence[Mapping[str, Sequence[str]]] | None,
+) -> np.ndarray:
+    """Kernel parameter array ``(n_params, m)`` of ``ds`` with each column's overrides."""
+    m = len(columns)
+    arr = np.repeat(parameter_array([ds.values]), m, axis=1)
+    for j, overrides in enumerate(columns):
+        sc = scopes if column_scopes is None else column_scopes[j]
+        for name, v in dataset_overrides(ds, overrides, sc).items():
+            arr[_ROW[name], j] = v
+    return arr
+
+
+def _rollout_piece(ds: Dataset, params: np.ndarray, n_samples: int, substeps: int) -> np.ndarray:
+    """Outputs ``(n_samples, O_*, m)`` of one batch rollout of ``ds``'s current over the
+    parameter columns ``params`` (``rollout_serial`` releases the GIL: pieces run in
+    threads side by side). Each column's result does not depend on the others'."""
+    sim = BatchSimulator(np.ascontiguousarray(params), ds.dt_s, substeps)
+    if ds.initial:
+        sim.reset(initial=ds.initial)
+    first = sim.outputs.copy()
+    currents = np.repeat(ds.recording.i_c[: n_samples - 1, None], params.shape[1], axis=1)
+    return np.concatenate([first[None], sim.rollout(currents)], axis=0)
+
+
+def _pieces(ds: Dataset, arr: np.ndarray, n_threads: int) -> list[tuple[np.ndarray, int]]:
+    """The column groups of one job, each as (column indices, substeps): columns whose rod
+    moves and columns whose rod is clamped apart, each at its own substep, each cut into
+    up to ``n_threads`` contiguous parts."""
+    moving = arr[_ROW["piston_mode"]] != MODE_FIXED
+    pieces = []
+    for group in (np.flatnonzero(~moving), np.flatnonzero(moving)):
+        if group.size == 0:
+            continue
+        substeps = ds.substeps_moving if moving[group[0]] and ds.substeps_moving else ds.substeps
+        for part in np.array_split(group, min(n_threads, group.size)):
+            pieces.append((part, substeps))
+    return pieces
+
+
+def _run_pieces(calls: Sequence[tuple], n_threads: int) -> Iterator[np.ndarray]:
+    """:func:`_rollout_piece` of every argument tuple, in order: on a pool of ``n_threads``
+    threads (one per thread count, made on first use), or here when one suffices."""
+    if n_threads < 2 or len(calls) < 2:
+        return (_rollout_piece(*call) for call in calls)
+    if n_threads not in _pools:
+        _pools[n_threads] = ThreadPoolExecutor(n_threads, thread_name_prefix="identification")
+    futures = [_pools[n_threads].submit(_rollout_piece, *call) for call in calls]
+    return (future.result() for future in futures)
+
+
+def simulate_jobs(jobs: Sequence[SimulationJob]) -> list[dict[str, np.ndarray]]:
+    """:func:`_simulate` of every job, all of them at once: their batch rollouts are cut
+    into column pieces and shared out over :func:`_threads` threads, the largest first.
+    The results are bit-identical to one rollout per job. The work done is reported to
+    :mod:`.progress`."""
+    n_threads = _threads()
+    arrays, outs, tasks = [], [], []
+    for k, (ds, columns, n_samples, scopes, column_scopes) in enumerate(jobs):
+        arr = _plant_array(ds, columns, scopes, column_scopes)
+        arrays.append(arr)
+        outs.append(np.empty((n_samples, len(PREDICTED_CHANNELS_ORDER), len(columns))))
+        for part, substeps in _pieces(ds, arr, n_threads):
+            tasks.append((n_samples * substeps * part.size, k, part, substeps))
+    tasks.sort(key=lambda task: -task[0])
+    rows = [PREDICTED_CHANNELS[c] for c in PREDICTED_CHANNELS_ORDER]
+    calls = [
+        (jobs[k][0], arrays[k][:, part], jobs[k][2], substeps) for _, k, part, substeps in tasks
+    ]
+    for (work, k, part, _), piece in zip(tasks, _run_pieces(calls, n_threads)):
+        outs[k][:, :, part] = piece[:, rows, :]
+        progress.advance(work)
+    return [
+        {ch: out[:, PREDICTED_CHANNELS_ORDER.index(ch), :] for ch in job[0].channels}
+        for job, out in zip(jobs, outs)
+    ]
+
+
 def _simulate(
     ds: Dataset,
     columns: Sequence[Mapping[str, float]],
@@ -44,30 +165,9 @@ def _simulate(
 
     ``column_scopes[j]`` (default: ``scopes`` for every column) scopes column j's values.
     Columns whose rod moves and columns whose rod is clamped are simulated in separate
-    batches, each at its own substep. The work done is reported to :mod:`.progress`.
+    batches, each at its own substep (:func:`simulate_jobs`, over both cores).
     """
-    m = len(columns)
-    base = parameter_array([ds.values])
-    arr = np.repeat(base, m, axis=1)
-    for j, overrides in enumerate(columns):
-        sc = scopes if column_scopes is None else column_scopes[j]
-        for name, v in dataset_overrides(ds, overrides, sc).items():
-            arr[_ROW[name], j] = v
-    moving = arr[_ROW["piston_mode"]] != MODE_FIXED
-    out = np.empty((n_samples, len(PREDICTED_CHANNELS_ORDER), m))
-    for group in (np.flatnonzero(~moving), np.flatnonzero(moving)):
-        if group.size == 0:
-            continue
-        substeps = ds.substeps_moving if moving[group[0]] and ds.substeps_moving else ds.substeps
-        sim = BatchSimulator(np.ascontiguousarray(arr[:, group]), ds.dt_s, substeps)
-        if ds.initial:
-            sim.reset(initial=ds.initial)
-        first = sim.outputs.copy()
-        currents = np.repeat(ds.recording.i_c[: n_samples - 1, None], group.size, axis=1)
-        rows = np.concatenate([first[None], sim.rollout(currents)], axis=0)
-        out[:, :, group] = rows[:, [PREDICTED_CHANNELS[c] for c in PREDICTED_CHANNELS_ORDER], :]
-        progress.advance(n_samples * substeps * group.size)
-    return {ch: out[:, PREDICTED_CHANNELS_ORDER.index(ch), :] for ch in ds.channels}
+    return simulate_jobs([(ds, columns, n_samples, scopes, column_scopes)])[0]
 
 
 def simulate_unique(
@@ -79,7 +179,8 @@ def simulate_unique(
     """:func:`_simulate` of ``columns``, each plant that reaches ``ds`` simulated once: a
     value scoped away from its rod mode, or the piston's friction on a clamped rod, does
     not make a column differ."""
-    keys, unique = [], {}
+    keys: list = []
+    unique: dict = {}
     for plant, scopes in zip(columns, column_scopes):
         resolved = dataset_overrides(ds, plant, scopes)
         if ds.rod_mode == "fixed" and resolved.get("piston_mode", MODE_FIXED) == MODE_FIXED:
@@ -150,6 +251,10 @@ class FitProblem:
         self._jac_cache: OrderedDict = OrderedDict()
         self.n_jacobians = 0
         self.cost_history: list[float] = []  # robust cost at each Jacobian (accepted points)
+        #: (relative decrease, Jacobians): stop once the robust cost fell by less than this
+        #: from one Jacobian to the next, after at least that many (None: never)
+        self.early_stop: tuple[float, int] | None = None
+        self._jacobian_costs: list[float] = []
         self.blocks = self._blocks()
 
     # -- parameter vectors ----------------------------------------------------------------
@@ -157,11 +262,13 @@ class FitProblem:
         """Free parameter values (physical units) of the optimiser vector ``u``."""
         return {p.name: p.from_u(float(x)) for p, x in zip(self.free, u)}
 
-    def initial_u(self, start: Mapping[str, float] | None = None) -> np.ndarray:
-        """Warm start: ``start``, else the parameter's ``initial``, else the data's value."""
+    def initial_u(self, start: Mapping[str, float | str] | None = None) -> np.ndarray:
+        """Warm start: ``start``, else the parameter's ``initial``, else the data's value
+        (a free parameter's entries are numbers)."""
         start = dict(start or {})
         u = []
         for p in self.free:
+            v: Any
             if p.name in start:
                 v = start[p.name]
             elif p.name in self.fixed:
@@ -188,14 +295,21 @@ class FitProblem:
         return plant, sensor
 
     # -- simulation -----------------------------------------------------------------------
+    def _simulate_each(
+        self, columns: Sequence[Mapping[str, float]], n_samples: Sequence[int]
+    ) -> list[dict[str, np.ndarray]]:
+        """:func:`_simulate` of ``columns`` on every dataset (``n_samples[k]`` of dataset
+        k), all datasets in one :func:`simulate_jobs` call."""
+        return simulate_jobs(
+            [(ds, columns, n, self.scopes, None) for ds, n in zip(self.datasets, n_samples)]
+        )
+
     def _plant(self, u: np.ndarray) -> list[dict[str, np.ndarray]]:
         key = np.asarray(u, float).tobytes()
         if key in self._cache:
             return self._cache[key]
         plant, _ = self._split(self.values(u))
-        out = [
-            _simulate(ds, [plant], n, self.scopes) for ds, n in zip(self.datasets, self.n_samples)
-        ]
+        out = self._simulate_each([plant], self.n_samples)
         self._cache[key] = out
         while len(self._cache) > 4:
             self._cache.popitem(last=False)
@@ -213,9 +327,7 @@ class FitProblem:
         if n_samples is None:
             sims = self._plant(u)
         else:
-            sims = [
-                _simulate(ds, [plant], n, self.scopes) for ds, n in zip(self.datasets, n_samples)
-            ]
+            sims = self._simulate_each([plant], n_samples)
         return [
             {c: y[:, 0] for c, y in apply_sensor_model(sim, [sensor], ds.dt_s).items()}
             for ds, sim in zip(self.datasets, sims)
@@ -298,12 +410,11 @@ class FitProblem:
         sensor_idx = [j for j, p in enumerate(self.free) if p.kind == "sensor"]
         base_res = self.residual(u)
         J = np.empty((base_res.size, len(self.free)))
-        col_preds = [dict() for _ in self.datasets]  # per dataset: channel -> (n, n_free)
-        for k, (ds, n) in enumerate(zip(self.datasets, self.n_samples)):
-            columns = []
-            for j in plant_idx:
-                columns.append({**plant, self.free[j].name: perturbed[j]})
-            sims = _simulate(ds, columns, n, self.scopes) if columns else {}
+        # per dataset: channel -> (n, n_free)
+        col_preds: list[dict] = [dict() for _ in self.datasets]
+        columns = [{**plant, self.free[j].name: perturbed[j]} for j in plant_idx]
+        plant_sims = self._simulate_each(columns, self.n_samples)
+        for k, (ds, sims) in enumerate(zip(self.datasets, plant_sims)):
             sensor_cols = [sensor] * len(plant_idx)
             for j in sensor_idx:
                 sensor_cols.append({**sensor, self.free[j].name: perturbed[j]})
@@ -335,4 +446,16 @@ class FitProblem:
         self._jac_cache[key] = J
         while len(self._jac_cache) > 2:
             self._jac_cache.popitem(last=False)
+        self._check_early_stop(u)
         return J
+
+    def _check_early_stop(self, u: np.ndarray) -> None:
+        """Raise :class:`CostLevelledOff` when :attr:`early_stop` says the fit may stop at
+        ``u`` (the point of the latest Jacobian)."""
+        self._jacobian_costs.append(self.cost_history[-1])
+        if self.early_stop is None or len(self._jacobian_costs) < max(2, self.early_stop[1]):
+            return
+        before, now = self._jacobian_costs[-2:]
+        decrease = (before - now) / before if before > 0 else 0.0
+        if decrease < self.early_stop[0]:
+            raise CostLevelledOff(np.array(u, dtype=float), decrease)

@@ -29,7 +29,7 @@ class FitResult:
 
     parameters: list[FitParameter]
     values: dict[str, float]
-    fixed: dict[str, float]
+    fixed: dict[str, float | str]
     std: dict[str, float]
     ci: dict[str, tuple[float, float]]
     identified: dict[str, bool]
@@ -59,7 +59,7 @@ class FitResult:
         return out
 
     def sensor_values(self) -> dict[str, float]:
-        out = {k: v for k, v in self.fixed.items() if k in SENSOR_NEUTRAL}
+        out = {k: float(v) for k, v in self.fixed.items() if k in SENSOR_NEUTRAL}
         out.update((p.name, self.values[p.name]) for p in self.parameters if p.kind == "sensor")
         return out
 

@@ -186,25 +186,29 @@ def _spec(cand: Candidate, params: Sequence[FitParameter], start: dict, fd: floa
     return cand, list(params), start, steps, perturbed
 
 
+def coarse_dataset(ds: Dataset, config: IdentificationConfig) -> Dataset:
+    """``ds`` with the screening's coarser substep for a moving rod
+    (``screening.max_substep_moving_s``): the screening's model, and the base fit's while
+    it is far from its optimum (:func:`.diagnose._fit_base`)."""
+    coarse = substeps_for(
+        ds.dt_s, config.number("screening", "max_substep_moving_s", positive=True)
+    )
+    return replace(
+        ds,
+        substeps=coarse if ds.moving or ds.rod_mode != "fixed" else ds.substeps,
+        substeps_moving=coarse,
+    )
+
+
 def _coarse_datasets(
     datasets: Sequence[Dataset],
     train: Sequence[Dataset],
     held: Sequence[Dataset],
     config: IdentificationConfig,
 ) -> tuple[list[Dataset], list[Dataset], list[Dataset]]:
-    """``datasets``, ``train`` and ``held`` with the screening's coarser substep for a
-    moving rod (a ranking: the current model and every candidate see the same model)."""
-    coarse = config.number("screening", "max_substep_moving_s", positive=True)
-    screen_ds = [
-        replace(
-            ds,
-            substeps=substeps_for(ds.dt_s, coarse)
-            if ds.moving or ds.rod_mode != "fixed"
-            else ds.substeps,
-            substeps_moving=substeps_for(ds.dt_s, coarse),
-        )
-        for ds in datasets
-    ]
+    """``datasets``, ``train`` and ``held`` as :func:`coarse_dataset` (a ranking: the
+    current model and every candidate see the same model)."""
+    screen_ds = [coarse_dataset(ds, config) for ds in datasets]
     train = [screen_ds[index_of(ds, datasets)] for ds in train]
     held = [screen_ds[index_of(ds, datasets)] for ds in held]
     return screen_ds, train, held
@@ -216,14 +220,12 @@ def _starts(cand: Candidate, params: Sequence[FitParameter], values: dict, ds0, 
     (the score test: the current model with the effect off); for log10 parameters, the
     warm start times each of ``log_starts``."""
     starts = [{p.name: _start_value(p, values, ds0) for p in params}]
-    if all(
-        p.neutral is not None
-        and math.isfinite(p.neutral)
-        and not p.log
-        and p.lower <= p.neutral <= p.upper
+    neutral = {p.name: p.neutral for p in cand.parameters if p.neutral is not None}
+    if len(neutral) == len(cand.parameters) and all(
+        math.isfinite(neutral[p.name]) and not p.log and p.lower <= neutral[p.name] <= p.upper
         for p in cand.parameters
     ):
-        starts.append({**starts[0], **{p.name: p.neutral for p in cand.parameters}})
+        starts.append({**starts[0], **neutral})
     logs = [p for p in cand.parameters if p.log]
     for factor in log_starts if logs else ():
         starts.append(

@@ -8,7 +8,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from . import progress
@@ -91,6 +91,9 @@ class RoundContext:
     quick: bool
     base: FitResult  # the calibrated base model (its residual count and effective samples)
     timings: dict  # seconds per stage, filled in by the rounds
+    # called after each screening, before its refits (diagnose: finish a base fit that
+    # was stopped early for the first screening)
+    after_screening: Callable[[RoundContext, Selection, Sequence], None] | None = None
 
     @property
     def moving(self) -> bool:
@@ -145,6 +148,8 @@ def selection_round(
     )
     state.screening.append({"round": rnd, "ranking": [s.to_dict() for s in screens]})
     ctx.timings[f"screening_round_{rnd}"] = time.monotonic() - t_round
+    if ctx.after_screening is not None:
+        ctx.after_screening(ctx, state, screens)
     round_scores = _refit_round(ctx, state, screens, rnd)
     state.scores.extend(round_scores)
     accepted = _accepted(ctx, state, round_scores, rnd)
@@ -269,6 +274,7 @@ def _adopt(
     )
     state.confidence[-1]["margin_over_freer_form"] = state.over_freer.get(best.name)
     selected = state.selected
+    assert best.fit is not None  # an accepted candidate was refitted
     progress.stage(f"re-converging the model with {best.name}", ctx.plan.refit)
     free = unique(
         list(ctx.base_params) + [p for c in selected for p in (*c.refit_base, *c.parameters)]

@@ -414,7 +414,7 @@ def step_parallel(sim, coil_current_a):
         advance_chunk(sim, first, min(first + CHUNK_ENVS, n_envs), coil_current_a)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def rollout_serial(sim, coil_current_a, outputs):
     """Run a whole open-loop current sequence ``coil_current_a[step, env]`` through ``sim``
     (as ``step_serial``) in one call; ``outputs[step, O_*, env]`` receives the outputs

@@ -1,0 +1,95 @@
+"""Identification speed: the fit's simulations shared out over threads, bit for bit; the
+screening from a base fit stopped early.
+
+The recordings come from the virtual rig (synthetic, never measured), 0.3-1 s long.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from pneumatic_env.identification import problem as fit_problem
+from pneumatic_env.identification.checks import read_checked
+from pneumatic_env.identification.config import load_config
+from pneumatic_env.identification.datasets import base_fit_parameters, prepare_datasets
+from pneumatic_env.identification.diagnose import diagnose, stopped_early
+from pneumatic_env.studies.virtual_rig import make_recording
+
+ROLLOUT_PIECE = fit_problem._rollout_piece
+
+
+@pytest.fixture(scope="module")
+def clamped_and_spring(tmp_path_factory):
+    """A clamped-rod and a spring-rod recording of one rig (the moving rod has its own
+    substep, so its columns are a batch of their own)."""
+    out = tmp_path_factory.mktemp("speed")
+    paths = [
+        make_recording(out, name=piston, effect="none", seed=3, duration_s=0.3, piston=piston)
+        for piston in ("fixed", "spring")
+    ]
+    cfg = load_config()
+    datasets, _ = prepare_datasets([read_checked(p) for p in paths], None, cfg)
+    return datasets, base_fit_parameters(datasets, None, cfg), cfg
+
+
+def _jacobian(datasets, free, cfg, threads: int, monkeypatch) -> tuple[np.ndarray, set]:
+    """A base Jacobian at the start with ``threads`` threads, and the threads it ran on."""
+    ran_on: set[str] = set()
+
+    def recorded(*args):
+        ran_on.add(threading.current_thread().name)
+        return ROLLOUT_PIECE(*args)
+
+    monkeypatch.setattr(fit_problem, "_threads", lambda: threads)
+    monkeypatch.setattr(fit_problem, "_rollout_piece", recorded)
+    problem = fit_problem.FitProblem(datasets, free, config=cfg)
+    u = problem.initial_u()
+    problem.jacobian(u)  # the unperturbed run first, as least_squares does
+    ran_on.clear()
+    problem._jac_cache.clear()
+    return problem.jacobian(u), ran_on
+
+
+def test_threaded_jacobian_equals_the_serial_one(clamped_and_spring, monkeypatch):
+    datasets, free, cfg = clamped_and_spring
+    serial, serial_threads = _jacobian(datasets, free, cfg, 1, monkeypatch)
+    threaded, pool_threads = _jacobian(datasets, free, cfg, 2, monkeypatch)
+    assert serial_threads == {threading.current_thread().name}
+    assert len(pool_threads) == 2 and threading.current_thread().name not in pool_threads
+    assert np.count_nonzero(serial) > serial.shape[1]  # every column moves something
+    assert np.array_equal(serial, threaded)
+
+
+def test_simulate_jobs_splits_columns_and_keeps_their_order(clamped_and_spring, monkeypatch):
+    """Each job's columns come back in its order, whatever pieces they were run in."""
+    datasets, _, _ = clamped_and_spring
+    columns = [{"supply_pressure_pa": p} for p in (5.0e5, 5.5e5, 6.0e5, 6.5e5, 7.0e5)]
+    monkeypatch.setattr(fit_problem, "_threads", lambda: 2)
+    both = fit_problem.simulate_jobs([(ds, columns, 200, None, None) for ds in datasets])
+    for ds, sims in zip(datasets, both):
+        for j, column in enumerate(columns):
+            alone = fit_problem.simulate_jobs([(ds, [column], 200, None, None)])[0]
+            for c in ds.channels:
+                assert np.array_equal(sims[c][:, j], alone[c][:, 0])
+
+
+def test_early_screening_ranks_the_true_effect_first(tmp_path):
+    """The base fit stops for the screening once its cost has stopped falling fast
+    (``screening.early_relative_decrease``), and the screening from that point still
+    ranks the rig's leak first; with ``quick`` the base fit is left there."""
+    paths = [
+        make_recording(
+            tmp_path, name=piston, effect="leakage", seed=1, duration_s=1.0, piston=piston
+        )
+        for piston in ("fixed", "spring")
+    ]
+    candidates = ["leakage", "pressure_sensor_offset", "pressure_sensor_lag", "supply_droop"]
+    diag = diagnose([read_checked(p) for p in paths], candidates=candidates, quick=True)
+    assert stopped_early(diag.base)
+    n_min = load_config().number("screening", "early_min_jacobians")
+    assert diag.base.n_jacobians >= n_min
+    ranking = [entry["name"] for entry in diag.screening[0]["ranking"]]
+    assert ranking[0] == "leakage"
