@@ -156,7 +156,13 @@ def train_for_rig(
     pid_gains = retuned_pid_gains(rig, tuning)
     config = agent_config_path(f"ppo_fast-{rig.variant.lower()}")
     env_kwargs = {**rig.env_options, "domain_randomization": randomization}
-    merged = {**{f"env_kwargs.{k}": v for k, v in env_kwargs.items()}, **(overrides or {})}
+    merged = {
+        **{f"env_kwargs.{k}": v for k, v in env_kwargs.items()},
+        # the gains and validation of the registered variant: the rig's tube may have none
+        "residual.variant": rig.variant,
+        "training.validation_variants": [rig.variant],
+        **(overrides or {}),
+    }
     log(f"[3/4] training ({minutes} min, {steps} steps at most) from {config.name}")
     training = train(config, rig.env_id, seed, out / "training", minutes, steps, overrides=merged)
     base = training["config"]["residual"]["base"] if training["config"].get("residual") else None
