@@ -92,7 +92,7 @@ def suite_summary(rig: FittedRig, controllers: list, suite: Suite | None = None)
         rows, _ = run_suite(c, [rig.variant], suite, env_options=rig.env_options)
         out.append(
             {
-                "controller": rows[0]["controller"] if not isinstance(c, str) else str(c),
+                "controller": rows[0]["controller"],
                 **{k: float(np.mean([r[k] for r in rows])) for k in _FIGURES},
             }
         )
@@ -103,7 +103,8 @@ _FIGURES = ("rms_error_pct", "chatter_rms_a", "air_mg")
 
 
 def summary_markdown(rig: FittedRig, figures: list[dict], command: str) -> str:
-    """``summary.md``: the figures of each controller on the fitted rig."""
+    """``summary.md``: the figures of each controller on the fitted rig (the first the
+    new controller, the others classical)."""
     best_classical = min(f["rms_error_pct"] for f in figures[1:])
     rows = [
         [
