@@ -165,7 +165,9 @@ def train_for_rig(
         **(overrides or {}),
     }
     log(f"[3/4] training ({minutes} min, {steps} steps at most) from {config.name}")
-    training = train(config, rig.env_id, seed, out / "training", minutes, steps, overrides=merged)
+    training = train(
+        config, rig.env_id, seed, out / "training", minutes, steps, overrides=merged, log=log
+    )
     base = training["config"]["residual"]["base"] if training["config"].get("residual") else None
     probe = gym.make_vec(
         rig.env_id, num_envs=1, preview_steps=suite.preview_steps, **rig.env_options
