@@ -11,7 +11,8 @@ nearest the rig's (it has tuned gains and a trainer config), given the rig's par
 simulated at its own length.
 
 :func:`rig_randomization` turns the report's uncertainty into the env's
-``domain_randomization``: each fitted plant parameter over its confidence interval, and
+``domain_randomization``: each identified fitted plant parameter over its confidence
+interval, and
 each plant effect the report could not rule out (not selected, yet a predicted held-out
 improvement of at least the report's ``min_predicted_improvement``) over the strengths from
 none to its fitted (or screening) value.
@@ -183,13 +184,16 @@ def _unruled_effects(diagnosis: dict) -> dict[str, tuple[float, float]]:
 
 def rig_randomization(report_dir: str | Path) -> dict[str, tuple[float, float]]:
     """The env's ``domain_randomization`` ({name: (low, high)}, SI) for a report: each
-    fitted plant parameter over its confidence interval (``final_fit``), each effect not
-    ruled out from none to its strength; an end that is no valid value is the fitted one."""
+    identified fitted plant parameter over its confidence interval (``final_fit``; one
+    the report did not identify keeps its fitted value), each effect not ruled out from
+    none to its strength; an end that is no valid value is the fitted one."""
     rig = load_rig(report_dir)
     diagnosis = _diagnosis(rig.report_dir)
     out = {}
     for name, p in diagnosis["final_fit"]["parameters"].items():
         if p.get("kind") != "plant" or name not in rig.params or p["ci"][0] is None:
+            continue
+        if not p.get("identified", True):  # its interval says nothing (report.md flags)
             continue
         lo, hi = (float(v) for v in p["ci"])
         out[name] = _interval(rig, name, lo, hi, rig.params[name])

@@ -35,6 +35,7 @@ FITTED = {
     "discharge_coefficient": 0.23,
     "dead_volume_cap_m3": 1.0e-6,
     "leakage_area_m2": 2.0e-8,
+    "static_friction_n": 0.5,
 }
 
 
@@ -74,6 +75,13 @@ def write_report(root: Path) -> Path:
                 "dead_volume_cap_m3": {"value": 1.0e-6, "kind": "plant", "ci": [-1e-6, 3e-6]},
                 "leakage_area_m2": {"value": 2.0e-8, "kind": "plant", "ci": [1.8e-8, 2.2e-8]},
                 "pressure_offset_p1_pa": {"value": 10.0, "kind": "sensor", "ci": [5.0, 15.0]},
+                # not identified (an interval wider than the plausible range): left out
+                "static_friction_n": {
+                    "value": 0.5,
+                    "kind": "plant",
+                    "ci": [0.01, 400.0],
+                    "identified": False,
+                },
             }
         },
         "candidates": [
@@ -111,7 +119,7 @@ def test_randomization_is_drawn_from_the_reports_intervals(tmp_path):
         # not ruled out: from none to the refitted strength, or to the screening's step
         "rod_seal_leak_area_m2": (0.0, 1.5e-8),
         "wall_heat_transfer_w_per_k": (0.0, 0.05),
-    }  # no sensor parameter; the valve null leak's 1 % is below the report's 3 %
+    }  # no sensor parameter, no unidentified one; the valve null leak's 1 % is below 3 %
     rig = load_rig(report)
     env = gym.make_vec(
         rig.env_id, num_envs=64, **rig.env_options, domain_randomization=dr
