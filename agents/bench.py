@@ -26,7 +26,7 @@ from pneumatic_env import ids
 from pneumatic_env.envs.tasks import scale_spec  # scale-unit reference spec -> SI
 from pneumatic_env.params import load_numerics
 
-from .base import Controller, ControllerContext
+from .base import Controller, ControllerContext, ControllerSpec
 from .bench_results import (
     CSV_COLUMNS,
     METRIC_COLUMNS,
@@ -196,7 +196,7 @@ def task_metrics(force_n, reference_n, current_a, exhaust_kg, scale_n: float) ->
 
 
 def run_suite(
-    controller: str,
+    controller: str | ControllerSpec,
     variants: Sequence[str] | None = None,
     suite: Suite | None = None,
     config: str | None = None,
@@ -205,7 +205,9 @@ def run_suite(
 ):
     """Run every task on every variant; returns (rows for the CSV, traces per variant).
 
-    ``env_options``: more env keyword arguments (e.g. ``plant`` for a perturbed plant)."""
+    ``controller``: a name or file for ``resolve_controller``, or a ``ControllerSpec`` (the
+    same for every variant). ``env_options``: more env keyword arguments (e.g. ``plant``
+    for a perturbed plant, a fitted rig's ``params``: ``agents.rig``)."""
     suite = suite or load_suite()
     variants = list(variants or suite.variants)
     rows, traces = [], {}
@@ -214,7 +216,11 @@ def run_suite(
     n_steps = max(steps)
     for variant in variants:
         parse_variant(variant, suite.task)
-        cspec = resolve_controller(controller, variant, config, suite.preview_steps)
+        cspec = (
+            controller
+            if isinstance(controller, ControllerSpec)
+            else resolve_controller(controller, variant, config, suite.preview_steps)
+        )
         options = {**cspec.env_options, **(env_options or {})}
         env = make_env(variant, len(suite.tasks), n_steps, suite.task, **options)
         dt, scale = env.unwrapped.control_dt_s, env.unwrapped.reference_scale
@@ -293,6 +299,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "configs/agents/<controller>-<variant>.yaml or <controller>.yaml)",
     )
     parser.add_argument("--suite", help="suite file (default configs/benchmark.yaml)")
+    parser.add_argument(
+        "--rig",
+        metavar="REPORT_DIR",
+        help="run on the fitted rig of an identification report (`pneumatic-env identify "
+        "... --report REPORT_DIR`; agents/rig.py) instead of the suite's variants",
+    )
     parser.add_argument("--out", help="output directory (default runs/bench/<controller>)")
     parser.add_argument(
         "--leaderboard",
@@ -318,6 +330,12 @@ def run(args: argparse.Namespace) -> int:
     if not args.controller:
         raise SystemExit("pneumatic-env bench: give --controller (or --leaderboard, --list)")
     suite = load_suite(args.suite)
+    env_options = None
+    if args.rig:
+        from .rig import load_rig
+
+        rig = load_rig(args.rig)
+        args.variants, env_options = [rig.variant], rig.env_options
     for variant in args.variants or suite.variants:  # a bad name fails before any run
         resolve_controller(args.controller, variant, args.config, suite.preview_steps)
     name = Path(args.controller).stem if Path(args.controller).suffix else args.controller
@@ -333,6 +351,7 @@ def run(args: argparse.Namespace) -> int:
         suite,
         args.config,
         progress=lambda msg: print(msg, flush=True),
+        env_options=env_options,
     )
     for p in write_results(out, rows, traces, suite, command):
         print(f"wrote {p}")

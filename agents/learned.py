@@ -18,10 +18,19 @@ variant) and run by name:
 
     python -m pneumatic_env.agents.learned convert runs/res-c-s0/actor_best.npz OUT.npz
         # an actor of the issue-19 prototype (format issue19-ppo-actor-v1) to this format
+
+Format versions (``meta["format"]``): ``pneumatic_env-learned-v1``, the trainer's export,
+takes the model parameters from the env it runs in and a residual actor's base controller
+from the benchmark's gains of the variant; ``pneumatic_env-learned-v2`` is self-contained
+(:func:`write_self_contained`, ``pneumatic-env train --rig``): its ``meta["model"]`` holds
+the model it was trained for (parameters, scales, control period) and
+``meta["base_controller"]`` the base controller's kind and gains, so it runs on any env of
+its observation layout with no config. Another version is refused by name.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -44,6 +53,9 @@ from .residual import RESIDUAL_COLUMNS, ResidualConfig, ResidualCore
 
 __all__ = [
     "FORMAT",
+    "FORMAT_SELF_CONTAINED",
+    "FORMATS",
+    "write_self_contained",
     "LearnedActor",
     "LearnedController",
     "pure_current",
@@ -55,6 +67,9 @@ __all__ = [
 ]
 
 FORMAT = "pneumatic_env-learned-v1"
+FORMAT_SELF_CONTAINED = "pneumatic_env-learned-v2"
+FORMATS = (FORMAT, FORMAT_SELF_CONTAINED)
+_FORMAT_PREFIX = "pneumatic_env-learned-"
 
 
 def pure_current(action, action_scale_a: float, deadband_a, smoothing: float, i_max_a: float):
@@ -74,9 +89,12 @@ def pure_current(action, action_scale_a: float, deadband_a, smoothing: float, i_
 
 
 def is_learned(path: str | Path) -> bool:
-    """Whether ``path`` is an ``.npz`` of this format (else e.g. an SB3 export)."""
+    """Whether ``path`` is an ``.npz`` of this format, any version (else e.g. an SB3
+    export); :class:`LearnedActor` refuses a version it does not read."""
     with np.load(path, allow_pickle=False) as data:
-        return "meta" in data and json.loads(str(data["meta"])).get("format") == FORMAT
+        if "meta" not in data:
+            return False
+        return str(json.loads(str(data["meta"])).get("format", "")).startswith(_FORMAT_PREFIX)
 
 
 class LearnedActor(NumpyPolicy):
@@ -85,10 +103,10 @@ class LearnedActor(NumpyPolicy):
 
     def __init__(self, path: str | Path):
         super().__init__(path)
-        if self.meta.get("format") != FORMAT:
+        if self.meta.get("format") not in FORMATS:
             raise ValueError(
-                f"{path}: format = {self.meta.get('format')!r} is not allowed: "
-                f"expected {FORMAT!r} (agents/ppo.py export)"
+                f"{path}: format = {self.meta.get('format')!r} is not allowed: this "
+                f"package reads {list(FORMATS)} (agents/ppo.py export, train --rig)"
             )
         with np.load(self.path, allow_pickle=False) as data:
             self.obs_mean, self.obs_std = data["obs_mean"], data["obs_std"]
@@ -119,6 +137,30 @@ class LearnedActor(NumpyPolicy):
     def residual_config(self) -> ResidualConfig | None:
         r = self.meta.get("residual")
         return None if r is None else ResidualConfig(**r)
+
+    @property
+    def base_controller(self) -> tuple[str, dict] | None:
+        """(kind, gains) of the base controller a self-contained file holds, else None."""
+        b = self.meta.get("base_controller")
+        return None if b is None else (b["kind"], dict(b["gains"]))
+
+    def model_context(self, context: ControllerContext) -> ControllerContext:
+        """``context`` with the model a self-contained file holds (parameters, scales);
+        ``context`` itself for a v1 file. The control period must be the file's."""
+        model = self.meta.get("model")
+        if model is None:
+            return context
+        if not np.isclose(context.dt_s, model["dt_s"], rtol=1e-9, atol=0.0):
+            raise ValueError(
+                f"{self.path}: trained at a control period of {model['dt_s']} s, "
+                f"the env steps {context.dt_s} s"
+            )
+        return dataclasses.replace(
+            context,
+            base_params={k: float(v) for k, v in model["base_params"].items()},
+            scale_n=float(model["scale_n"]),
+            force_scale_n=model["force_scale_n"],
+        )
 
 
 class LearnedController(Controller):
@@ -228,6 +270,56 @@ class LearnedController(Controller):
             )
         self.last_current = u
         return u
+
+
+def write_self_contained(
+    src: str | Path,
+    dst: str | Path,
+    context: ControllerContext,
+    base: tuple[str, dict] | None,
+    **meta,
+) -> Path:
+    """Rewrite the v1 actor ``src`` as a self-contained v2 file ``dst``: the model of
+    ``context`` (the env it was trained for) and the base controller ``(kind, gains)`` go
+    into its meta, with any other ``meta`` keys (e.g. a ``source``)."""
+    with np.load(src, allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files if k != "meta"}
+        old = json.loads(str(data["meta"]))
+    if old.get("format") != FORMAT:
+        raise ValueError(f"{src}: format = {old.get('format')!r}, expected {FORMAT!r}")
+    if (old.get("residual") is None) != (base is None):
+        raise ValueError(f"{src}: a residual actor needs a base controller, a pure one none")
+    if base is not None and base[0] != old["residual"]["base"]:
+        raise ValueError(f"{src}: trained on base {old['residual']['base']!r}, not {base[0]!r}")
+    new = {
+        **old,
+        **meta,
+        "format": FORMAT_SELF_CONTAINED,
+        "model": {
+            "base_params": {k: float(v) for k, v in context.base_params.items()},
+            "dt_s": float(context.dt_s),
+            "scale_n": float(context.scale_n),
+            "force_scale_n": None
+            if context.force_scale_n is None
+            else float(context.force_scale_n),
+        },
+        "base_controller": None
+        if base is None
+        else {"kind": base[0], "gains": {k: _plain_gain(v) for k, v in base[1].items()}},
+    }
+    dst = Path(dst)
+    np.savez(dst, meta=np.array(json.dumps(new)), **arrays)
+    return dst
+
+
+def _plain_gain(value):
+    """A gain as a JSON value (bool, int, float or list of floats)."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    arr = np.asarray(value, dtype=np.float64)
+    return float(arr) if arr.ndim == 0 else arr.tolist()
 
 
 # --------------------------------------------------------------------------- shipped policies

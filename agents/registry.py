@@ -29,9 +29,13 @@ __all__ = [
     "controller_names",
     "tuned_config_path",
     "CLASSICAL",
+    "CLASSICAL_CLASSES",
+    "classical_gains",
 ]
 
 CLASSICAL = ("pid", "sliding_mode", "zero")
+#: the classical controllers with gains: name -> class
+CLASSICAL_CLASSES = {"pid": PIDController, "sliding_mode": SlidingModeController}
 
 
 def tuned_config_path(name: str, variant: str) -> Path:
@@ -40,10 +44,9 @@ def tuned_config_path(name: str, variant: str) -> Path:
     return agent_config_path(f"{name}-{variant.lower()}")
 
 
-def _classical(
-    name: str, variant: str, config: str | Path | None, preview_steps: int | None
-) -> ControllerSpec:
-    classes = {"pid": PIDController, "sliding_mode": SlidingModeController}
+def _classical_config(name: str, variant: str, config: str | Path | None = None) -> tuple:
+    """(the config file, its tree, its gains) of a classical controller for ``variant``:
+    ``config``, else ``tuned_config_path`` if it exists, else ``configs/agents/<name>.yaml``."""
     if config is None:
         per_variant = tuned_config_path(name, variant)
         config = per_variant if per_variant.is_file() else agent_config_path(name)
@@ -53,6 +56,18 @@ def _classical(
     gains = cfg.get("gains")
     if not isinstance(gains, dict):
         raise ConfigError(f"{config}: missing the 'gains' mapping")
+    return config, cfg, gains
+
+
+def classical_gains(name: str, variant: str) -> dict:
+    """The benchmark's gains of the classical controller ``name`` for ``variant``."""
+    return dict(_classical_config(name, variant)[2])
+
+
+def _classical(
+    name: str, variant: str, config: str | None, preview_steps: int | None
+) -> ControllerSpec:
+    config, cfg, gains = _classical_config(name, variant, config)
     preview = int(
         cfg["preview_steps"]
         if "preview_steps" in cfg
@@ -60,7 +75,7 @@ def _classical(
         if preview_steps is None
         else preview_steps
     )
-    cls = classes[name]
+    cls = CLASSICAL_CLASSES[name]
     return ControllerSpec(
         name,
         {"preview_steps": preview, "normalize_observation": False},
@@ -116,14 +131,22 @@ def make_base_controller(name: str, context: ControllerContext, variant: str) ->
 
 def learned_spec(path: str | Path, variant: str, name: str | None = None) -> ControllerSpec:
     """Bench controller spec of an actor file (``agents.learned``); a residual actor gets
-    the benchmark's base controller with the gains of ``variant``."""
+    the base controller its file holds (self-contained, v2), else the benchmark's with the
+    gains of ``variant``. A v2 file also brings its model (``LearnedActor.model_context``)."""
     actor = LearnedActor(path)
     opts = actor.meta["env_options"]
     label = name or actor.meta.get("name") or Path(path).stem
     residual = actor.residual_config
 
     def build(ctx: ControllerContext) -> Controller:
-        base = None if residual is None else make_base_controller(residual.base, ctx, variant)
+        ctx = actor.model_context(ctx)
+        held = actor.base_controller
+        if residual is None:
+            base = None
+        elif held is not None:
+            base = CLASSICAL_CLASSES[held[0]](ctx, **held[1])
+        else:
+            base = make_base_controller(residual.base, ctx, variant)
         return LearnedController(ctx, actor, base)
 
     return ControllerSpec(

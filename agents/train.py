@@ -6,6 +6,8 @@ features, residual policies; its docstring).
         --config configs/agents/ppo-numatics-2m.yaml [--timesteps N] [--seed S] [--out DIR]
     pneumatic-env train --algo ppo_fast --env pneumatic_env/ForceTrack-Numatics-2m-v0 \\
         [--config FILE] [--seed S] [--minutes M] [--out DIR] [--resume]
+    pneumatic-env train --rig REPORT_DIR [--out OUT] [--minutes M] [--steps N] [--seed S]
+        # a controller for the rig of an identification report (agents/rig_training.py)
 
 Hyperparameters come from ``configs/agents/<algo>-<variant>.yaml`` (one file per algorithm and
 variant, rl-zoo style; every number with unit and source). The env is ``gym.make_vec`` (our
@@ -241,15 +243,22 @@ def train(
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--algo", required=True, choices=ALGOS + ("ppo_fast",))
     parser.add_argument(
-        "--env", required=True, help="env id, e.g. pneumatic_env/ForceTrack-Numatics-2m-v0"
+        "--rig",
+        metavar="REPORT_DIR",
+        help="train a controller for the fitted rig of `pneumatic-env identify --report "
+        "REPORT_DIR` (writes OUT/controller.npz and OUT/summary.md; no --algo or --env)",
+    )
+    parser.add_argument("--algo", choices=ALGOS + ("ppo_fast",), help="required without --rig")
+    parser.add_argument(
+        "--env", help="env id, e.g. pneumatic_env/ForceTrack-Numatics-2m-v0 (without --rig)"
     )
     parser.add_argument(
         "--config", help="hyperparameter YAML (default configs/agents/<algo>-<variant>.yaml)"
     )
     parser.add_argument(
         "--timesteps",
+        "--steps",
         type=int,
         help="env steps (default: the config's; ppo_fast: a cap besides --minutes)",
     )
@@ -278,6 +287,12 @@ def run(args: argparse.Namespace) -> int:
 
     import pneumatic_env  # noqa: F401  (registers the ids)
 
+    if args.rig:
+        from .rig_training import run as run_rig  # imports torch: only when it runs
+
+        return run_rig(args)
+    if not args.algo or not args.env:
+        raise SystemExit("pneumatic-env train: give --algo and --env (or --rig REPORT_DIR)")
     if args.env not in gym.registry:
         raise SystemExit(
             f"--env {args.env!r} is not registered: use one of {pneumatic_env.registered_ids()}"

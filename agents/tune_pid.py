@@ -34,10 +34,13 @@ __all__ = ["CONTROLLERS", "grid_search", "tuned_config", "main"]
 CONTROLLERS = {"pid": PIDController, "sliding_mode": SlidingModeController}
 
 
-def grid_search(controller: str, variant: str, tuning: dict) -> dict:
+def grid_search(
+    controller: str, variant: str, tuning: dict, env_options: dict | None = None
+) -> dict:
     """Run the grid of ``tuning[controller]`` on ``variant``; returns scores and the best combo.
 
-    ``tuning`` is ``load_agent_config("tuning", raw=("references",))``.
+    ``tuning`` is ``load_agent_config("tuning", raw=("references",))``; ``env_options``:
+    more env keyword arguments (e.g. a fitted rig's ``params``, ``agents.rig``).
     """
     if controller not in CONTROLLERS:
         raise ValueError(
@@ -56,6 +59,7 @@ def grid_search(controller: str, variant: str, tuning: dict) -> dict:
         n_steps,
         preview_steps=tuning["preview_steps"],
         normalize_observation=False,
+        **(env_options or {}),
     )
     ctx = ControllerContext.from_env(env)
     gains = {n: np.repeat(np.array([c[j] for c in combos]), n_ref) for j, n in enumerate(names)}

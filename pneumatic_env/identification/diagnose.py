@@ -139,6 +139,8 @@ class Diagnosis:
     def to_json(self) -> dict:
         return {
             "recordings": [ds.name for ds in self.datasets],
+            # each recording's sidecar as stated: the rig (agents.rig reads it back)
+            "rigs": {ds.name: ds.recording.rig for ds in self.datasets},
             "holdout": self.holdout,
             "issues": [str(i) for i in self.issues],
             "thresholds": self.thresholds,

@@ -1,0 +1,245 @@
+"""From an identification report to a controller (agents/rig.py, agents/rig_training.py):
+the fitted rig as an env, the randomisation drawn from the report's intervals, a
+self-contained controller file, ``bench --rig``.
+
+The report directory is written by hand (the files ``pneumatic-env identify --report``
+writes, with only the keys ``agents.rig`` reads): a Numatics cylinder on a 1.6 m tube (no
+registered length) with a fitted leak, a rod-seal leak the report could not rule out and a
+valve null leak it could.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import yaml
+
+from pneumatic_env.agents.bench import load_suite, read_results, run_suite
+from pneumatic_env.agents.learned import FORMAT_SELF_CONTAINED
+from pneumatic_env.agents.registry import resolve_controller
+from pneumatic_env.agents.rig import load_rig, rig_randomization
+from pneumatic_env.agents.suite import default_suite_path
+from pneumatic_env.cli import main
+from pneumatic_env.params import save_parameters
+from pneumatic_env.physics import layout
+
+CYLINDER = "numatics-0750D02-03A"
+FITTED = {
+    "supply_pressure_pa": 640000.0,
+    "discharge_coefficient": 0.23,
+    "dead_volume_cap_m3": 1.0e-6,
+    "leakage_area_m2": 2.0e-8,
+    "static_friction_n": 0.5,
+}
+
+
+def _candidate(name, refitted, improvement, values, kind="plant"):
+    return {
+        "name": name,
+        "kind": kind,
+        "refitted": refitted,
+        "relative_improvement": improvement if refitted else None,
+        "parameters": {k: {"value": v, "neutral": 0.0} for k, v in values.items()}
+        if refitted
+        else {},
+        "screening": {"predicted_heldout_improvement": improvement, "step_values": values},
+    }
+
+
+def write_report(root: Path) -> Path:
+    """A minimal report directory: diagnosis.json and fitted_final.yaml."""
+    root.mkdir(parents=True, exist_ok=True)
+    sidecar = {
+        "format": "pneumatic_env-recording",
+        "version": 1,
+        "cylinder": CYLINDER,
+        "tube_length_m": 1.6,
+        "supply_pressure_pa": 650000.0,
+        "piston": {"mode": "fixed", "position_m": 0.0},
+    }
+    diagnosis = {
+        "recordings": ["e1_steps", "e2_msine"],
+        "rigs": {"e1_steps": sidecar, "e2_msine": sidecar},
+        "thresholds": {"min_predicted_improvement": 0.03},
+        "selected": ["leakage"],
+        "final_fit": {
+            "parameters": {
+                "discharge_coefficient": {"value": 0.23, "kind": "plant", "ci": [0.21, 0.25]},
+                # a lower end that is no valid volume: the fitted value takes its place
+                "dead_volume_cap_m3": {"value": 1.0e-6, "kind": "plant", "ci": [-1e-6, 3e-6]},
+                "leakage_area_m2": {"value": 2.0e-8, "kind": "plant", "ci": [1.8e-8, 2.2e-8]},
+                "pressure_offset_p1_pa": {"value": 10.0, "kind": "sensor", "ci": [5.0, 15.0]},
+                # not identified (an interval wider than the plausible range): left out
+                "static_friction_n": {
+                    "value": 0.5,
+                    "kind": "plant",
+                    "ci": [0.01, 400.0],
+                    "identified": False,
+                },
+            }
+        },
+        "candidates": [
+            _candidate("leakage", True, 0.7, {"leakage_area_m2": 2.0e-8}),
+            _candidate("rod_seal_leak", True, 0.2, {"rod_seal_leak_area_m2": 1.5e-8}),
+            _candidate("valve_null_leak", False, 0.01, {"valve_null_leak_area_m2": 1e-9}),
+            _candidate("wall_heat", False, 0.05, {"wall_heat_transfer_w_per_k": 0.05}),
+        ],
+    }
+    (root / "diagnosis.json").write_text(json.dumps(diagnosis), encoding="utf-8")
+    save_parameters(root / "fitted_final.yaml", FITTED, notes="test report")
+    return root
+
+
+def test_the_fitted_rig_is_the_nearest_variant_at_the_rigs_own_tube_length(tmp_path):
+    rig = load_rig(write_report(tmp_path / "report"))
+    assert rig.env_id == "pneumatic_env/ForceTrack-Numatics-2m-v0"  # 1.6 m: nearest 2 m
+    env = gym.make_vec(rig.env_id, num_envs=1, **rig.env_options)
+    base = env.unwrapped.base_params
+    assert base["tube_length_m"] == 1.6
+    for name, value in FITTED.items():  # the fitted supply wins over the sidecar's
+        assert base[name] == value
+    env.close()
+    assert rig.nominal_parameters()["supply_pressure_pa"] == 650000.0
+    assert rig.nominal_parameters()["leakage_area_m2"] == 0.0
+
+
+def test_randomization_is_drawn_from_the_reports_intervals(tmp_path):
+    report = write_report(tmp_path / "report")
+    dr = rig_randomization(report)
+    assert dr == {
+        "discharge_coefficient": (0.21, 0.25),
+        "dead_volume_cap_m3": (1.0e-6, 3e-6),
+        "leakage_area_m2": (1.8e-8, 2.2e-8),
+        # not ruled out: from none to the refitted strength, or to the screening's step
+        "rod_seal_leak_area_m2": (0.0, 1.5e-8),
+        "wall_heat_transfer_w_per_k": (0.0, 0.05),
+    }  # no sensor parameter, no unidentified one; the valve null leak's 1 % is below 3 %
+    rig = load_rig(report)
+    env = gym.make_vec(
+        rig.env_id, num_envs=64, **rig.env_options, domain_randomization=dr
+    ).unwrapped
+    env.reset(seed=3)
+    drawn = env.core.sim.params
+    for name, (lo, hi) in dr.items():
+        row = drawn[layout.PARAMETER_INDEX[name]]
+        assert np.all((row >= lo) & (row <= hi)), name
+        assert row.max() - row.min() > 0.5 * (hi - lo), name  # spread over the interval
+    env.close()
+
+
+def test_a_report_without_the_rig_is_refused_by_name(tmp_path):
+    report = write_report(tmp_path / "report")
+    data = json.loads((report / "diagnosis.json").read_text())
+    del data["rigs"]
+    (report / "diagnosis.json").write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="no 'rigs'"):
+        load_rig(report)
+
+
+def _tiny_tuning() -> dict:
+    from pneumatic_env.agents.config import load_agent_config
+
+    tuning = load_agent_config("tuning", raw=("references",))
+    grid = {k: v[:2] for k, v in tuning["pid"]["grid"].items() if k == "kp_a_per_n"}
+    grid.update({k: v[:1] for k, v in tuning["pid"]["grid"].items() if k != "kp_a_per_n"})
+    return {
+        **tuning,
+        "duration_s": 0.2,
+        "references": tuning["references"][:2],
+        "pid": {**tuning["pid"], "grid": grid},
+    }
+
+
+TINY_TRAINING = {
+    "hyperparameters.num_envs": 32,
+    "hyperparameters.rollout_steps": 8,
+    "training.validation_steps": 50,
+}
+
+
+def test_train_rig_writes_a_controller_that_runs_by_file_name_alone(tmp_path):
+    from pneumatic_env.agents.rig_training import train_for_rig
+
+    report = write_report(tmp_path / "report")
+    rig = load_rig(report)
+    suite = load_suite()
+    suite = dataclasses.replace(suite, tasks=suite.tasks[:2])
+    res = train_for_rig(
+        report,
+        tmp_path / "out",
+        minutes=None,
+        steps=1,
+        overrides=TINY_TRAINING,
+        tuning=_tiny_tuning(),
+        suite=suite,
+    )
+    summary = (tmp_path / "out" / "summary.md").read_text()
+    for name in ("controller.npz", "pid (nominal)", "pid (retuned", "sliding_mode (fitted"):
+        assert name in summary
+    # elsewhere, with the report and the trainer's output gone
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    path = shutil.copy(res["controller"], elsewhere / "mine.npz")
+    shutil.rmtree(report)
+    shutil.rmtree(tmp_path / "out")
+    meta = json.loads(str(np.load(path)["meta"]))
+    assert meta["format"] == FORMAT_SELF_CONTAINED
+    assert meta["base_controller"]["kind"] == "sliding_mode"
+    assert meta["model"]["base_params"]["tube_length_m"] == 1.6
+    # on the fitted rig it gives the summary's figure exactly, from the file alone
+    rows, _ = run_suite(str(path), [rig.variant], suite, env_options=rig.env_options)
+    rms = np.mean([r["rms_error_pct"] for r in rows])
+    assert rms == res["figures"][0]["rms_error_pct"]
+    # by name on a registered variant, through the Controller interface
+    spec = resolve_controller(str(path), "Numatics-0.5m")
+    env = gym.make_vec("pneumatic_env/ForceTrack-Numatics-0.5m-v0", num_envs=2, **spec.env_options)
+    from pneumatic_env.agents.base import ControllerContext
+
+    ctrl = spec.build(ControllerContext.from_env(env))
+    assert ctrl.context.base_params["tube_length_m"] == 1.6  # its model, not the env's
+    obs, _ = env.reset(seed=0)
+    ctrl.reset()
+    for _ in range(5):
+        u = ctrl.act(obs)
+        assert u.shape == (2,) and np.all(np.isfinite(u))
+        obs, *_ = env.step(u[:, None])
+    env.close()
+
+
+def test_an_unknown_format_version_is_refused_by_name(tmp_path):
+    src = Path(__file__).resolve().parents[1] / "agents" / "policies"
+    shipped = sorted(src.glob("ppo_residual-numatics-2m.npz"))[0]
+    with np.load(shipped) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays.pop("meta")))
+    meta["format"] = "pneumatic_env-learned-v9"
+    path = tmp_path / "future.npz"
+    np.savez(path, meta=np.array(json.dumps(meta)), **arrays)
+    with pytest.raises(ValueError, match="pneumatic_env-learned-v9"):
+        resolve_controller(str(path), "Numatics-2m")
+
+
+def test_bench_rig_runs_the_suite_on_the_fitted_rig(tmp_path, capsys):
+    report = write_report(tmp_path / "report")
+    out = tmp_path / "bench"
+    suite_file = tmp_path / "suite.yaml"
+    tree = yaml.safe_load(default_suite_path().read_text())
+    keep = ("step_up", "sine_10hz", "chirp")  # the metrics' and plots' tasks
+    tasks = [t for t in tree["tasks"] if t["name"] in keep]
+    suite_file.write_text(yaml.safe_dump({**tree, "tasks": tasks}))
+    args = ["bench", "--rig", str(report), "--controller", "pid", "--suite", str(suite_file)]
+    assert main([*args, "--out", str(out)]) == 0
+    written = read_results(out)
+    assert {r["variant"] for r in written} == {"Numatics-2m"}
+    one = load_suite(suite_file)
+    rig = load_rig(report)
+    fitted, _ = run_suite("pid", [rig.variant], one, env_options=rig.env_options)
+    nominal, _ = run_suite("pid", [rig.variant], one)
+    assert written[0]["rms_error_pct"] == pytest.approx(fitted[0]["rms_error_pct"], rel=1e-6)
+    assert fitted[0]["rms_error_pct"] != nominal[0]["rms_error_pct"]  # another plant
