@@ -300,7 +300,9 @@ class PneumaticTrackingEnv(_TaskProperties, gym.Env[NDArray[np.float32], NDArray
       ``relative_preview`` (False): the observation features above.
     * ``domain_randomization``: ``{name: (low, high)}`` in the parameter's SI unit or
       ``{name: relative_half_width}`` (a fraction in [0, 1)), uniform per episode (around
-      the plant's values).
+      the plant's values); ``"one_of": [{"probability": p, "ranges": {...}}, ...]`` adds
+      alternatives, one drawn per episode (a switch such as ``tube_waves`` on in a share of
+      the episodes; ``envs.randomization``).
     * ``plant``: ``{name: value}`` (SI), a model mismatch: the simulated plant takes these
       parameters while the task, the reference scale, the observation scales and
       ``base_params`` (what a controller may know) keep the model's; for robustness

@@ -26,6 +26,7 @@ from ..simulator import BatchSimulator
 from . import task_kernel
 from .features import FeatureConfig, FeatureState
 from .observation import OBSERVED_CHANNELS, fill_observation, observation_dim, observation_scales
+from .randomization import check_randomization
 
 REFERENCE_BLOCK_ENVS = 256  # episodes whose references an autoreset generates together
 _CHANNEL_OUTPUT = {"p1": L.O_P1, "p2": L.O_P2, "x": L.O_X, "f": L.O_F}
@@ -236,8 +237,8 @@ class TaskCore:
         self.base_params = base
         self.cylinder = cylinder
         self.plant_params = self._plant(self.options.plant, cylinder, base)
-        self._randomization = self._check_randomization(
-            self.options.domain_randomization, self.plant_params
+        self._randomization = check_randomization(
+            self.options.domain_randomization, self.plant_params, cylinder
         )
         self.n_envs = n_envs
         self.sim = BatchSimulator(
@@ -345,34 +346,6 @@ class TaskCore:
             )
         return P.load_parameters(cylinder, params=base, **spec)
 
-    @staticmethod
-    def _check_randomization(spec, base):
-        """{name: (low, high)} absolute or {name: r} for +-r relative, uniform per episode."""
-        if not spec:
-            return {}
-        checked = {}
-        for name, rng in spec.items():
-            if name not in base:
-                P.load_parameters(**{name: 0.0})  # raises the loader's "unknown field" error
-            if np.isscalar(rng):
-                if not (np.isfinite(rng) and 0 <= rng < 1):
-                    raise ValueError(
-                        f"domain_randomization['{name}'] = {rng!r} is not allowed: "
-                        "a relative half-width must be in [0, 1)"
-                    )
-                low, high = base[name] * (1 - rng), base[name] * (1 + rng)
-            else:
-                low, high = (float(v) for v in rng)
-            if not (np.isfinite(low) and np.isfinite(high) and low <= high):
-                raise ValueError(
-                    f"domain_randomization['{name}'] = {rng!r} is not allowed: "
-                    "must be (low, high) with low <= high, finite"
-                )
-            for value in (low, high):  # both ends must be valid parameter values
-                P.load_parameters(params=base, **{name: value})
-            checked[name] = (min(low, high), max(low, high))
-        return checked
-
     # -- episodes ------------------------------------------------------------------------
     def episode_reference(self, value, field: str = "reference") -> ReferenceSpec:
         """A reference for one episode: a spec (``ReferenceSpec`` or dict, in the tracked
@@ -419,9 +392,7 @@ class TaskCore:
         if self._randomization:
             columns = []
             for env in envs:
-                drawn = {
-                    n: rngs[env].uniform(lo, hi) for n, (lo, hi) in self._randomization.items()
-                }
+                drawn = self._randomization.draw(rngs[env])
                 columns.append(P.load_parameters(self.cylinder, params=self.plant_params, **drawn))
             self.sim.set_params(envs, P.parameter_array(columns))
         self.sim.reset(envs)
