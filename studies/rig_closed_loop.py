@@ -163,10 +163,10 @@ def rig_closed_loop(
     }
     obs = np.empty((n_tasks, ctrl.context.obs_dim), np.float32)
     step_count = np.zeros(n_tasks, dtype=np.int64)
-    outputs = np.array([p.outputs() for p in plants])
     ctrl.reset()
     for k in range(n_steps):
-        fill_observation(measure(outputs), references, step_count, scales, obs)
+        sensed = np.array([p.measured() for p in plants])  # through a sensor lag, if any
+        fill_observation(measure(sensed), references, step_count, scales, obs)
         action = np.asarray(ctrl.act(obs), dtype=np.float64).reshape(n_tasks)
         applied = np.minimum(np.maximum(action, -i_max), i_max)
         outputs = np.array([p.advance(a) for p, a in zip(plants, applied)])

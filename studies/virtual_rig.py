@@ -96,8 +96,11 @@ __all__ = [
     "SPLIT_EFFECTS",
     "RigResult",
     "excitation",
+    "RigDrive",
     "make_recording",
+    "rig_drive",
     "run_rig",
+    "write_rig_result",
 ]
 
 #: Rig effects realised by a kernel parameter (same form as the candidate): name ->
@@ -207,23 +210,21 @@ def run_rig(
     """
     cfg = config or load_config()
     _check_rig_arguments(effect, strength, piston)
-    rng = np.random.default_rng(seed)
-    grid = _sample_grid(cfg, duration_s)
-    cylinder = canonical_cylinder(cylinder)
-    piston_rig, nominal = _nominal_rig(
+    drive = rig_drive(
+        seed,
+        duration_s,
         cylinder,
         tube_length_m,
         piston,
+        excitation_kind,
+        perturb,
+        experiment,
         spring_rest_position_m,
         cfg,
         spring_stiffness_n_per_m,
         load_mass_kg,
     )
-    true = _perturbed(cylinder, nominal, rng, cfg) if perturb else dict(nominal)
-    if experiment is not None:
-        rng = np.random.default_rng([int(seed), int(experiment)])
-
-    i_c = excitation(excitation_kind, grid.n, grid.dt_s, rng, cfg)
+    cylinder, true, rng, grid, i_c = drive.cylinder, drive.true, drive.rng, drive.grid, drive.i_c
     ref = float(cfg.number("virtual_rig", "effects", effect)) if effect != "none" else 0.0
     s = float(strength)
     own = own_forms and effect in OWN_FORM_EFFECTS and s > 0.0
@@ -233,16 +234,8 @@ def run_rig(
     rows, plant = _plant_rows(
         effect, s, ref, fine, grid, true, truth_parameters, own, own_truth, cylinder, piston, cfg
     )
-    t, channels = _sensor_channels(effect, s, ref, rows, i_c, grid, piston, rng, cfg)
-    rig = {
-        "cylinder": cylinder,
-        "tube_length_m": float(tube_length_m),
-        "supply_pressure_pa": float(nominal["supply_pressure_pa"]),
-        "ambient_pressure_pa": float(nominal["ambient_pressure_pa"]),
-        "temperature_k": float(nominal["temperature_k"]),
-        "piston": piston_rig,
-        "notes": "synthetic (virtual rig) recording made by pneumatic_env.studies.virtual_rig",
-    }
+    t, channels = _sensor_channels({effect: s * ref}, rows, i_c, grid, piston, rng, cfg)
+    rig = drive.sidecar
     truth = {
         "effect": effect,
         "strength": s,
@@ -258,6 +251,62 @@ def run_rig(
     if isinstance(excitation_kind, tuple):  # a UserExcitation: its settings by name
         truth["excitation"] = excitation_kind._asdict()
     return RigResult(t=t, channels=channels, rig=rig, truth=truth)
+
+
+class RigDrive(NamedTuple):
+    """A rig before its effects: the canonical cylinder, its parameters (perturbed), the
+    stream of its noise draws, its sample grid, the sampled command and its sidecar."""
+
+    cylinder: str
+    true: dict
+    rng: np.random.Generator
+    grid: _SampleGrid
+    i_c: np.ndarray
+    sidecar: dict
+
+
+def rig_drive(
+    seed: int,
+    duration_s: float | None,
+    cylinder: str,
+    tube_length_m: float,
+    piston: str,
+    excitation_kind: str | UserExcitation,
+    perturb: bool,
+    experiment: int | None,
+    spring_rest_position_m: float,
+    cfg: IdentificationConfig,
+    spring_stiffness_n_per_m: float | None = None,
+    load_mass_kg: float | None = None,
+) -> RigDrive:
+    """The rig ``seed`` (its perturbed parameters) and the excitation of its experiment
+    (``run_rig``'s first stages, shared with the multi-effect rig)."""
+    rng = np.random.default_rng(seed)
+    grid = _sample_grid(cfg, duration_s)
+    cylinder = canonical_cylinder(cylinder)
+    piston_rig, nominal = _nominal_rig(
+        cylinder,
+        tube_length_m,
+        piston,
+        spring_rest_position_m,
+        cfg,
+        spring_stiffness_n_per_m,
+        load_mass_kg,
+    )
+    true = _perturbed(cylinder, nominal, rng, cfg) if perturb else dict(nominal)
+    if experiment is not None:
+        rng = np.random.default_rng([int(seed), int(experiment)])
+    i_c = excitation(excitation_kind, grid.n, grid.dt_s, rng, cfg)
+    sidecar = {
+        "cylinder": cylinder,
+        "tube_length_m": float(tube_length_m),
+        "supply_pressure_pa": float(nominal["supply_pressure_pa"]),
+        "ambient_pressure_pa": float(nominal["ambient_pressure_pa"]),
+        "temperature_k": float(nominal["temperature_k"]),
+        "piston": piston_rig,
+        "notes": "synthetic (virtual rig) recording made by pneumatic_env.studies.virtual_rig",
+    }
+    return RigDrive(cylinder, true, rng, grid, i_c, sidecar)
 
 
 def _check_rig_arguments(effect: str, strength: float, piston: str) -> None:
@@ -489,9 +538,7 @@ def _plant_rows(
 
 
 def _sensor_channels(
-    effect: str,
-    s: float,
-    ref: float,
+    sensor_effects: dict[str, float],
     rows: np.ndarray,
     i_c: np.ndarray,
     grid: _SampleGrid,
@@ -500,21 +547,25 @@ def _sensor_channels(
     cfg: IdentificationConfig,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """(sample times, the recorded channels): the plant's outputs sampled, through the
-    sensor effects, with noise and quantisation."""
+    sensor effects ({name: value at the rig's strength, s x reference}; others are
+    ignored), with noise and quantisation."""
     n, dt, plant_dt = grid.n, grid.dt_s, grid.plant_dt_s
     names = {"p1": L.O_P1, "p2": L.O_P2, "f": L.O_F, "x": L.O_X}
     measured = ("p1", "p2", "f") if piston == "fixed" else ("p1", "p2", "x")
     t = dt * np.arange(n)
     channels = {"i_c": i_c}
-    skew_steps = int(round(s * ref / plant_dt)) if effect == "channel_time_skew" else 0
+    skew = sensor_effects.get("channel_time_skew")
+    skew_steps = int(round(skew / plant_dt)) if skew is not None else 0
+    lag = sensor_effects.get("pressure_sensor_lag")
+    offset = sensor_effects.get("pressure_sensor_offset")
     for ch in measured:
         y = rows[:, names[ch]].copy()
-        if effect == "pressure_sensor_lag" and ch in ("p1", "p2"):
-            y = _two_lags(y, s * ref, plant_dt)
+        if lag is not None and ch in ("p1", "p2"):
+            y = _two_lags(y, lag, plant_dt)
         idx = np.arange(n) * grid.plant_steps_per_sample - skew_steps
         y = y[np.clip(idx, 0, None)]
-        if effect == "pressure_sensor_offset" and ch in ("p1", "p2"):
-            y = y + s * ref * (1.0 if ch == "p1" else -2.0 / 3.0) * (1.0 + 0.1 * t / t[-1])
+        if offset is not None and ch in ("p1", "p2"):
+            y = y + offset * (1.0 if ch == "p1" else -2.0 / 3.0) * (1.0 + 0.1 * t / t[-1])
         sigma = cfg.number("virtual_rig", "noise", ch, minimum=0.0)
         q = cfg.number("virtual_rig", "quantisation", ch, minimum=0.0)
         y = y + sigma * rng.standard_normal(n)
@@ -527,11 +578,16 @@ def _sensor_channels(
 def make_recording(out_dir, name: str | None = None, overwrite: bool = False, **kwargs) -> Path:
     """Run the rig and write ``out_dir/NAME.csv``, ``.json`` and ``NAME.truth.json``."""
     result = run_rig(**kwargs)
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     if name is None:
         tr = result.truth
         name = f"rig_{tr['effect']}_s{tr['strength']:g}_seed{tr['seed']}"
+    return write_rig_result(out_dir, name, result, overwrite)
+
+
+def write_rig_result(out_dir, name: str, result: RigResult, overwrite: bool = False) -> Path:
+    """Write ``out_dir/NAME.csv``, ``.json`` (the recording) and ``NAME.truth.json``."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
     path = write_recording(
         out_dir / name, result.t, result.channels, result.rig, overwrite=overwrite
     )
