@@ -35,7 +35,7 @@ from pneumatic_env.params import load_numerics
 from pneumatic_env.physics import layout as L
 
 from .rig_plants_closed_loop import CLOSED_LOOP_EFFECTS, rig_plant
-from .virtual_rig import _perturbed
+from .rig_sampling import _perturbed
 
 __all__ = ["RigSpec", "rig_closed_loop", "rig_suite", "summary", "main"]
 

@@ -5,7 +5,7 @@ excitation, sample grid, sensors with their noise and quantisation, sidecar) but
 the plant of :mod:`.rig_plants_closed_loop` open loop with the excitation: one plant for
 the recordings and for the closed-loop evaluation, holding several effects
 (:data:`RECORDING_EFFECTS`). The sensor effects act on the recorded channels as in the
-single-effect rig (``virtual_rig._sensor_channels``). A single-effect recording stays
+single-effect rig (``rig_sampling._sensor_channels``). A single-effect recording stays
 ``run_rig``'s (its own code path, byte for byte as before); where both hold the same
 effect the two plants agree (``tests/test_rig_multi_effect.py``).
 """
@@ -18,7 +18,8 @@ from pneumatic_env.identification.config import IdentificationConfig, load_confi
 
 from .rig_excitation import UserExcitation
 from .rig_plants_closed_loop import CLOSED_LOOP_EFFECTS, SENSOR_EFFECTS, rig_plant
-from .virtual_rig import RigResult, _check_rig_arguments, _sensor_channels, rig_drive
+from .rig_sampling import _sensor_channels, rig_drive
+from .virtual_rig import RigResult, _check_rig_arguments
 
 __all__ = ["RECORDING_EFFECTS", "RECORDED_SENSOR_EFFECTS", "parse_effects", "run_rig_effects"]
 

@@ -13,7 +13,12 @@ several effects at once:
   ``heat_transfer`` composes with it, inside the line: its chambers then follow the
   energy equation with the rig's wall conductance hA_ref (rho / rho_ref)^n
   (``_WallExchange``'s), the air entering at the wall's temperature, integrated with the
-  line's RK4 steps instead of split between plant steps.
+  line's RK4 steps instead of split between plant steps;
+- ``pressure_sensor_lag`` filters the measured pressures at the plant rate
+  (:meth:`RigPlant.measured`), the true outputs stay as they are.
+
+:meth:`RigPlant.rollout` drives the plant open loop and returns every plant step's
+outputs: :mod:`.rig_multi_effect` records with it.
 """
 
 from __future__ import annotations
