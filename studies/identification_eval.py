@@ -263,7 +263,8 @@ def _run_all(function, jobs: list[dict], processes: int, ray_address: str | None
     if ray_address:
         import ray
 
-        ray.init(address=ray_address)
+        if not ray.is_initialized():  # a second call (rig_eval's second stage) reuses it
+            ray.init(address=None if ray_address == "local" else ray_address)
         remote = ray.remote(function)
         pending = [remote.remote(job) for job in jobs]
         while pending:

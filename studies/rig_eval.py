@@ -348,7 +348,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=lambda s: tuple(int(x) for x in s.split(",")), default=None)
     p.add_argument("--minutes", type=float, default=None, help="training budget per seed")
     p.add_argument("--processes", type=int, default=2)
-    p.add_argument("--ray-address", default=None, metavar="ADDR")
+    p.add_argument(
+        "--ray-address",
+        default=None,
+        metavar="ADDR",
+        help="run the stages as Ray tasks (auto, ray://host:10001, or local; needs the "
+        "'distributed' extra); default: local processes",
+    )
     p.add_argument("--quick", action="store_true", help="one rig, tiny budgets (a test)")
     args = p.parse_args(argv)
     plan = Plan.quick() if args.quick else Plan()
@@ -359,7 +365,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.minutes is not None:
         plan = dataclasses.replace(plan, minutes=args.minutes)
     args.out.mkdir(parents=True, exist_ok=True)
-    summary = run_evaluation(plan, args.out, args.processes, args.ray_address)
+    try:
+        summary = run_evaluation(plan, args.out, args.processes, args.ray_address)
+    except ModuleNotFoundError as exc:
+        if (exc.name or "").split(".")[0] != "ray":
+            raise
+        print("--ray-address needs Ray: pip install 'pneumatic_env[distributed]'", file=sys.stderr)
+        return 2
     print(_table(summary))
     return 0
 
