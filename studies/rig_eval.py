@@ -125,11 +125,12 @@ def _suite(plan: dict):
 
 
 def _closed_loop(controller: str, job: dict) -> dict:
-    """The suite on the rig's own plant: per-task RMS errors and the suite's figures."""
+    """The suite on the rig's own plant, measured through its sensors (noise, quantisation):
+    per-task RMS errors and the suite's figures."""
     from .rig_closed_loop import RigSpec, rig_suite
 
     rig = EvalRig(*job["rig"])
-    spec = RigSpec(tuple(map(tuple, rig.effects)), seed=rig.seed)
+    spec = RigSpec(tuple(map(tuple, rig.effects)), seed=rig.seed, noise=True)  # its sensors
     run = rig_suite(controller, spec, rig.variant, _suite(job["plan"]))
     run["rms_error_pct_per_task"] = [t["rms_error_pct"] for t in run.pop("tasks")]
     return run
