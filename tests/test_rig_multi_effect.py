@@ -107,3 +107,24 @@ def test_multi_effect_refusals():
         parse_effects("leakage,leakage=2")
     with pytest.raises(ValueError, match="compose"):
         run_rig_effects({"tube_waves": 1.0, "leakage": 1.0}, **SHORT)
+
+
+def test_the_closed_loop_controller_sees_the_lagged_pressures():
+    """With pressure_sensor_lag the sliding mode (which reads the chamber pressures) is fed
+    the lagged pressures: its currents change, while the first step (the plant at rest,
+    where lagged and true pressures agree) does not."""
+    import dataclasses
+
+    from pneumatic_env.agents.suite import load_suite
+    from pneumatic_env.studies.rig_closed_loop import RigSpec, rig_closed_loop
+
+    suite = load_suite()
+    task = dataclasses.replace(suite.task_named("sine_10hz"), duration_s=0.1)
+    suite = dataclasses.replace(suite, tasks=(task,))
+    runs = [
+        rig_closed_loop("sliding_mode", RigSpec(effects, seed=None), "Numatics-0.5m", suite)
+        for effects in ((), (("pressure_sensor_lag", 1.0),))
+    ]
+    plain, lagged = (r["traces"]["current_a"][:, 0] for r in runs)
+    assert plain[0] == lagged[0]
+    assert np.max(np.abs(plain - lagged)) > 1e-3
