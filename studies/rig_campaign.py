@@ -122,7 +122,7 @@ def make_campaign(
     (:func:`.rig_multi_effect.run_rig_effects`) instead of ``effect``; one effect is
     recorded as ``effect`` is (``run_rig``).
     """
-    if effects is not None and len(effects) == 1:
+    if effects is not None and len(effects) == 1:  # one effect: the single-effect rig
         ((effect, strength),) = effects.items()
         effects = None
     if isinstance(campaign, str):
@@ -225,6 +225,12 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    if args.effects and args.effect != "none":
+        print("pneumatic-env rig: give --effect or --effects, not both", file=sys.stderr)
+        return 2
+    if args.effects and len(args.effects) == 1:  # one effect: the single-effect rig
+        ((args.effect, args.strength),) = args.effects.items()
+        args.effects = None
     try:
         if args.campaign:
             paths = make_campaign(

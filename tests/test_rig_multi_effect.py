@@ -98,6 +98,8 @@ def test_rig_cli_records_a_multi_effect_campaign(tmp_path):
         assert read_recording(csv).warnings == []
         truth = json.loads(csv.with_suffix(".truth.json").read_text())
         assert truth["effects"] == {"leakage": 1.0, "coil_lag": 0.5}
+    both = ["rig", "--effect", "leakage", "--effects", "coil_lag,leakage", "--out", str(out)]
+    assert main(both) == 2
 
 
 def test_multi_effect_refusals():
