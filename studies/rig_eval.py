@@ -25,8 +25,9 @@ Local processes by default, Ray tasks with ``--ray-address`` (Ray imported only 
 ``python -m pneumatic_env.studies.rig_eval --out runs/rig-eval [--rigs NAME ...] [--seeds
 1,2,3] [--minutes M] [--processes 2] [--ray-address ADDR]``; ``--quick``: one rig, tiny
 budgets (:meth:`Plan.quick`). Measured on 2 shared cores beside an identify run:
-``--quick`` on the three-effect rig took 398 s (recording 156 s, identify --quick 199 s,
-the six baselines 34 s), too long for a test; the bookkeeping is tested on stubs.
+``--quick`` took 156 s (recording 1.4 s, identify --quick 151 s, the baselines 1.2 s; on
+the three-effect rig 398 s: recording 156 s, identify 199 s, baselines 34 s), too long
+for a test; the bookkeeping is tested on stubs.
 """
 
 from __future__ import annotations
