@@ -25,7 +25,8 @@ from typing import NamedTuple
 from pneumatic_env.recording import PISTON_MODES
 
 from .rig_excitation import EXCITATIONS, UserExcitation
-from .virtual_rig import MOVING_EFFECTS, RIG_EFFECTS, make_recording
+from .rig_multi_effect import parse_effects, run_rig_effects
+from .virtual_rig import MOVING_EFFECTS, RIG_EFFECTS, make_recording, write_rig_result
 
 __all__ = ["CAMPAIGNS", "Experiment", "make_campaign", "add_arguments", "run"]
 
@@ -111,13 +112,19 @@ def make_campaign(
     campaign: str | Sequence[Experiment] = "standard",
     prefix: str = "",
     overwrite: bool = False,
+    effects: dict[str, float] | None = None,
     **rig,
 ) -> list[Path]:
     """Record every experiment of ``campaign`` on the rig ``seed``; returns the CSV paths.
 
     ``rig`` passes further keywords to :func:`.virtual_rig.run_rig` (e.g. ``cylinder``,
-    ``tube_length_m``).
+    ``tube_length_m``). ``effects`` ({name: strength}, two or more): a multi-effect rig
+    (:func:`.rig_multi_effect.run_rig_effects`) instead of ``effect``; one effect is
+    recorded as ``effect`` is (``run_rig``).
     """
+    if effects is not None and len(effects) == 1:  # one effect: the single-effect rig
+        ((effect, strength),) = effects.items()
+        effects = None
     if isinstance(campaign, str):
         if campaign not in CAMPAIGNS:
             raise ValueError(
@@ -126,6 +133,20 @@ def make_campaign(
         campaign = CAMPAIGNS[campaign]
     paths = []
     for k, ex in enumerate(campaign, start=1):
+        if effects:
+            kept = {e: s for e, s in effects.items() if experiment_effect(e, ex.piston) != "none"}
+            result = run_rig_effects(
+                kept,
+                seed=seed,
+                experiment=k,
+                duration_s=ex.duration_s,
+                piston=ex.piston,
+                excitation_kind=ex.excitation,
+                **dict(ex.load),
+                **{key: v for key, v in rig.items() if key != "own_forms"},
+            )
+            paths.append(write_rig_result(Path(out_dir), f"{prefix}{ex.name}", result, overwrite))
+            continue
         paths.append(
             make_recording(
                 Path(out_dir),
@@ -154,6 +175,14 @@ def add_arguments(p) -> None:
         default="none",
         choices=RIG_EFFECTS,
         help="extra effect in the plant (default: none)",
+    )
+    p.add_argument(
+        "--effects",
+        type=parse_effects,
+        default=None,
+        metavar="E1,E2[=S],...",
+        help="several effects at once (a multi-effect rig, strength 1 unless NAME=S), "
+        "instead of --effect",
     )
     p.add_argument(
         "--strength",
@@ -196,10 +225,17 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    if args.effects and args.effect != "none":
+        print("pneumatic-env rig: give --effect or --effects, not both", file=sys.stderr)
+        return 2
+    if args.effects and len(args.effects) == 1:  # one effect: the single-effect rig
+        ((args.effect, args.strength),) = args.effects.items()
+        args.effects = None
     try:
         if args.campaign:
             paths = make_campaign(
                 args.out,
+                effects=args.effects,
                 effect=args.effect,
                 strength=args.strength,
                 seed=args.seed,
@@ -214,9 +250,11 @@ def run(args) -> int:
             for path in paths:
                 print(
                     f"{path}: synthetic (virtual rig) recording, campaign {args.campaign}, "
-                    f"effect {args.effect} strength {args.strength:g}, seed {args.seed}"
+                    f"{_effects_text(args)}, seed {args.seed}"
                 )
             return 0
+        if args.effects:
+            return _one_multi_effect_recording(args)
         path = make_recording(
             args.out,
             name=args.name,
@@ -239,4 +277,28 @@ def run(args) -> int:
         f"{path}: synthetic (virtual rig) recording, effect {args.effect} "
         f"strength {args.strength:g}, seed {args.seed}"
     )
+    return 0
+
+
+def _effects_text(args) -> str:
+    if args.effects:
+        return "effects " + ", ".join(f"{e} strength {s:g}" for e, s in args.effects.items())
+    return f"effect {args.effect} strength {args.strength:g}"
+
+
+def _one_multi_effect_recording(args) -> int:
+    """``pneumatic-env rig --effects ...`` without ``--campaign``: one recording."""
+    result = run_rig_effects(
+        args.effects,
+        seed=args.seed,
+        duration_s=args.duration,
+        cylinder=args.cylinder,
+        tube_length_m=args.tube_length,
+        piston=args.piston,
+        excitation_kind=args.excitation,
+        perturb=not args.no_perturb,
+    )
+    name = args.name or f"rig_{'+'.join(args.effects)}_seed{args.seed}"
+    path = write_rig_result(args.out, name, result, args.overwrite)
+    print(f"{path}: synthetic (virtual rig) recording, {_effects_text(args)}, seed {args.seed}")
     return 0

@@ -35,7 +35,7 @@ from pneumatic_env.params import load_numerics
 from pneumatic_env.physics import layout as L
 
 from .rig_plants_closed_loop import CLOSED_LOOP_EFFECTS, rig_plant
-from .virtual_rig import _perturbed
+from .rig_sampling import _perturbed
 
 __all__ = ["RigSpec", "rig_closed_loop", "rig_suite", "summary", "main"]
 
@@ -163,10 +163,10 @@ def rig_closed_loop(
     }
     obs = np.empty((n_tasks, ctrl.context.obs_dim), np.float32)
     step_count = np.zeros(n_tasks, dtype=np.int64)
-    outputs = np.array([p.outputs() for p in plants])
     ctrl.reset()
     for k in range(n_steps):
-        fill_observation(measure(outputs), references, step_count, scales, obs)
+        sensed = np.array([p.measured() for p in plants])  # through a sensor lag, if any
+        fill_observation(measure(sensed), references, step_count, scales, obs)
         action = np.asarray(ctrl.act(obs), dtype=np.float64).reshape(n_tasks)
         applied = np.minimum(np.maximum(action, -i_max), i_max)
         outputs = np.array([p.advance(a) for p, a in zip(plants, applied)])

@@ -13,7 +13,12 @@ several effects at once:
   ``heat_transfer`` composes with it, inside the line: its chambers then follow the
   energy equation with the rig's wall conductance hA_ref (rho / rho_ref)^n
   (``_WallExchange``'s), the air entering at the wall's temperature, integrated with the
-  line's RK4 steps instead of split between plant steps.
+  line's RK4 steps instead of split between plant steps;
+- ``pressure_sensor_lag`` filters the measured pressures at the plant rate
+  (:meth:`RigPlant.measured`), the true outputs stay as they are.
+
+:meth:`RigPlant.rollout` drives the plant open loop and returns every plant step's
+outputs: :mod:`.rig_multi_effect` records with it.
 """
 
 from __future__ import annotations
@@ -31,12 +36,21 @@ from .rig_plants import _coil_filter, _plant_form, _stick_slip_play, _WallExchan
 from .segmented_line import line_constants, line_rows, segmented_line_advance, segmented_line_rest
 from .virtual_rig import LINE_EFFECTS, MOVING_EFFECTS, SPLIT_EFFECTS
 
-__all__ = ["COMMAND_EFFECTS", "CLOSED_LOOP_EFFECTS", "LINE_SPLIT_EFFECTS", "rig_plant"]
+__all__ = [
+    "COMMAND_EFFECTS",
+    "CLOSED_LOOP_EFFECTS",
+    "LINE_SPLIT_EFFECTS",
+    "SENSOR_EFFECTS",
+    "RigPlant",
+    "rig_plant",
+]
 
 #: Effects that filter the command at the plant rate, in this order.
 COMMAND_EFFECTS = ("coil_lag", "spool_friction")
+#: Effects on the measured channels (a filter at the plant rate).
+SENSOR_EFFECTS = ("pressure_sensor_lag",)
 #: Every effect the closed-loop plant can hold (several at once).
-CLOSED_LOOP_EFFECTS = (*LINE_EFFECTS, *SPLIT_EFFECTS, *COMMAND_EFFECTS)
+CLOSED_LOOP_EFFECTS = (*LINE_EFFECTS, *SPLIT_EFFECTS, *COMMAND_EFFECTS, *SENSOR_EFFECTS)
 #: Split effects that compose with the segmented line (they act on its chambers' state).
 LINE_SPLIT_EFFECTS = ("heat_transfer",)
 #: Kernel parameters a split form drives (two forms may not drive the same one).
@@ -90,20 +104,25 @@ class _KernelPlant:
         self.row = self.sim.outputs[:, 0].copy()
         self.plant_step = 0
 
-    def advance(self, fine_current_a: np.ndarray) -> None:
-        """Advance one plant step per entry of ``fine_current_a`` (held over it)."""
+    def advance(self, fine_current_a: np.ndarray) -> np.ndarray:
+        """Advance one plant step per entry of ``fine_current_a`` (held over it); returns
+        the outputs at the end of each (rows)."""
         if not self.forms:
-            self.row = self.sim.rollout(fine_current_a[:, None])[-1, :, 0].copy()
+            rows = self.sim.rollout(fine_current_a[:, None])[:, :, 0]
+            self.row = rows[-1].copy()
             self.plant_step += fine_current_a.size
-            return
-        for current in fine_current_a:
+            return rows
+        rows = np.empty((fine_current_a.size, L.N_OUTPUT))
+        for k, current in enumerate(fine_current_a):
             for _ in range(self.steps_per_plant_step):
                 for form in self.forms:
                     form.before_step(self.sim, self.plant_step, self.h_s)
-                self.row = self.sim.step(np.array([current]))[:, 0].copy()
+                rows[k] = self.sim.step(np.array([current]))[:, 0]
             for form in self.forms:
-                form.correct_output(self.row)
+                form.correct_output(rows[k])
             self.plant_step += 1
+        self.row = rows[-1].copy()
+        return rows
 
     def outputs(self) -> np.ndarray:
         """The outputs (``layout.O_*``) at the end of the last plant step."""
@@ -144,34 +163,89 @@ class _LinePlant:
         self.row[[L.O_P1, L.O_P2, L.O_F, L.O_X]] = line_row
         self.row[L.O_EXHAUST] = self.y[self.exhaust_row]
 
-    def advance(self, fine_current_a: np.ndarray) -> None:
-        """Advance one plant step per entry of ``fine_current_a`` (held over it)."""
+    def advance(self, fine_current_a: np.ndarray) -> np.ndarray:
+        """Advance one plant step per entry of ``fine_current_a`` (held over it); returns
+        the outputs at the end of each (rows; the line's pressures, force and position,
+        the other columns as at the end)."""
         line = segmented_line_advance(
             self.c, self.n, self.y, fine_current_a, self.plant_dt_s, self.substeps
         )
         self._write_row(line[-1])
+        rows = np.tile(self.row, (fine_current_a.size, 1))
+        rows[:, [L.O_P1, L.O_P2, L.O_F, L.O_X]] = line[1:]  # line[0]: the start
+        return rows
 
     def outputs(self) -> np.ndarray:
         return self.row
 
 
-class RigPlant:
-    """A plant of the virtual rig that advances a control period at a time."""
+class _PressureSensorLag:
+    """``pressure_sensor_lag``: the rig's two cascaded lags of tau/2 (``_two_lags``) on the
+    measured pressures at the plant rate, a chunk at a time, from rest at the first
+    value."""
 
-    def __init__(self, core, command_filters: list, plant_steps_per_control: int):
+    def __init__(self, total_tau_s: float, dt_s: float, first_pa: np.ndarray):
+        self.a = np.exp(-dt_s / (0.5 * total_tau_s))
+        # one state per (lag, channel); at rest each lag's output is its input
+        self.state = [[self.a * float(v)] for v in first_pa for _ in range(2)]
+        self.measured = np.array(first_pa, dtype=float)
+
+    def __call__(self, pressures_pa: np.ndarray) -> np.ndarray:
+        """Lagged pressures (rows: plant steps; columns: p1, p2)."""
+        out = np.empty_like(pressures_pa)
+        for ch in range(pressures_pa.shape[1]):
+            y = pressures_pa[:, ch]
+            for stage in range(2):
+                k = 2 * ch + stage
+                y, self.state[k] = lfilter([1.0 - self.a], [1.0, -self.a], y, zi=self.state[k])
+            out[:, ch] = y
+        self.measured = out[-1].copy()
+        return out
+
+
+class RigPlant:
+    """A plant of the virtual rig that advances a control period at a time; ``truth``:
+    its parameters with the nearest kernel form of each effect (as ``run_rig``'s)."""
+
+    def __init__(
+        self,
+        core,
+        command_filters: list,
+        plant_steps_per_control: int,
+        sensor_lag: _PressureSensorLag | None = None,
+        truth: dict | None = None,
+    ):
         self.core, self.command_filters = core, command_filters
         self.plant_steps_per_control = plant_steps_per_control
+        self.sensor_lag = sensor_lag
+        self.truth = truth or {}
+
+    def rollout(self, command_a: np.ndarray) -> np.ndarray:
+        """Advance one plant step per entry of ``command_a`` (the command held over it),
+        through the command filters; returns the outputs at the end of each (rows)."""
+        fine = np.asarray(command_a, dtype=float)
+        for command_filter in self.command_filters:
+            fine = command_filter(fine)
+        rows = self.core.advance(fine)
+        if self.sensor_lag is not None:
+            self.sensor_lag(rows[:, [L.O_P1, L.O_P2]])
+        return rows
 
     def advance(self, coil_current_a: float) -> np.ndarray:
         """Hold ``coil_current_a`` over one control period; returns the outputs at its end."""
-        fine = np.full(self.plant_steps_per_control, float(coil_current_a))
-        for command_filter in self.command_filters:
-            fine = command_filter(fine)
-        self.core.advance(fine)
+        self.rollout(np.full(self.plant_steps_per_control, float(coil_current_a)))
         return self.core.outputs()
 
     def outputs(self) -> np.ndarray:
         return self.core.outputs()
+
+    def measured(self) -> np.ndarray:
+        """The outputs as the rig's sensors give them now (the pressures through the
+        sensor lag, if there is one; before noise)."""
+        row = self.core.outputs().copy()
+        if self.sensor_lag is not None:
+            row[[L.O_P1, L.O_P2]] = self.sensor_lag.measured
+        return row
 
 
 def rig_plant(
@@ -192,6 +266,34 @@ def rig_plant(
         raise ValueError(
             f"plant_dt_s = {plant_dt_s!r} must divide the control period {control_dt_s!r}"
         )
+    active = _checked_effects(effects, true)
+    reference = lambda e: cfg.number("virtual_rig", "effects", e)  # noqa: E731
+    piston = PISTON_MODE_NAMES[int(true["piston_mode"])]
+    true = dict(true)
+    line_true = dict(true)  # the line's plant: the forms switch kernel forms off in `true`
+    truth: dict = dict(true)
+    forms = [
+        _plant_form(e, s, reference(e), true, truth, cfg, piston)
+        for e, s in active.items()
+        if e in SPLIT_EFFECTS
+    ]
+    filters = _command_filters(active, true, plant_dt_s, ratio, truth, cfg)
+    if any(e in LINE_EFFECTS for e in active):
+        truth.update(tube_waves=reference("tube_waves"), tube_volume_fraction=0.0)
+        core = _LinePlant(line_true, forms[0] if forms else None, plant_dt_s, cfg)
+    else:
+        core = _KernelPlant(
+            load_parameters(cylinder, params=true), forms, plant_dt_s, plant_substeps
+        )
+    lag = None
+    if "pressure_sensor_lag" in active:
+        tau = active["pressure_sensor_lag"] * reference("pressure_sensor_lag")
+        lag = _PressureSensorLag(tau, plant_dt_s, core.outputs()[[L.O_P1, L.O_P2]])
+    return RigPlant(core, filters, ratio, lag, truth)
+
+
+def _checked_effects(effects: dict[str, float], true: dict) -> dict[str, float]:
+    """The effects of strength > 0, or a clear refusal of a set the plant cannot hold."""
     unknown = [e for e in effects if e not in CLOSED_LOOP_EFFECTS]
     if unknown:
         raise ValueError(
@@ -199,49 +301,43 @@ def rig_plant(
             f"allowed: {', '.join(CLOSED_LOOP_EFFECTS)}"
         )
     active = {e: float(s) for e, s in effects.items() if float(s) > 0.0}
-    on_line = any(e in LINE_EFFECTS for e in active)
     driven = [_DRIVEN_PARAMETER[e] for e in active if e in _DRIVEN_PARAMETER]
     if len(driven) != len(set(driven)):
         raise ValueError(f"effects {sorted(active)} drive the same kernel parameter twice")
-    if on_line:
+    if any(e in LINE_EFFECTS for e in active):
         bad = [e for e in active if e in SPLIT_EFFECTS and e not in LINE_SPLIT_EFFECTS]
         if bad:
             raise ValueError(f"effects {bad} do not compose with tube_waves (the segmented line)")
     piston = PISTON_MODE_NAMES[int(true["piston_mode"])]
     if piston == "fixed" and any(e in MOVING_EFFECTS for e in active):
         raise ValueError(f"effects {sorted(active)}: {MOVING_EFFECTS} need a moving piston")
-    true = dict(true)
-    line_true = dict(true)  # the line's plant: the forms switch kernel forms off in `true`
-    truth: dict = {}
-    forms = [
-        _plant_form(e, s, cfg.number("virtual_rig", "effects", e), true, truth, cfg, piston)
-        for e, s in active.items()
-        if e in SPLIT_EFFECTS
-    ]
+    return active
+
+
+def _command_filters(
+    active: dict[str, float],
+    true: dict,
+    plant_dt_s: float,
+    plant_steps_per_control: int,
+    truth: dict,
+    cfg: IdentificationConfig,
+) -> list:
+    """The command effects' filters in :data:`COMMAND_EFFECTS` order; their nearest
+    kernel forms go into ``truth`` (as ``virtual_rig._coil_drive``)."""
+    rig = lambda *path, **kw: cfg.number("virtual_rig", *path, **kw)  # noqa: E731
     filters: list = []
     if "coil_lag" in active:
-        period = cfg.number("virtual_rig", "coil_amplifier_period_s", positive=True)
-        coil = _CoilLag(
-            active["coil_lag"] * cfg.number("virtual_rig", "effects", "coil_lag"),
-            plant_dt_s,
-            period,
-            cfg.number("virtual_rig", "coil_force_lag_share", minimum=0.0),
-        )
-        if ratio % coil.hold:
+        tau = active["coil_lag"] * rig("effects", "coil_lag")
+        share = rig("coil_force_lag_share", minimum=0.0)
+        coil = _CoilLag(tau, plant_dt_s, rig("coil_amplifier_period_s", positive=True), share)
+        if plant_steps_per_control % coil.hold:
             raise ValueError("coil_lag: a control period must hold whole amplifier periods")
+        truth.update(coil_time_constant_s=tau, coil_lag_shape=share * (1.0 - share))
         filters.append(coil)
     if "spool_friction" in active:
-        band = (
-            active["spool_friction"]
-            * cfg.number("virtual_rig", "effects", "spool_friction")
-            / true["coil_force_n_per_a"]
-        )
-        breakaway = cfg.number("virtual_rig", "spool_breakaway_ratio", minimum=1.0)
+        coulomb_n = active["spool_friction"] * rig("effects", "spool_friction")
+        truth["spool_coulomb_friction_n"] = coulomb_n
+        band = coulomb_n / true["coil_force_n_per_a"]
+        breakaway = rig("spool_breakaway_ratio", minimum=1.0)
         filters.append(_SpoolFriction(band, breakaway * band))
-    if on_line:
-        core = _LinePlant(line_true, forms[0] if forms else None, plant_dt_s, cfg)
-    else:
-        core = _KernelPlant(
-            load_parameters(cylinder, params=true), forms, plant_dt_s, plant_substeps
-        )
-    return RigPlant(core, filters, ratio)
+    return filters

@@ -4,7 +4,8 @@
 ``DIR/NAME.csv`` + ``.json`` (:func:`pneumatic_env.recording.write_recording`) and
 ``DIR/NAME.truth.json`` (what the plant really was, for evaluation only; the diagnosis
 never reads it, nor the sidecar's notes). The sidecar's notes say "synthetic (virtual
-rig)".
+rig)". Several effects at once: :mod:`.rig_multi_effect` (``--effects``); the rig's draw,
+sample grid and sensors: :mod:`.rig_sampling`.
 
 How the plant differs from the fitting model:
 
@@ -73,19 +74,19 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 
 from pneumatic_env.identification.config import IdentificationConfig, load_config
 from pneumatic_env.params import load_parameters, parameter_array
 from pneumatic_env.physics import layout as L
-from pneumatic_env.recording import PISTON_MODES, canonical_cylinder, write_recording
+from pneumatic_env.recording import PISTON_MODES, write_recording
 from pneumatic_env.simulator import BatchSimulator
 
 from .rig_excitation import UserExcitation, excitation
 from .rig_forms import OWN_FORM_EFFECTS, own_form
-from .rig_plants import _coil_plant, _plant_form, _stick_slip_play, _two_lags
+from .rig_plants import _coil_plant, _plant_form, _stick_slip_play
+from .rig_sampling import _SampleGrid, _sensor_channels, rig_drive
 from .segmented_line import line_constants, segmented_line_rollout
 
 __all__ = [
@@ -98,6 +99,7 @@ __all__ = [
     "excitation",
     "make_recording",
     "run_rig",
+    "write_rig_result",
 ]
 
 #: Rig effects realised by a kernel parameter (same form as the candidate): name ->
@@ -159,18 +161,6 @@ class RigResult:
     truth: dict = field(default_factory=dict)
 
 
-def _perturbed(
-    cylinder: str, base: dict, rng: np.random.Generator, cfg: IdentificationConfig
-) -> dict:
-    """``base`` with each parameter under ``virtual_rig.perturbation`` multiplied by
-    ``exp(sigma z)``, z standard normal; validated by the loader."""
-    out = dict(base)
-    for name in cfg.raw["virtual_rig"]["perturbation"]:
-        sigma = cfg.number("virtual_rig", "perturbation", name, minimum=0.0)
-        out[name] = base[name] * math.exp(sigma * rng.standard_normal())
-    return load_parameters(cylinder, params=out)
-
-
 def run_rig(
     effect: str = "none",
     strength: float = 1.0,
@@ -207,23 +197,21 @@ def run_rig(
     """
     cfg = config or load_config()
     _check_rig_arguments(effect, strength, piston)
-    rng = np.random.default_rng(seed)
-    grid = _sample_grid(cfg, duration_s)
-    cylinder = canonical_cylinder(cylinder)
-    piston_rig, nominal = _nominal_rig(
+    drive = rig_drive(
+        seed,
+        duration_s,
         cylinder,
         tube_length_m,
         piston,
+        excitation_kind,
+        perturb,
+        experiment,
         spring_rest_position_m,
         cfg,
         spring_stiffness_n_per_m,
         load_mass_kg,
     )
-    true = _perturbed(cylinder, nominal, rng, cfg) if perturb else dict(nominal)
-    if experiment is not None:
-        rng = np.random.default_rng([int(seed), int(experiment)])
-
-    i_c = excitation(excitation_kind, grid.n, grid.dt_s, rng, cfg)
+    cylinder, true, rng, grid, i_c = drive.cylinder, drive.true, drive.rng, drive.grid, drive.i_c
     ref = float(cfg.number("virtual_rig", "effects", effect)) if effect != "none" else 0.0
     s = float(strength)
     own = own_forms and effect in OWN_FORM_EFFECTS and s > 0.0
@@ -233,16 +221,8 @@ def run_rig(
     rows, plant = _plant_rows(
         effect, s, ref, fine, grid, true, truth_parameters, own, own_truth, cylinder, piston, cfg
     )
-    t, channels = _sensor_channels(effect, s, ref, rows, i_c, grid, piston, rng, cfg)
-    rig = {
-        "cylinder": cylinder,
-        "tube_length_m": float(tube_length_m),
-        "supply_pressure_pa": float(nominal["supply_pressure_pa"]),
-        "ambient_pressure_pa": float(nominal["ambient_pressure_pa"]),
-        "temperature_k": float(nominal["temperature_k"]),
-        "piston": piston_rig,
-        "notes": "synthetic (virtual rig) recording made by pneumatic_env.studies.virtual_rig",
-    }
+    t, channels = _sensor_channels({effect: s * ref}, rows, i_c, grid, piston, rng, cfg)
+    rig = drive.sidecar
     truth = {
         "effect": effect,
         "strength": s,
@@ -285,62 +265,6 @@ def _check_rig_arguments(effect: str, strength: float, piston: str) -> None:
             f"effect {effect!r} needs the kernel parameter "
             f"{KERNEL_EFFECTS[effect][0]!r}, which this kernel does not have"
         )
-
-
-class _SampleGrid(NamedTuple):
-    """The recording's sample period, the plant's step and the number of samples."""
-
-    dt_s: float  # sample period
-    plant_dt_s: float  # the plant's step
-    plant_steps_per_sample: int
-    n: int  # samples, the first at t = 0
-    duration_s: float
-
-
-def _sample_grid(cfg: IdentificationConfig, duration_s: float | None) -> _SampleGrid:
-    dt = cfg.number("virtual_rig", "sample_dt_s", positive=True)
-    plant_dt = cfg.number("virtual_rig", "plant_dt_s", positive=True)
-    ratio = int(round(dt / plant_dt))
-    if ratio < 1 or abs(ratio * plant_dt - dt) > 1e-9 * dt:
-        raise ValueError("virtual_rig.sample_dt_s must be a whole multiple of plant_dt_s")
-    duration = float(
-        duration_s if duration_s is not None else cfg.number("virtual_rig", "duration_s")
-    )
-    return _SampleGrid(dt, plant_dt, ratio, int(round(duration / dt)) + 1, duration)
-
-
-def _nominal_rig(
-    cylinder: str,
-    tube_length_m: float,
-    piston: str,
-    spring_rest_position_m: float,
-    cfg: IdentificationConfig,
-    spring_stiffness_n_per_m: float | None = None,
-    load_mass_kg: float | None = None,
-) -> tuple[dict, dict]:
-    """(the sidecar's piston entry, the nominal parameters) of the rig's piston mode, with
-    the experiment's own spring and load where given."""
-    piston_rig: dict = {"mode": piston}
-    overrides: dict = {"tube_length_m": tube_length_m, "piston_mode": PISTON_MODES[piston][0]}
-    if piston == "fixed":
-        piston_rig["position_m"] = 0.0
-        overrides["fixed_position_m"] = 0.0
-    elif piston == "free":
-        piston_rig.update(load_mass_kg=0.0, load_force_n=0.0)
-        overrides.update(load_mass_kg=0.0, load_force_n=0.0)
-    else:
-        k_env = cfg.number("virtual_rig", "spring_stiffness_n_per_m", positive=True)
-        if spring_stiffness_n_per_m is not None:  # the experiment's own spring
-            k_env = float(spring_stiffness_n_per_m)
-        m_env = cfg.number("virtual_rig", "spring_load_mass_kg", minimum=0.0)
-        rest = float(spring_rest_position_m)
-        piston_rig.update(stiffness_n_per_m=k_env, rest_position_m=rest, load_mass_kg=m_env)
-        overrides.update(
-            spring_stiffness_n_per_m=k_env, spring_rest_position_m=rest, load_mass_kg=m_env
-        )
-    if load_mass_kg is not None and piston != "fixed":  # the experiment's own load
-        piston_rig["load_mass_kg"] = overrides["load_mass_kg"] = float(load_mass_kg)
-    return piston_rig, load_parameters(cylinder, **overrides)
 
 
 def _effect_parameters(
@@ -488,50 +412,19 @@ def _plant_rows(
     return np.vstack([first[None, :], rows]), plant  # rows[j] = state at j * plant_dt
 
 
-def _sensor_channels(
-    effect: str,
-    s: float,
-    ref: float,
-    rows: np.ndarray,
-    i_c: np.ndarray,
-    grid: _SampleGrid,
-    piston: str,
-    rng: np.random.Generator,
-    cfg: IdentificationConfig,
-) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """(sample times, the recorded channels): the plant's outputs sampled, through the
-    sensor effects, with noise and quantisation."""
-    n, dt, plant_dt = grid.n, grid.dt_s, grid.plant_dt_s
-    names = {"p1": L.O_P1, "p2": L.O_P2, "f": L.O_F, "x": L.O_X}
-    measured = ("p1", "p2", "f") if piston == "fixed" else ("p1", "p2", "x")
-    t = dt * np.arange(n)
-    channels = {"i_c": i_c}
-    skew_steps = int(round(s * ref / plant_dt)) if effect == "channel_time_skew" else 0
-    for ch in measured:
-        y = rows[:, names[ch]].copy()
-        if effect == "pressure_sensor_lag" and ch in ("p1", "p2"):
-            y = _two_lags(y, s * ref, plant_dt)
-        idx = np.arange(n) * grid.plant_steps_per_sample - skew_steps
-        y = y[np.clip(idx, 0, None)]
-        if effect == "pressure_sensor_offset" and ch in ("p1", "p2"):
-            y = y + s * ref * (1.0 if ch == "p1" else -2.0 / 3.0) * (1.0 + 0.1 * t / t[-1])
-        sigma = cfg.number("virtual_rig", "noise", ch, minimum=0.0)
-        q = cfg.number("virtual_rig", "quantisation", ch, minimum=0.0)
-        y = y + sigma * rng.standard_normal(n)
-        if q > 0:
-            y = q * np.round(y / q)
-        channels[ch] = y
-    return t, channels
-
-
 def make_recording(out_dir, name: str | None = None, overwrite: bool = False, **kwargs) -> Path:
     """Run the rig and write ``out_dir/NAME.csv``, ``.json`` and ``NAME.truth.json``."""
     result = run_rig(**kwargs)
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     if name is None:
         tr = result.truth
         name = f"rig_{tr['effect']}_s{tr['strength']:g}_seed{tr['seed']}"
+    return write_rig_result(out_dir, name, result, overwrite)
+
+
+def write_rig_result(out_dir, name: str, result: RigResult, overwrite: bool = False) -> Path:
+    """Write ``out_dir/NAME.csv``, ``.json`` (the recording) and ``NAME.truth.json``."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
     path = write_recording(
         out_dir / name, result.t, result.channels, result.rig, overwrite=overwrite
     )

@@ -1,0 +1,386 @@
+"""Issue 35's evaluation: from a virtual rig's campaign to a controller trained for it,
+judged in closed loop on the rig's own plant.
+
+For each evaluation rig (:data:`EVAL_RIGS`: single effects and combinations of two or
+three, base parameters drawn off nominal by the rig's seed):
+
+1. record a ``user13`` campaign (:func:`.rig_campaign.make_campaign`; several effects at
+   once through :mod:`.rig_multi_effect`);
+2. ``pneumatic-env identify CAMPAIGN/*.csv --report REPORT``;
+3. the baselines in closed loop on the rig's own plant (:func:`.rig_closed_loop.rig_suite`
+   with the recording's effects, strengths and seed): PID and the sliding mode at nominal
+   tuning, the shipped nominal-trained learned controllers;
+4. per training seed: ``pneumatic-env train --rig REPORT --out OUT --seed S [--minutes M]``
+   (``agents/rig_training.py``; skipped, saying so, where this checkout lacks it), then
+   ``OUT/controller.npz`` in the same closed loop.
+
+The summary per rig: the trained controllers' IQM of the suite's mean RMS error over the
+seeds with its 95 % bootstrap interval (``agents.stats.iqm_estimate``), and its ratio to
+the best classical controller; over rigs the median and the worst ratio.
+
+Every rig's stages 1-3 and every (rig, seed) result is written to its own JSON as it
+finishes (``OUT/RIG/rig.json``, ``OUT/RIG/seed_S.json``); a rerun skips the finished ones.
+Local processes by default, Ray tasks with ``--ray-address`` (Ray imported only then).
+
+``python -m pneumatic_env.studies.rig_eval --out runs/rig-eval [--rigs NAME ...] [--seeds
+1,2,3] [--minutes M] [--processes 2] [--ray-address ADDR]``; ``--quick``: one rig, tiny
+budgets (:meth:`Plan.quick`). Measured on 2 shared cores beside an identify run:
+``--quick`` took 156 s (recording 1.4 s, identify --quick 151 s, the baselines 1.2 s; on
+the three-effect rig 398 s: recording 156 s, identify 199 s, baselines 34 s), too long
+for a test; the bookkeeping is tested on stubs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib.util
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = [
+    "CLASSICAL",
+    "EVAL_RIGS",
+    "LEARNED_BASELINES",
+    "EvalRig",
+    "Plan",
+    "prepare_rig",
+    "run_evaluation",
+    "summarise",
+    "train_and_evaluate",
+    "main",
+]
+
+#: Classical controllers at nominal tuning, and the shipped nominal-trained learned ones.
+CLASSICAL = ("pid", "sliding_mode")
+LEARNED_BASELINES = ("ppo_residual", "ppo_pure", "ppo_generalist", "ppo_residual_dr")
+
+
+class EvalRig(NamedTuple):
+    """An evaluation rig: name, effects ((name, strength), 1 = ``virtual_rig.effects``),
+    the tube (a variant's tube key: the shipped policies exist for 0.5 and 2 m) and the
+    seed of its base parameters' draw (off nominal)."""
+
+    name: str
+    effects: tuple[tuple[str, float], ...]
+    tube: str
+    seed: int
+
+    @property
+    def variant(self) -> str:
+        return f"Numatics-{self.tube}m"
+
+
+def _rig(name: str, effects: str, tube: str, seed: int) -> EvalRig:
+    return EvalRig(name, tuple((e, 1.0) for e in effects.split("+")), tube, seed)
+
+
+#: The evaluation rigs (issue 35: at least 8; single effects and combinations).
+EVAL_RIGS = (
+    _rig("tube_heat_spool", "tube_waves+heat_transfer+spool_friction", "2", 11),
+    _rig("leak_coil", "leakage+coil_lag", "0.5", 12),
+    _rig("supply_sensor", "supply_droop+pressure_sensor_lag", "0.5", 13),
+    _rig("heat_spool", "heat_transfer+spool_friction", "2", 14),
+    _rig("tube", "tube_waves", "2", 15),
+    _rig("heat", "heat_transfer", "2", 16),
+    _rig("spool", "spool_friction", "0.5", 17),
+    _rig("coil", "coil_lag", "0.5", 18),
+    _rig("leak", "leakage", "2", 19),
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """What to run: rigs, training seeds, training minutes (None: the trainer's default),
+    identify's ``--quick``, and the suite's tasks cut to ``task_duration_s`` / the first
+    ``n_tasks`` (None: the whole suite)."""
+
+    rigs: tuple[EvalRig, ...] = EVAL_RIGS
+    seeds: tuple[int, ...] = (1, 2, 3)
+    minutes: float | None = None
+    identify_quick: bool = False
+    n_tasks: int | None = None
+    task_duration_s: float | None = None
+
+    @classmethod
+    def quick(cls) -> Plan:
+        """One rig whose plant is the kernel's own rollout (the cheapest to record), 2
+        seeds of 0.2 min, identify ``--quick``, 2 tasks of 0.3 s."""
+        return cls(tuple(r for r in EVAL_RIGS if r.name == "spool"), (1, 2), 0.2, True, 2, 0.3)
+
+
+# --------------------------------------------------------------------------- stages
+
+
+def _suite(plan: dict):
+    from pneumatic_env.agents.suite import load_suite
+
+    suite = load_suite()
+    tasks = suite.tasks[: plan["n_tasks"]] if plan["n_tasks"] else suite.tasks
+    if plan["task_duration_s"]:
+        tasks = tuple(dataclasses.replace(t, duration_s=plan["task_duration_s"]) for t in tasks)
+    return dataclasses.replace(suite, tasks=tuple(tasks))
+
+
+def _closed_loop(controller: str, job: dict) -> dict:
+    """The suite on the rig's own plant, measured through its sensors (noise, quantisation):
+    per-task RMS errors and the suite's figures."""
+    from .rig_closed_loop import RigSpec, rig_suite
+
+    rig = EvalRig(*job["rig"])
+    spec = RigSpec(tuple(map(tuple, rig.effects)), seed=rig.seed, noise=True)  # its sensors
+    run = rig_suite(controller, spec, rig.variant, _suite(job["plan"]))
+    run["rms_error_pct_per_task"] = [t["rms_error_pct"] for t in run.pop("tasks")]
+    return run
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    """``pneumatic-env ARGS`` in a process of its own (it may start processes itself)."""
+    command = [sys.executable, "-m", "pneumatic_env.cli", *args]
+    return subprocess.run(command, capture_output=True, text=True, check=False)
+
+
+def prepare_rig(job: dict) -> dict:
+    """Stages 1-3 of one rig: record, identify, the baselines in closed loop."""
+    from .rig_campaign import make_campaign
+
+    rig = EvalRig(*job["rig"])
+    out = Path(job["dir"])
+    t0 = time.time()
+    paths = make_campaign(
+        out / "campaign",
+        effects=dict(rig.effects),
+        seed=rig.seed,
+        campaign="user13",
+        overwrite=True,
+        tube_length_m=float(rig.tube),
+    )
+    t1 = time.time()
+    report = out / "report"
+    quick = ["--quick"] if job["plan"]["identify_quick"] else []
+    done = _cli("identify", *map(str, paths), "--report", str(report), *quick)
+    t2 = time.time()
+    baselines: dict = {}
+    for name in (*CLASSICAL, *LEARNED_BASELINES):
+        try:
+            baselines[name] = _closed_loop(name, job)
+        except (FileNotFoundError, ValueError, KeyError) as exc:  # no shipped policy here
+            baselines[name] = {"skipped": f"{type(exc).__name__}: {exc}"}
+    return {
+        "rig": rig.name,
+        "report": str(report),
+        "identify_returncode": done.returncode,
+        "identify_tail": done.stdout[-2000:] + done.stderr[-2000:],
+        "baselines": baselines,
+        "seconds": {"record": t1 - t0, "identify": t2 - t1, "baselines": time.time() - t2},
+    }
+
+
+def train_command_available() -> bool:
+    """Whether this checkout has ``pneumatic-env train --rig`` (agents/rig_training.py)."""
+    return importlib.util.find_spec("pneumatic_env.agents.rig_training") is not None
+
+
+def train_and_evaluate(job: dict) -> dict:
+    """Stage 4 of one (rig, seed): ``train --rig``, then its controller on the rig's plant."""
+    rig, seed = EvalRig(*job["rig"]), job["seed"]
+    if not train_command_available():
+        return {
+            "rig": rig.name,
+            "seed": seed,
+            "skipped": "pneumatic-env train --rig is not in this checkout "
+            "(agents/rig_training.py); the training stage was skipped",
+        }
+    out = Path(job["dir"]) / f"train_seed{seed}"
+    minutes = job["plan"]["minutes"]
+    budget = [] if minutes is None else ["--minutes", f"{minutes:g}"]
+    t0 = time.time()
+    report = str(Path(job["dir"]) / "report")
+    done = _cli("train", "--rig", report, "--out", str(out), "--seed", str(seed), *budget)
+    controller = out / "controller.npz"
+    if done.returncode != 0 or not controller.is_file():
+        return {
+            "rig": rig.name,
+            "seed": seed,
+            "failed": f"train --rig exited {done.returncode}: {done.stderr[-2000:]}",
+        }
+    t1 = time.time()
+    return {
+        "rig": rig.name,
+        "seed": seed,
+        "controller": str(controller),
+        **_closed_loop(str(controller), job),
+        "seconds": {"train": t1 - t0, "closed_loop": time.time() - t1},
+    }
+
+
+# --------------------------------------------------------------------------- bookkeeping
+
+
+def _checkpointed(task: tuple[Callable[[dict], dict], dict]) -> dict:
+    """``function(job)``, read back from ``job["result"]`` if a run of the same job wrote
+    it, else run and written there as it finishes."""
+    function, job = task
+    path = Path(job["result"])
+    key = {k: v for k, v in job.items() if k != "result"}
+    if path.is_file():
+        saved = json.loads(path.read_text(encoding="utf-8"))
+        if saved.get("job") == json.loads(json.dumps(key)):
+            return saved["result"]
+    result = function(job)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps({"job": key, "result": result}, indent=1) + "\n", encoding="utf-8")
+    tmp.replace(path)  # a result file is whole or absent
+    return result
+
+
+def _run(tasks: list, processes: int, ray_address: str | None):
+    """Checkpointed results of ``tasks`` as they finish: inline with one process, else
+    local processes or Ray tasks (``identification_eval``'s runner)."""
+    if processes <= 1 and not ray_address:
+        yield from map(_checkpointed, tasks)
+        return
+    from .identification_eval import _run_all
+
+    yield from _run_all(_checkpointed, tasks, processes, ray_address)
+
+
+def run_evaluation(
+    plan: Plan,
+    out: Path,
+    processes: int = 2,
+    ray_address: str | None = None,
+    prepare: Callable[[dict], dict] = prepare_rig,
+    train: Callable[[dict], dict] = train_and_evaluate,
+    log: Callable[[str], None] = print,
+) -> dict:
+    """Every rig's stages, then every (rig, seed); returns :func:`summarise`'s summary
+    (also written to ``out/summary.json``)."""
+    plan_dict = {k: v for k, v in dataclasses.asdict(plan).items() if k not in ("rigs", "seeds")}
+    common = {"plan": plan_dict}
+    rig_jobs = [
+        {"rig": list(r), "dir": str(out / r.name), "result": str(out / r.name / "rig.json")}
+        for r in plan.rigs
+    ]
+    rigs = {}
+    for result in _run([(prepare, {**j, **common}) for j in rig_jobs], processes, ray_address):
+        rigs[result["rig"]] = result
+        log(f"rig {result['rig']}: recorded, identified, baselines run")
+    seed_jobs = [
+        {**j, **common, "seed": s, "result": str(Path(j["dir"]) / f"seed_{s}.json")}
+        for j in rig_jobs
+        for s in plan.seeds
+    ]
+    trained: dict[str, list] = {r.name: [] for r in plan.rigs}
+    for result in _run([(train, j) for j in seed_jobs], processes, ray_address):
+        trained[result["rig"]].append(result)
+        state = result.get("skipped") or result.get("failed") or "trained and run"
+        log(f"rig {result['rig']} seed {result['seed']}: {state}")
+    summary = summarise(rigs, trained)
+    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+    return summary
+
+
+def summarise(rigs: dict[str, dict], trained: dict[str, list[dict]]) -> dict:
+    """Per rig: the baselines' suite RMS, the trained controllers' IQM over seeds with its
+    bootstrap interval, the ratio to the best classical; over rigs: median and worst."""
+    from pneumatic_env.agents.stats import iqm_estimate
+
+    per_rig = {}
+    for name, prepared in rigs.items():
+        base = {
+            k: v["rms_error_pct"] for k, v in prepared["baselines"].items() if "skipped" not in v
+        }
+        best = min((base[c], c) for c in CLASSICAL if c in base)
+        runs = [r for r in trained.get(name, []) if "rms_error_pct" in r]
+        entry: dict = {"baselines_rms_pct": base, "best_classical": best[1], "n_seeds": len(runs)}
+        if runs:
+            scores = np.array([[r["rms_error_pct"]] for r in sorted(runs, key=lambda r: r["seed"])])
+            estimate = iqm_estimate(scores)
+            entry["trained_iqm_rms_pct"] = estimate.as_dict()
+            entry["ratio_to_best_classical"] = {
+                k: estimate.as_dict()[k] / best[0] for k in ("value", "low", "high")
+            }
+        per_rig[name] = entry
+    ratios = [e["ratio_to_best_classical"]["value"] for e in per_rig.values() if e["n_seeds"]]
+    skipped = sorted({r["skipped"] for runs in trained.values() for r in runs if "skipped" in r})
+    return {
+        "rigs": per_rig,
+        "ratio_median": float(np.median(ratios)) if ratios else None,
+        "ratio_worst": float(max(ratios)) if ratios else None,
+        "n_rigs_trained": len(ratios),
+        "skipped": skipped,
+    }
+
+
+def _table(summary: dict) -> str:
+    lines = [
+        "| rig | PID | sliding mode | trained, IQM [95 % CI] | ratio to best classical |",
+        "|---|---|---|---|---|",
+    ]
+    for name, e in summary["rigs"].items():
+        base = e["baselines_rms_pct"]
+        t = e.get("trained_iqm_rms_pct")
+        r = e.get("ratio_to_best_classical")
+        lines.append(
+            f"| {name} | {base.get('pid', float('nan')):.2f} | "
+            f"{base.get('sliding_mode', float('nan')):.2f} | "
+            + (f"{t['value']:.2f} [{t['low']:.2f}, {t['high']:.2f}]" if t else "-")
+            + " | "
+            + (f"{r['value']:.2f} [{r['low']:.2f}, {r['high']:.2f}]" if r else "-")
+            + " |"
+        )
+    if summary["ratio_median"] is not None:
+        lines.append(
+            f"\nratio over rigs: median {summary['ratio_median']:.2f}, "
+            f"worst {summary['ratio_worst']:.2f}"
+        )
+    lines += [f"\n{s}" for s in summary["skipped"]]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m pneumatic_env.studies.rig_eval")
+    p.add_argument("--out", type=Path, default=Path("runs/rig-eval"))
+    p.add_argument("--rigs", nargs="+", default=None, choices=[r.name for r in EVAL_RIGS])
+    p.add_argument("--seeds", type=lambda s: tuple(int(x) for x in s.split(",")), default=None)
+    p.add_argument("--minutes", type=float, default=None, help="training budget per seed")
+    p.add_argument("--processes", type=int, default=2)
+    p.add_argument(
+        "--ray-address",
+        default=None,
+        metavar="ADDR",
+        help="run the stages as Ray tasks (auto, ray://host:10001, or local; needs the "
+        "'distributed' extra); default: local processes",
+    )
+    p.add_argument("--quick", action="store_true", help="one rig, tiny budgets (a test)")
+    args = p.parse_args(argv)
+    plan = Plan.quick() if args.quick else Plan()
+    if args.rigs:
+        plan = dataclasses.replace(plan, rigs=tuple(r for r in EVAL_RIGS if r.name in args.rigs))
+    if args.seeds:
+        plan = dataclasses.replace(plan, seeds=args.seeds)
+    if args.minutes is not None:
+        plan = dataclasses.replace(plan, minutes=args.minutes)
+    args.out.mkdir(parents=True, exist_ok=True)
+    try:
+        summary = run_evaluation(plan, args.out, args.processes, args.ray_address)
+    except ModuleNotFoundError as exc:
+        if (exc.name or "").split(".")[0] != "ray":
+            raise
+        print("--ray-address needs Ray: pip install 'pneumatic_env[distributed]'", file=sys.stderr)
+        return 2
+    print(_table(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,58 @@
+"""The identification evaluation on multi-effect rigs (studies/identification_eval.py):
+its jobs and its scoring, on stub results (no diagnosis is run)."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from pneumatic_env.studies.identification_eval import (
+    _rig_jobs,
+    multi_effect_markdown,
+    summarise_multi_effect,
+)
+
+
+def _args(**kw):
+    base = dict(campaign="user13", seeds=[1, 2], rigs=None, tube_length=0.5, jobs=2, out=".")
+    return argparse.Namespace(**{**base, **kw})
+
+
+def test_multi_effect_rigs_become_one_job_per_rig_and_seed():
+    args = _args(rigs=["tube_waves+heat_transfer+spool_friction@2", "leakage+coil_lag=0.5"])
+    jobs = _rig_jobs(args, ["leakage"], local=True)
+    assert len(jobs) == 4
+    first, last = jobs[0], jobs[-1]
+    assert first["effects"] == {"tube_waves": 1.0, "heat_transfer": 1.0, "spool_friction": 1.0}
+    assert first["rig"] == {"tube_length_m": 2.0} and first["label"] == first["effect"]
+    assert last["effects"] == {"leakage": 1.0, "coil_lag": 0.5} and last["seed"] == 2
+    assert last["rig"] == {"tube_length_m": 0.5}
+    with pytest.raises(ValueError, match="not allowed"):
+        _rig_jobs(_args(rigs=["leakage+nonsense"]), [], local=True)
+
+
+def test_multi_effect_scoring_counts_recall_and_false_effects():
+    def result(effects, selected, seconds):
+        return {
+            "label": "+".join(effects),
+            "seed": 1,
+            "effects": dict.fromkeys(effects, 1.0),
+            "selected": selected,
+            "seconds": seconds,
+        }
+
+    results = [
+        result(["leakage", "coil_lag"], ["coil_lag", "leakage"], 100.0),  # all found
+        result(["tube_waves", "heat_transfer", "spool_friction"], ["tube_waves"], 300.0),
+        result(["supply_droop", "pressure_sensor_lag"], ["supply_droop", "stribeck"], 200.0),
+        result(["leakage", "supply_ripple"], ["leakage"], 50.0),  # ripple: outside the catalog
+    ]
+    summary = summarise_multi_effect(results)
+    assert summary["all_found"] == 2
+    assert summary["no_false_effect"] == 3
+    assert summary["recall_mean"] == pytest.approx((1 + 1 / 3 + 1 / 2 + 1) / 4)
+    assert summary["rigs"][2]["false_effects"] == ["stribeck"]
+    assert (summary["seconds_median"], summary["seconds_max"]) == (200.0, 300.0)
+    block = multi_effect_markdown(summary, _args(rigs=["leakage+coil_lag"]))
+    assert "Every effect found: 2 of 4" in block and "| stribeck |" in block
