@@ -11,7 +11,7 @@ three, base parameters drawn off nominal by the rig's seed):
    with the recording's effects, strengths and seed): PID and the sliding mode at nominal
    tuning, the shipped nominal-trained learned controllers;
 4. per training seed: ``pneumatic-env train --rig REPORT --out OUT --seed S [--minutes M]``
-   (``agents/rig_training.py``; skipped, saying so, where this checkout lacks it), then
+   (``agents/rig_training.py``), then
    ``OUT/controller.npz`` in the same closed loop.
 
 The summary per rig: the trained controllers' IQM of the suite's mean RMS error over the
@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import importlib.util
 import json
 import subprocess
 import sys
@@ -183,21 +182,9 @@ def prepare_rig(job: dict) -> dict:
     }
 
 
-def train_command_available() -> bool:
-    """Whether this checkout has ``pneumatic-env train --rig`` (agents/rig_training.py)."""
-    return importlib.util.find_spec("pneumatic_env.agents.rig_training") is not None
-
-
 def train_and_evaluate(job: dict) -> dict:
     """Stage 4 of one (rig, seed): ``train --rig``, then its controller on the rig's plant."""
     rig, seed = EvalRig(*job["rig"]), job["seed"]
-    if not train_command_available():
-        return {
-            "rig": rig.name,
-            "seed": seed,
-            "skipped": "pneumatic-env train --rig is not in this checkout "
-            "(agents/rig_training.py); the training stage was skipped",
-        }
     out = Path(job["dir"]) / f"train_seed{seed}"
     minutes = job["plan"]["minutes"]
     budget = [] if minutes is None else ["--minutes", f"{minutes:g}"]
