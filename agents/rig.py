@@ -27,6 +27,7 @@ from pathlib import Path
 
 from pneumatic_env import ids
 from pneumatic_env import params as P
+from pneumatic_env.identification.candidates import candidate_table
 from pneumatic_env.recording_format import canonical_cylinder
 
 from .suite import load_suite
@@ -158,9 +159,12 @@ def _interval(rig: FittedRig, name: str, low: float, high: float, value: float):
 def _unruled_effects(diagnosis: dict) -> dict[str, tuple[float, float]]:
     """Parameter -> (neutral, strength) of each plant effect not selected whose held-out
     improvement (refitted, else the screening's prediction) reaches the report's
-    ``min_predicted_improvement``."""
+    ``min_predicted_improvement``. The neutral value (the effect off) is the candidate
+    catalog's (an exhaust discharge ratio of 1, a leak area of 0); a parameter with no
+    finite one (a switch, a rigid limit) is not ranged."""
     floor = float(diagnosis["thresholds"]["min_predicted_improvement"])
-    out = {}
+    catalog = candidate_table()
+    out: dict[str, tuple[float, float]] = {}
     for c in diagnosis["candidates"]:
         if c["name"] in diagnosis["selected"] or c["kind"] != "plant":
             continue
@@ -172,13 +176,21 @@ def _unruled_effects(diagnosis: dict) -> dict[str, tuple[float, float]]:
         )
         if gain is None or gain < floor:
             continue
+        if c["name"] not in catalog:
+            raise ValueError(
+                f"report candidate {c['name']!r} is not in the candidate catalog "
+                f"(configs/identification.yaml); known: {', '.join(sorted(catalog))}"
+            )
+        neutral = {p.name: p.neutral for p in catalog[c["name"]].parameters}
         if c["refitted"]:
-            values = {k: (p.get("neutral", 0.0), p["value"]) for k, p in c["parameters"].items()}
+            values = {k: p["value"] for k, p in c["parameters"].items()}
         else:
-            values = {k: (0.0, v) for k, v in screen.get("step_values", {}).items()}
-        for name, (neutral, strength) in values.items():
-            if name in P.PARAMETER_NAMES and name not in out:
-                out[name] = (float(neutral), float(strength))
+            values = dict(screen.get("step_values", {}))
+        for name, strength in values.items():
+            off = neutral.get(name)
+            if off is None or not math.isfinite(off) or name not in P.PARAMETER_NAMES:
+                continue
+            out.setdefault(name, (float(off), float(strength)))
     return out
 
 

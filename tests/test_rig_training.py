@@ -88,7 +88,9 @@ def write_report(root: Path) -> Path:
             _candidate("leakage", True, 0.7, {"leakage_area_m2": 2.0e-8}),
             _candidate("rod_seal_leak", True, 0.2, {"rod_seal_leak_area_m2": 1.5e-8}),
             _candidate("valve_null_leak", False, 0.01, {"valve_null_leak_area_m2": 1e-9}),
-            _candidate("wall_heat", False, 0.05, {"wall_heat_transfer_w_per_k": 0.05}),
+            _candidate("heat_transfer", False, 0.05, {"wall_heat_transfer_w_per_k": 0.05}),
+            # off at a ratio of 1, not 0 (the catalog's neutral value)
+            _candidate("exhaust_discharge", False, 0.04, {"exhaust_discharge_ratio": 0.7}),
         ],
     }
     (root / "diagnosis.json").write_text(json.dumps(diagnosis), encoding="utf-8")
@@ -119,6 +121,7 @@ def test_randomization_is_drawn_from_the_reports_intervals(tmp_path):
         # not ruled out: from none to the refitted strength, or to the screening's step
         "rod_seal_leak_area_m2": (0.0, 1.5e-8),
         "wall_heat_transfer_w_per_k": (0.0, 0.05),
+        "exhaust_discharge_ratio": (0.7, 1.0),
     }  # no sensor parameter, no unidentified one; the valve null leak's 1 % is below 3 %
     rig = load_rig(report)
     env = gym.make_vec(
