@@ -261,23 +261,28 @@ def run(args) -> int:
             overwrite=args.overwrite,
             effect=args.effect,
             strength=args.strength,
-            seed=args.seed,
-            duration_s=args.duration,
-            cylinder=args.cylinder,
-            tube_length_m=args.tube_length,
-            piston=args.piston,
-            excitation_kind=args.excitation,
-            perturb=not args.no_perturb,
             own_forms=not args.kernel_form,
+            **_recording_settings(args),
         )
     except (FileExistsError, ValueError) as exc:
         print(f"pneumatic-env rig: {exc}", file=sys.stderr)
         return 2
-    print(
-        f"{path}: synthetic (virtual rig) recording, effect {args.effect} "
-        f"strength {args.strength:g}, seed {args.seed}"
-    )
+    print(f"{path}: synthetic (virtual rig) recording, {_effects_text(args)}, seed {args.seed}")
     return 0
+
+
+def _recording_settings(args) -> dict:
+    """The ``run_rig`` settings of one recording from the command line (seed, length, rig,
+    rod, excitation, perturbation), shared by the single- and multi-effect rigs."""
+    return dict(
+        seed=args.seed,
+        duration_s=args.duration,
+        cylinder=args.cylinder,
+        tube_length_m=args.tube_length,
+        piston=args.piston,
+        excitation_kind=args.excitation,
+        perturb=not args.no_perturb,
+    )
 
 
 def _effects_text(args) -> str:
@@ -288,16 +293,7 @@ def _effects_text(args) -> str:
 
 def _one_multi_effect_recording(args) -> int:
     """``pneumatic-env rig --effects ...`` without ``--campaign``: one recording."""
-    result = run_rig_effects(
-        args.effects,
-        seed=args.seed,
-        duration_s=args.duration,
-        cylinder=args.cylinder,
-        tube_length_m=args.tube_length,
-        piston=args.piston,
-        excitation_kind=args.excitation,
-        perturb=not args.no_perturb,
-    )
+    result = run_rig_effects(args.effects, **_recording_settings(args))
     name = args.name or f"rig_{'+'.join(args.effects)}_seed{args.seed}"
     path = write_rig_result(args.out, name, result, args.overwrite)
     print(f"{path}: synthetic (virtual rig) recording, {_effects_text(args)}, seed {args.seed}")
