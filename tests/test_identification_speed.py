@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from pneumatic_env.identification import problem as fit_problem
+from pneumatic_env.identification.calibrate import run_fit
 from pneumatic_env.identification.checks import read_checked
 from pneumatic_env.identification.config import load_config
 from pneumatic_env.identification.datasets import base_fit_parameters, prepare_datasets
@@ -93,3 +94,44 @@ def test_early_screening_ranks_the_true_effect_first(tmp_path):
     assert diag.base.n_jacobians >= n_min
     ranking = [entry["name"] for entry in diag.screening[0]["ranking"]]
     assert ranking[0] == "leakage"
+
+
+def test_a_fit_stops_where_its_cost_levels_off_close_to_the_converged_cost(tmp_path):
+    """With ``plateau`` a fit stops once its robust cost fell by less than 1 % over 3
+    Jacobians. From the config's nominal start on clean rigs (two seeds) it never costs
+    more Jacobians than the fit run to the tolerance, lands within 2 % of its cost, and
+    stops by the plateau with fewer Jacobians on at least one."""
+    cfg = load_config()
+    stopped_by_plateau = 0
+    for seed in (3, 4):
+        paths = [
+            make_recording(
+                tmp_path / str(seed),
+                name=piston,
+                effect="none",
+                seed=seed,
+                duration_s=0.5,
+                piston=piston,
+            )
+            for piston in ("fixed", "spring")
+        ]
+        datasets, _ = prepare_datasets([read_checked(p) for p in paths], None, cfg)
+        free = base_fit_parameters(datasets, None, cfg)
+
+        full, levelled = (
+            run_fit(
+                fit_problem.FitProblem(datasets, free, config=cfg),
+                tolerance=1e-8,
+                friction_restarts=False,
+                plateau=plateau,
+            )
+            for plateau in (None, (0.01, 3))
+        )
+        assert levelled.n_jacobians <= full.n_jacobians
+        assert levelled.cost_history[-1] <= 1.02 * full.cost_history[-1]
+        if levelled.message.startswith("levelled off"):
+            # the rule: the last cost is less than 1 % below the one 3 Jacobians before
+            before, now = levelled.cost_history[-4], levelled.cost_history[-1]
+            assert (before - now) / before < 0.01
+            stopped_by_plateau += levelled.n_jacobians < full.n_jacobians
+    assert stopped_by_plateau >= 1

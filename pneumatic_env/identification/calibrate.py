@@ -39,7 +39,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import OptimizeResult, least_squares
 
 from pneumatic_env.params import save_parameters
 from pneumatic_env.recording import Recording
@@ -52,7 +52,7 @@ from .datasets import (
     dataset_overrides,
     prepare_datasets,
 )
-from .problem import CostLevelledOff, FitProblem, simulate_unique
+from .problem import CostLevelledOff, CostPlateau, FitProblem, simulate_unique
 from .results import FitResult, _statistics, pooled_lag1
 
 __all__ = [
@@ -78,23 +78,44 @@ def _least_squares(
     problem: FitProblem, u0: np.ndarray, max_nfev: int, tolerance: float | None = None
 ):
     """SciPy's robust least squares on ``problem`` from ``u0`` (settings under ``fit``);
-    ``tolerance`` is its ``ftol`` and ``xtol`` (default SciPy's 1e-8)."""
+    ``tolerance`` is its ``ftol`` and ``xtol`` (default SciPy's 1e-8). With
+    ``problem.plateau`` set, it also stops once the cost has levelled off
+    (:class:`.problem.CostPlateau`; ``message`` says so)."""
     cfg = problem.config
     lo, hi = problem.bounds()
     tol = {} if tolerance is None else {"ftol": tolerance, "xtol": tolerance}
-    return least_squares(
-        problem.residual,
-        u0,
-        jac=problem.jacobian,
-        bounds=(lo, hi),
-        method="trf",
-        tr_solver=str(cfg.fit("tr_solver")),
-        loss=str(cfg.fit("loss")),
-        f_scale=cfg.number("fit", "f_scale", positive=True),
-        max_nfev=max_nfev,
-        x_scale=1.0,
-        **tol,
-    )
+    problem.fit_costs = []
+    try:
+        return least_squares(
+            problem.residual,
+            u0,
+            jac=problem.jacobian,
+            bounds=(lo, hi),
+            method="trf",
+            tr_solver=str(cfg.fit("tr_solver")),
+            loss=str(cfg.fit("loss")),
+            f_scale=cfg.number("fit", "f_scale", positive=True),
+            max_nfev=max_nfev,
+            x_scale=1.0,
+            **tol,
+        )
+    except CostPlateau as stop:  # nfev: the accepted points, one per Jacobian
+        return OptimizeResult(
+            x=stop.u, cost=stop.cost, nfev=len(problem.fit_costs), message=str(stop)
+        )
+
+
+def diagnosis_fit_stops(cfg: IdentificationConfig) -> dict:
+    """The stopping rules of a diagnosis's fits (base, refits, re-convergence), as
+    :func:`run_fit` keywords: ``fit.diagnosis_tolerance`` and the plateau
+    (``fit.plateau_relative_decrease`` over ``fit.plateau_jacobians``)."""
+    return {
+        "tolerance": cfg.number("fit", "diagnosis_tolerance", positive=True),
+        "plateau": (
+            cfg.number("fit", "plateau_relative_decrease", minimum=0.0),
+            int(cfg.number("fit", "plateau_jacobians", positive=True)),
+        ),
+    }
 
 
 def _grid_columns(
@@ -178,6 +199,7 @@ def run_fit(
     tolerance: float | None = None,
     basin_search: Sequence[str] = (),
     early_stop: tuple[float, int] | None = None,
+    plateau: tuple[float, int] | None = None,
 ) -> FitResult:
     """Least-squares fit of ``problem`` from the warm start; statistics at the optimum.
 
@@ -197,7 +219,9 @@ def run_fit(
     Jacobian, from the given count on, where the robust cost fell by less than that
     relative amount since the previous one (:class:`.problem.CostLevelledOff`; no friction
     search after it; ``message`` starts with "stopped early"): the point where screening
-    may start, finished by a fit from it.
+    may start, finished by a fit from it. ``plateau`` (relative decrease, Jacobians): stop
+    each least-squares fit once its robust cost fell by less than that over that many
+    Jacobians (:func:`diagnosis_fit_stops`).
     """
     cfg = problem.config
     u0 = problem.initial_u(start)
@@ -209,12 +233,14 @@ def run_fit(
     )
     if problem.free:
         problem.early_stop = early_stop
+        problem.plateau = plateau
         try:
             u, nfev, message = _fit_free(
                 problem, u0, start, max_nfev, search, tolerance, basin_search
             )
         finally:
             problem.early_stop = None
+            problem.plateau = None
     else:
         u, nfev, message = u0, 1, "nothing to fit"
     r = problem.residual(u)

@@ -46,6 +46,7 @@ from .calibrate import (
     Dataset,
     FitResult,
     base_fit_parameters,
+    diagnosis_fit_stops,
     prepare_datasets,
     run_fit,
 )
@@ -225,10 +226,8 @@ def _settings(cfg: IdentificationConfig, max_effects: int | None, jobs: int | No
         "min_predicted_improvement": min_pred,
         "min_improvement_when_implausible": cfg.diagnosis("min_improvement_when_implausible"),
     }
-    tolerance = cfg.number("fit", "diagnosis_tolerance", positive=True)
-    return Settings(
-        min_rel, min_ic, max_effects, nfev, top_k, min_pred, jobs, tolerance, thresholds
-    )
+    stops = diagnosis_fit_stops(cfg)
+    return Settings(min_rel, min_ic, max_effects, nfev, top_k, min_pred, jobs, stops, thresholds)
 
 
 def _candidate_pool(
@@ -452,7 +451,7 @@ def _fit_base(
     return run_fit(
         base_problem,
         start=None if start is None else start.values,
-        tolerance=settings.tolerance,
+        **settings.fit_stops,
         early_stop=(decrease, n_min) if early else None,
     )
 

@@ -28,7 +28,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from .calibrate import FitResult, run_fit
+from .calibrate import FitResult, diagnosis_fit_stops, run_fit
 from .candidates import Candidate
 from .config import FitParameter, IdentificationConfig
 from .holdout import Holdout
@@ -139,7 +139,7 @@ def fit_freer_form(
             start=start,
             max_nfev=nfev,
             friction_restarts=any(c.requires_motion for c in selected),
-            tolerance=cfg.number("fit", "diagnosis_tolerance", positive=True),
+            **diagnosis_fit_stops(cfg),
         )
     except (ValueError, FloatingPointError) as exc:  # a start the kernel rejects
         log.info("freer form of %s failed: %s", ", ".join(c.name for c in selected), exc)

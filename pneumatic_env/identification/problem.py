@@ -59,6 +59,22 @@ class CostLevelledOff(Exception):
         self.relative_decrease = relative_decrease
 
 
+class CostPlateau(Exception):
+    """Raised by :meth:`FitProblem.jacobian` when one least-squares fit has lowered its
+    robust cost by less than a relative amount over its last few Jacobians
+    (:attr:`FitProblem.plateau`): the fit has converged as far as the data can tell, and
+    stops at ``u``, an accepted point, with robust cost ``cost``."""
+
+    def __init__(self, u: np.ndarray, cost: float, relative_decrease: float, n_jacobians: int):
+        super().__init__(
+            f"levelled off: cost fell by {relative_decrease:.2g} relative over the last "
+            f"{n_jacobians} Jacobians"
+        )
+        self.u = u
+        self.cost = cost
+        self.n_jacobians = n_jacobians
+
+
 def _threads() -> int:
     """Threads the simulations share out over: numba's thread count (``NUMBA_NUM_THREADS``,
     by default one per core), the package's one threading setting."""
@@ -255,6 +271,10 @@ class FitProblem:
         #: from one Jacobian to the next, after at least that many (None: never)
         self.early_stop: tuple[float, int] | None = None
         self._jacobian_costs: list[float] = []
+        #: (relative decrease, Jacobians): stop a least-squares fit once its robust cost fell
+        #: by less than this over that many Jacobians (None: never; ``fit.plateau_*``)
+        self.plateau: tuple[float, int] | None = None
+        self.fit_costs: list[float] = []  # robust cost at each Jacobian of the current fit
         self.blocks = self._blocks()
 
     # -- parameter vectors ----------------------------------------------------------------
@@ -453,6 +473,12 @@ class FitProblem:
         """Raise :class:`CostLevelledOff` when :attr:`early_stop` says the fit may stop at
         ``u`` (the point of the latest Jacobian)."""
         self._jacobian_costs.append(self.cost_history[-1])
+        self.fit_costs.append(self.cost_history[-1])
+        if self.plateau is not None and len(self.fit_costs) > self.plateau[1]:
+            before, now = self.fit_costs[-1 - self.plateau[1]], self.fit_costs[-1]
+            decrease = (before - now) / before if before > 0 else 0.0
+            if decrease < self.plateau[0]:
+                raise CostPlateau(np.array(u, dtype=float), now, decrease, self.plateau[1])
         if self.early_stop is None or len(self._jacobian_costs) < max(2, self.early_stop[1]):
             return
         before, now = self._jacobian_costs[-2:]

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import progress
-from .calibrate import FitResult, run_fit
+from .calibrate import FitResult, diagnosis_fit_stops, run_fit
 from .candidates import Candidate
 from .config import FitParameter, IdentificationConfig
 from .holdout import Holdout
@@ -431,7 +431,7 @@ def _refit(
     # a candidate that changes the piston's friction law moves the static friction's
     # stick-event basins: it gets the restarts the base calibration had; the others
     # start from the calibrated base's basin
-    tolerance = cfg.number("fit", "diagnosis_tolerance", positive=True)
+    stops = diagnosis_fit_stops(cfg)
 
     def run(u: Mapping[str, float]) -> FitResult:
         return run_fit(
@@ -439,7 +439,7 @@ def _refit(
             start=u,
             max_nfev=nfev,
             friction_restarts=cand.requires_motion,
-            tolerance=tolerance,
+            **stops,
             basin_search=cand.parameter_names if cand.requires_motion else (),
         )
 

@@ -15,6 +15,7 @@ from . import progress
 from .calibrate import Dataset, FitResult, run_fit
 from .candidates import Candidate, separating_experiment
 from .config import IdentificationConfig
+from .drift import base_drifts, suggested_effects
 from .holdout import Holdout
 from .later_effects import fit_freer_form, freer_form_check, second_effect_support
 from .scoring import (
@@ -52,7 +53,7 @@ class Settings:
     top_k: int  # refits per round (the screening's best)
     min_pred: float
     jobs: int  # processes for the refits
-    tolerance: float  # of the base fit and of each selected model's polish
+    fit_stops: dict  # run_fit keywords of the base fit and of each selected model's polish
     thresholds: dict  # as reported in ``diagnosis.json``
 
 
@@ -162,7 +163,7 @@ def selection_round(
 def _refit_round(ctx: RoundContext, state: Selection, screens: Sequence, rnd: int) -> list:
     """Refit the screening's best few (in parallel); the rest keep the screening's score."""
     top_k = ctx.settings.top_k
-    top = [] if ctx.quick else screens[:top_k]
+    top = [] if ctx.quick else [*screens[:top_k], *drift_picks(ctx, state, screens[top_k:])]
     progress.stage(f"refitting {len(top)} candidates (round {rnd})", len(top) * ctx.plan.refit)
     t_refit = time.monotonic()
     # a refit starts from the config's warm start (starting from the screening's step
@@ -199,6 +200,19 @@ def _refit_round(ctx: RoundContext, state: Selection, screens: Sequence, rnd: in
             round_scores.append(_screened_only(s, rnd, ctx.quick, top_k))
     ctx.timings[f"refits_round_{rnd}"] = time.monotonic() - t_refit
     return round_scores
+
+
+def drift_picks(ctx: RoundContext, state: Selection, rest: Sequence) -> list:
+    """The screens of ``rest`` (below the screening's top) whose candidate the current
+    fit's implausible base parameters point at (:func:`.drift.base_drifts`), the farthest
+    drift's first, at most ``screening.drift_refits``: refitted beside the top."""
+    n_max = int(ctx.cfg.number("screening", "drift_refits", minimum=0))
+    suggested = suggested_effects(base_drifts(state.current, ctx.datasets, ctx.cfg))
+    by_name = {s.name: s for s in rest}
+    picks = [by_name[name] for name in suggested if name in by_name][:n_max]
+    for s in picks:
+        log.info("%s: refitted too, as the base fit's drifts point at it", s.name)
+    return picks
 
 
 def _screened_only(s, rnd: int, quick: bool, top_k: int) -> CandidateScore:
@@ -286,7 +300,7 @@ def _adopt(
     state.current = run_fit(
         polish,
         start=best.fit.all_values(),
-        tolerance=ctx.settings.tolerance,
+        **ctx.settings.fit_stops,
         friction_restarts=any(c.requires_motion for c in selected),
     )
     nrmse_now, preds_now = split.heldout_nrmse(state.current)
