@@ -1,13 +1,13 @@
 """How the identification's wall time grows with the data (issue 20, target 1's scale).
 
 ``python -m pneumatic_env.studies.identification_scale --out runs/ident-scale`` records one
-virtual rig (synthetic data) as the ``standard`` campaign repeated four times (20
-recordings of 2.6 s: every experiment four times with its own excitation and noise
-draws), then times ``pneumatic-env identify`` (calibration and diagnosis, default
-settings) on its first recording, on the first five (one ``standard`` campaign) and on
-all twenty, one after the other in this process, and prints a Markdown table: seconds
-and stages per run, and each run's time per second of data. Ratios between the runs of
-one invocation are the figures that count on a shared machine.
+virtual rig (synthetic data) as the ``standard`` campaign (``--campaign user13``: the 13 s
+user campaign of issue 34) repeated four times (20 recordings: every experiment four
+times with its own excitation and noise draws), then times ``pneumatic-env identify``
+(calibration and diagnosis, default settings) on its first recording, on the first five
+(one campaign) and on all twenty, one after the other in this process, and prints a
+Markdown table: seconds and stages per run, and each run's time per second of data.
+Ratios between the runs of one invocation are the figures that count on a shared machine.
 """
 
 from __future__ import annotations
@@ -24,12 +24,12 @@ __all__ = ["main", "scale_campaign"]
 SIZES = (1, 5, 20)
 
 
-def scale_campaign(repeats: int = 4) -> list[Experiment]:
-    """The ``standard`` campaign ``repeats`` times, each experiment under its own name."""
+def scale_campaign(repeats: int = 4, campaign: str = "standard") -> list[Experiment]:
+    """The ``campaign`` ``repeats`` times, each experiment under its own name."""
     return [
         Experiment(f"r{r + 1}_{ex.name}", ex.piston, ex.excitation, ex.duration_s)
         for r in range(repeats)
-        for ex in CAMPAIGNS["standard"]
+        for ex in CAMPAIGNS[campaign]
     ]
 
 
@@ -40,6 +40,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default="runs/ident-scale", help="recordings and reports")
     parser.add_argument("--effect", default="none", help="the rig's effect (default: none)")
     parser.add_argument("--seed", type=int, default=1, help="the rig's seed")
+    parser.add_argument(
+        "--campaign",
+        default="standard",
+        choices=[name for name, exs in CAMPAIGNS.items() if len(exs) == 5],
+        help="the five-experiment campaign repeated four times (default: standard)",
+    )
     parser.add_argument(
         "--sizes",
         default=",".join(map(str, SIZES)),
@@ -56,11 +62,13 @@ def main(argv: list[str] | None = None) -> int:
     from pneumatic_env.identification.report import write_report
 
     out = Path(args.out)
-    rec_dir = out / f"recordings-{args.effect}-seed{args.seed}"
-    paths = [rec_dir / f"{ex.name}.csv" for ex in scale_campaign()]
+    tag = "" if args.campaign == "standard" else f"{args.campaign}-"
+    rec_dir = out / f"recordings-{tag}{args.effect}-seed{args.seed}"
+    experiments = scale_campaign(campaign=args.campaign)
+    paths = [rec_dir / f"{ex.name}.csv" for ex in experiments]
     if not all(p.is_file() for p in paths):  # recorded once, reused by later runs
         paths = make_campaign(
-            rec_dir, effect=args.effect, seed=args.seed, campaign=scale_campaign(), overwrite=True
+            rec_dir, effect=args.effect, seed=args.seed, campaign=experiments, overwrite=True
         )
     rows = []
     for n in sizes:
@@ -69,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         diag = diagnose(recs, jobs=args.jobs)
         wall = time.perf_counter() - t0
-        write_report(diag, out / f"report-{n}", plots=False)
+        write_report(diag, out / f"report-{tag}{n}", plots=False)
         stages = ", ".join(f"{k} {v:.0f}" for k, v in diag.timings.items() if k != "total")
         rows.append(
             f"| {n} | {seconds_of_data:.1f} | {wall:.0f} | {wall / seconds_of_data:.1f} | "
