@@ -461,6 +461,12 @@ def test_report_states_how_sure_and_the_error_per_recording(leak_campaign_diagno
     # a leak acts on every recording, so "where it acts" is every held-out recording
     assert conf["acts_on"] == sorted(held)
     assert conf["holds_where_it_acts"] is conf["holds_on_every_heldout_recording"]
+    # which channels it explains: each held-out channel's drop from the base to the leak
+    leak = next(c for c in data["candidates"] if c["name"] == "leakage" and c["round"] == 1)
+    assert set(conf["explains_channels"]) == set(data["baseline_nrmse"])
+    for c, drop in conf["explains_channels"].items():
+        assert drop == pytest.approx(1 - leak["heldout_nrmse"][c] / data["baseline_nrmse"][c])
+    assert max(conf["explains_channels"][c] for c in ("p1", "p2")) >= 0.10
     for row in data["per_recording"].values():
         assert set(row["before"]) == set(row["after"])
         assert set(row["before"]) in ({"p1", "p2", "f"}, {"p1", "p2", "x"})
@@ -469,6 +475,7 @@ def test_report_states_how_sure_and_the_error_per_recording(leak_campaign_diagno
     assert saved["confidence"][0]["effect"] == "leakage"
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "## How sure" in md and "## Held-out error per recording" in md
+    assert "explains (held-out channels)" in md
     assert "## Screening, round 1" in md
 
 

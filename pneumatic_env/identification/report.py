@@ -350,6 +350,12 @@ def _holds(c: dict) -> str:
     return f"no; {where} on the {len(acts_on)} it acts on ({', '.join(acts_on)})"
 
 
+def _explains(c: dict) -> str:
+    """The held-out channels an effect's NRMSE drop, largest first (e.g. 'p1 -62 %')."""
+    drops = sorted((c.get("explains_channels") or {}).items(), key=lambda kv: -kv[1])
+    return ", ".join(f"{k} {_pct(-v)}" for k, v in drops) or "-"
+
+
 def _confidence_lines(data: dict) -> list[str]:
     """How sure the tool is of each selected effect."""
     if not data["confidence"]:
@@ -360,8 +366,9 @@ def _confidence_lines(data: dict) -> list[str]:
         "",
         "| effect | held-out improvement (over the model before it) | runner-up | margin "
         "over the runner-up | margin over the effects before it per experiment type | "
-        "delta BIC | supported by (held out) | holds on every held-out recording |",
-        "|---|---|---|---|---|---|---|---|",
+        "delta BIC | supported by (held out) | explains (held-out channels) | holds on every "
+        "held-out recording |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for c in data["confidence"]:
         lines.append(
@@ -371,6 +378,7 @@ def _confidence_lines(data: dict) -> list[str]:
             f"{_pct(c['margin_over_runner_up'])} | {_pct(c.get('margin_over_freer_form'))} | "
             f"{_fmt(c['delta_ic'], 3)} | "
             f"{', '.join(c['supported_by']) or '-'} | "
+            f"{_explains(c)} | "
             f"{_holds(c)} |"
         )
     return lines
