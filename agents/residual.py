@@ -9,11 +9,10 @@ where ``u_b`` is the output of the benchmark's sliding mode or PID (per-variant 
 gate in [0, 1] that shrinks the bound on slow references (:func:`residual_gate`; off by
 default). Zero action is the classical controller, bit for bit, so training starts at its
 performance (Johannink et al., ICRA 2019; Silver et al., 2018). The observation gets two
-columns after the env's:
-``base_current`` (u_b, A) and ``base_error`` (the controller's error estimate divided by
-the reference scale: the sliding mode's predicted error ``f^(k+d) - r(k+lead)``, else
-``y - r(k)``). The sliding mode is told the applied current (``applied``), so its
-predictor knows the command in flight.
+columns after the env's: ``base_current`` (u_b, A) and ``base_error`` (the controller's
+error estimate divided by the reference scale: the sliding mode's predicted error
+``f^(k+d) - r(k+lead)``, else ``y - r(k)``). The sliding mode is told the applied current
+(``applied``), so its predictor knows the command in flight.
 
 The Gymnasium wrappers over an env and the registered ``Residual...`` ids are in
 :mod:`pneumatic_env.agents.residual_env`; this module is the batched core they and a
