@@ -3,6 +3,7 @@ for a variant from its name, its config under ``configs/agents/`` or a trained p
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 from pneumatic_env.params import ConfigError
@@ -16,10 +17,8 @@ from .learned import (
     shipped_policies,
     shipped_policy_path,
 )
-from .pid import PIDController
 from .policy import load_policy_spec
-from .residual import BASE_CONTROLLERS
-from .sliding_mode import SlidingModeController
+from .residual import BASE_CLASSES, BASE_CONTROLLERS
 from .suite import suite_preview_steps
 
 __all__ = [
@@ -35,7 +34,7 @@ __all__ = [
 
 CLASSICAL = ("pid", "sliding_mode", "zero")
 #: the classical controllers with gains: name -> class
-CLASSICAL_CLASSES = {"pid": PIDController, "sliding_mode": SlidingModeController}
+CLASSICAL_CLASSES = {name: BASE_CLASSES[name] for name in ("pid", "sliding_mode")}
 
 
 def tuned_config_path(name: str, variant: str) -> Path:
@@ -121,18 +120,24 @@ def resolve_controller(
     )
 
 
-def make_base_controller(name: str, context: ControllerContext, variant: str) -> Controller:
-    """The benchmark's ``name`` controller (one of ``residual.BASE_CONTROLLERS``) with the
-    gains of ``variant``, for ``context``: the base of a residual policy or a teacher."""
+def make_base_controller(
+    name: str, context: ControllerContext, variant: str, gains: Mapping | None = None
+) -> Controller:
+    """The benchmark's ``name`` controller (one of ``residual.BASE_CONTROLLERS``) with
+    ``gains`` if given, else the gains of ``variant``, for ``context``: the base of a
+    residual policy or a teacher."""
     if name not in BASE_CONTROLLERS:
         raise ValueError(f"base = {name!r} is not allowed: use one of {list(BASE_CONTROLLERS)}")
+    if gains is not None:
+        return BASE_CLASSES[name](context, **gains)
     return resolve_controller(name, variant, preview_steps=context.preview_steps).build(context)
 
 
 def learned_spec(path: str | Path, variant: str, name: str | None = None) -> ControllerSpec:
     """Bench controller spec of an actor file (``agents.learned``); a residual actor gets
     the base controller its file holds (self-contained, v2), else the benchmark's with the
-    gains of ``variant``. A v2 file also brings its model (``LearnedActor.model_context``)."""
+    gains of its residual config (``ResidualConfig.gains``) or of ``variant``. A v2 file
+    also brings its model (``LearnedActor.model_context``)."""
     actor = LearnedActor(path)
     opts = actor.meta["env_options"]
     label = name or actor.meta.get("name") or Path(path).stem
@@ -146,7 +151,7 @@ def learned_spec(path: str | Path, variant: str, name: str | None = None) -> Con
         elif held is not None:
             base = CLASSICAL_CLASSES[held[0]](ctx, **held[1])
         else:
-            base = make_base_controller(residual.base, ctx, variant)
+            base = make_base_controller(residual.base, ctx, variant, residual.gains)
         return LearnedController(ctx, actor, base)
 
     return ControllerSpec(

@@ -5,14 +5,14 @@ The policy's action ``a`` in [-1, 1] is added to the classical controller's curr
     u = clip(u_b + correction_fraction * i_max * g * a, -i_max, i_max),
 
 where ``u_b`` is the output of the benchmark's sliding mode or PID (per-variant gains from
-``configs/agents/<name>-<variant>.yaml``) and ``g`` an optional gate in [0, 1] that shrinks
-the bound on slow references (:func:`residual_gate`; off by default). Zero action is the
-classical controller, bit for bit, so training starts at its performance (Johannink et
-al., ICRA 2019; Silver et al., 2018). The observation gets two columns after the env's:
-``base_current`` (u_b, A) and ``base_error`` (the controller's error estimate divided by
-the reference scale: the sliding mode's predicted error ``f^(k+d) - r(k+lead)``, else
-``y - r(k)``). The sliding mode is told the applied current (``applied``), so its
-predictor knows the command in flight.
+``configs/agents/<name>-<variant>.yaml``, or the config's ``gains``) and ``g`` an optional
+gate in [0, 1] that shrinks the bound on slow references (:func:`residual_gate`; off by
+default). Zero action is the classical controller, bit for bit, so training starts at its
+performance (Johannink et al., ICRA 2019; Silver et al., 2018). The observation gets two
+columns after the env's: ``base_current`` (u_b, A) and ``base_error`` (the controller's
+error estimate divided by the reference scale: the sliding mode's predicted error
+``f^(k+d) - r(k+lead)``, else ``y - r(k)``). The sliding mode is told the applied current
+(``applied``), so its predictor knows the command in flight.
 
 The Gymnasium wrappers over an env and the registered ``Residual...`` ids are in
 :mod:`pneumatic_env.agents.residual_env`; this module is the batched core they and a
@@ -22,7 +22,11 @@ learned residual controller (``agents.learned``) share, given a built base contr
 from __future__ import annotations
 
 import copy
+import inspect
+import math
+import numbers
 import time
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 
 import numpy as np
@@ -31,18 +35,33 @@ from pneumatic_env.envs.observation import OBS_F, OBS_REF, observation_dim
 from pneumatic_env.ids import variant_id
 
 from .base import Controller
+from .pid import PIDController
+from .sliding_mode import SlidingModeController
 
 __all__ = [
     "ResidualConfig",
+    "base_gain_names",
     "ResidualCore",
     "residual_gate",
     "env_variant",
     "RESIDUAL_COLUMNS",
     "BASE_CONTROLLERS",
+    "BASE_CLASSES",
 ]
 
 RESIDUAL_COLUMNS = ("base_current", "base_error")
-BASE_CONTROLLERS = ("sliding_mode", "pid")
+#: the classical controllers a residual sits on: name -> class
+BASE_CLASSES: dict[str, type[Controller]] = {
+    "sliding_mode": SlidingModeController,
+    "pid": PIDController,
+}
+BASE_CONTROLLERS = tuple(BASE_CLASSES)
+
+
+def base_gain_names(base: str) -> list[str]:
+    """The gains of the base controller ``base``: its class's keyword-only arguments."""
+    signature = inspect.signature(BASE_CLASSES[base].__init__)
+    return [p.name for p in signature.parameters.values() if p.kind is p.KEYWORD_ONLY]
 
 
 @dataclass(frozen=True)
@@ -56,12 +75,14 @@ class ResidualConfig:
     gate_steps: int = 20  # preview steps the gate looks at
     consistent_predictor: bool = True  # tell the base controller the applied current
     variant: str | None = None  # whose gains (default: the env's cylinder and tube)
+    gains: Mapping | None = None  # the base's gains (default: the variant's, ``variant``)
 
     def validate(self) -> None:
         if self.base not in BASE_CONTROLLERS:
             raise ValueError(
                 f"base = {self.base!r} is not allowed: use one of {list(BASE_CONTROLLERS)}"
             )
+        self._check_gains()
         for name, low in (("correction_fraction", 0.0), ("gate_floor", 0.0)):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= low):
@@ -76,6 +97,33 @@ class ResidualConfig:
             raise ValueError(
                 f"gate_steps = {self.gate_steps!r} is not allowed: must be an integer >= 0"
             )
+
+    def _check_gains(self) -> None:
+        """``gains``: None, or every gain of the base controller (``base_gain_names``) as a
+        finite number or a bool; the controller checks their ranges when built."""
+        if self.gains is None:
+            return
+        allowed = base_gain_names(self.base)
+        if not isinstance(self.gains, Mapping):
+            raise ValueError(
+                f"gains = {self.gains!r} is not allowed: a mapping of the {self.base} "
+                f"gains {allowed} (or None: the variant's)"
+            )
+        unknown = [str(k) for k in self.gains if k not in allowed]
+        missing = [k for k in allowed if k not in self.gains]
+        if unknown or missing:
+            raise ValueError(
+                f"gains = {dict(self.gains)!r} is not allowed: unknown {unknown}, missing "
+                f"{missing}; the {self.base} gains are {allowed}"
+            )
+        for name, value in self.gains.items():
+            plain = isinstance(value, (bool, np.bool_)) or (
+                isinstance(value, numbers.Real) and math.isfinite(value)
+            )
+            if not plain:
+                raise ValueError(
+                    f"gains.{name} = {value!r} is not allowed: a finite number or true/false"
+                )
 
     def as_dict(self) -> dict:
         return asdict(self)

@@ -37,14 +37,16 @@ __all__ = [
 
 def residual_core(env, base: str | Controller, config: ResidualConfig) -> ResidualCore:
     """The residual core of ``env``: over ``base`` if a controller, else over the benchmark's
-    ``base`` controller with the gains of ``config.variant`` or of the env's variant."""
+    ``base`` controller with ``config.gains``, else the gains of ``config.variant`` or of
+    the env's variant."""
     ctx = ControllerContext.from_env(env)
     if isinstance(base, Controller):
         controller = base
     else:
         config = ResidualConfig(**{**config.as_dict(), "base": base})
         config.validate()
-        controller = make_base_controller(base, ctx, config.variant or env_variant(env))
+        variant = config.variant or env_variant(env)
+        controller = make_base_controller(base, ctx, variant, config.gains)
     return ResidualCore(controller, config)
 
 
@@ -58,8 +60,8 @@ ACTION_SPACE = gym.spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
 class ResidualWrapper(gym.Wrapper):
     """A single env with residual actions in [-1, 1] and the two residual columns.
 
-    ``base``: ``"sliding_mode"`` or ``"pid"`` (the benchmark's gains for the env's variant
-    or ``variant``) or a ``Controller``; the other keywords: :class:`ResidualConfig`.
+    ``base``: ``"sliding_mode"`` or ``"pid"`` (``gains``, else the benchmark's gains for the
+    env's variant or ``variant``) or a ``Controller``; the other keywords: :class:`ResidualConfig`.
     ``info["base_current_a"]``: the classical controller's current of the step.
     """
 

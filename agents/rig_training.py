@@ -2,18 +2,23 @@
 identification report describes (``agents.rig``).
 
 Stages: the PID gains searched on the fitted rig (``agents.tune_pid.grid_search``; the
-sliding mode needs no search, it runs on the fitted model); the fast trainer
-(``agents.ppo``, the variant's ``configs/agents/ppo_fast-<variant>.yaml``: a residual on
-the sliding mode) on the fitted rig with the report's domain randomisation
-(``agents.rig.rig_randomization``); the final actor written self-contained
-(``agents.learned.write_self_contained``: the fitted model and the base controller's
-gains inside); the suite on the fitted rig. Written to ``OUT``:
+sliding mode needs no search, it runs on the fitted model); the suite on the fitted rig
+for the classical controllers, which chooses the residual's base (``base="auto"``: the
+retuned PID or the sliding mode on the fitted model, whichever has the lower mean RMS
+error there; a long tube's waves and heat transfer can leave the sliding mode well behind
+PID); the fast trainer (``agents.ppo``, the variant's
+``configs/agents/ppo_fast-<variant>.yaml`` with that base and its gains) on the fitted rig
+with the report's domain randomisation (``agents.rig.rig_randomization``); the final actor
+written self-contained (``agents.learned.write_self_contained``: the fitted model and the
+base controller's kind and gains inside); the suite on the fitted rig for it. Written to
+``OUT``:
 
 - ``controller.npz``: runs by file name (``pneumatic-env bench --controller
   OUT/controller.npz``, ``resolve_controller``) with no report or config;
 - ``summary.md``: the suite's figures on the fitted rig of the new controller, PID and
   the sliding mode at their nominal tuning (the package's model of the rig and the
-  benchmark's gains) and retuned for the fitted rig;
+  benchmark's gains) and retuned for the fitted rig, and the base chosen and why;
+- ``rig_training.json``: the same figures, the base, the PID gains, the randomisation;
 - ``training/``: the trainer's output (``actor.npz``, ``progress.csv``, ``train.json``).
 
 The trainer's validation runs on the registered variant, not the fitted rig, so the final
@@ -37,15 +42,34 @@ from .config import agent_config_path, load_agent_config
 from .learned import write_self_contained
 from .ppo import train
 from .registry import CLASSICAL_CLASSES, classical_gains
+from .residual import BASE_CONTROLLERS
 from .rig import FittedRig, load_rig, rig_randomization
 from .suite import Suite, load_suite
 from .tune_pid import grid_search
 
-__all__ = ["DEFAULT_MINUTES", "train_for_rig", "rig_controllers", "suite_summary", "run"]
+__all__ = [
+    "DEFAULT_MINUTES",
+    "BASE_CHOICES",
+    "BASE_CANDIDATES",
+    "train_for_rig",
+    "choose_base",
+    "rig_controllers",
+    "suite_summary",
+    "run",
+]
 
 #: default wall-time budget of the training (min): the issue's 20 min for identify plus
 #: training on 2 cores leaves about 10 for the trainer
 DEFAULT_MINUTES = 10.0
+
+#: the residual's base on the fitted rig: kind -> its controller of ``rig_controllers``
+#: (the first wins a tie: the trainer configs' own base)
+BASE_CANDIDATES = {
+    "sliding_mode": "sliding_mode (fitted model)",
+    "pid": "pid (retuned on the fitted rig)",
+}
+#: ``train_for_rig(base=...)``, ``--base``: a kind, or "auto" (the better on the fitted rig)
+BASE_CHOICES = ("auto", *BASE_CONTROLLERS)
 
 
 def retuned_pid_gains(rig: FittedRig, tuning: dict | None = None) -> dict:
@@ -77,10 +101,32 @@ def rig_controllers(rig: FittedRig, pid_gains: dict, suite: Suite) -> list[Contr
     pid, smc = (classical_gains(k, rig.variant) for k in ("pid", "sliding_mode"))
     return [
         _spec("pid (nominal)", "pid", pid, nominal, preview),
-        _spec("pid (retuned on the fitted rig)", "pid", pid_gains, None, preview),
+        _spec(BASE_CANDIDATES["pid"], "pid", pid_gains, None, preview),
         _spec("sliding_mode (nominal model)", "sliding_mode", smc, nominal, preview),
-        _spec("sliding_mode (fitted model)", "sliding_mode", smc, None, preview),
+        _spec(BASE_CANDIDATES["sliding_mode"], "sliding_mode", smc, None, preview),
     ]
+
+
+def _check_base(base: str) -> None:
+    if base not in BASE_CHOICES:
+        raise ValueError(f"base = {base!r} is not allowed: use one of {list(BASE_CHOICES)}")
+
+
+def choose_base(classical: list[dict], base: str = "auto") -> dict:
+    """The residual's base from the classical controllers' figures on the fitted rig
+    (``suite_summary`` of ``rig_controllers``): ``base`` if a kind, else (``"auto"``) the
+    candidate (``BASE_CANDIDATES``) with the lower mean RMS error. Returns ``{"kind",
+    "reason", "rms_error_pct": {kind: %}}``."""
+    _check_base(base)
+    by_name = {f["controller"]: f["rms_error_pct"] for f in classical}
+    rms = {kind: by_name[name] for kind, name in BASE_CANDIDATES.items()}
+    both = ", ".join(f"{BASE_CANDIDATES[k]} {v:.2f} %" for k, v in rms.items())
+    if base == "auto":
+        kind = min(rms, key=lambda k: rms[k])
+        reason = f"auto: the lower mean RMS error on the fitted rig ({both})"
+    else:
+        kind, reason = base, f"given (base={base}; on the fitted rig: {both})"
+    return {"kind": kind, "reason": reason, "rms_error_pct": rms}
 
 
 def suite_summary(rig: FittedRig, controllers: list, suite: Suite | None = None) -> list[dict]:
@@ -102,9 +148,9 @@ def suite_summary(rig: FittedRig, controllers: list, suite: Suite | None = None)
 _FIGURES = ("rms_error_pct", "chatter_rms_a", "air_mg")
 
 
-def summary_markdown(rig: FittedRig, figures: list[dict], command: str) -> str:
+def summary_markdown(rig: FittedRig, figures: list[dict], base: dict, command: str) -> str:
     """``summary.md``: the figures of each controller on the fitted rig (the first the
-    new controller, the others classical)."""
+    new controller, the others classical) and the base it sits on (``choose_base``)."""
     best_classical = min(f["rms_error_pct"] for f in figures[1:])
     rows = [
         [
@@ -128,10 +174,48 @@ def summary_markdown(rig: FittedRig, figures: list[dict], command: str) -> str:
             "",
             markdown_table(header, rows),
             "",
+            f"The residual's base: {base['kind']} ({base['reason']}).",
+            "",
             f"Command: `{command}`" if command else "",
             "",
         ]
     )
+
+
+def _train_residual(
+    rig: FittedRig,
+    out: Path,
+    randomization: dict,
+    base: tuple[str, dict],
+    *,
+    minutes: float | None,
+    steps: float | None,
+    seed: int,
+    overrides: dict | None,
+    log: Callable,
+) -> tuple[str, dict] | None:
+    """The fast trainer on the fitted rig with ``randomization``, a residual on ``base``
+    (kind, gains); returns the base the actor was trained on (None for a pure actor)."""
+    config = agent_config_path(f"ppo_fast-{rig.variant.lower()}")
+    env_kwargs = {**rig.env_options, "domain_randomization": randomization}
+    merged = {
+        **{f"env_kwargs.{k}": v for k, v in env_kwargs.items()},
+        # the validation of the registered variant: the rig's tube may have none
+        "residual.variant": rig.variant,
+        "residual.base": base[0],
+        "residual.gains": dict(base[1]),
+        "training.validation_variants": [rig.variant],
+        **(overrides or {}),
+    }
+    log(f"[4/5] training ({minutes} min, {steps} steps at most) from {config.name}")
+    training = train(
+        config, rig.env_id, seed, out / "training", minutes, steps, overrides=merged, log=log
+    )
+    trained = training["config"].get("residual")
+    if trained is None:
+        return None
+    kind = trained["base"]
+    return kind, dict(trained.get("gains") or classical_gains(kind, rig.variant))
 
 
 def train_for_rig(
@@ -145,30 +229,36 @@ def train_for_rig(
     suite: Suite | None = None,
     command: str = "",
     log: Callable = print,
+    base: str = "auto",
 ) -> dict:
-    """Train a controller for the report's rig; writes ``OUT/controller.npz`` and
-    ``OUT/summary.md``. ``overrides``: more ppo_fast config overrides; ``tuning``: the
-    PID search (default ``configs/agents/tuning.yaml``). Returns the summary figures."""
+    """Train a controller for the report's rig; writes ``OUT/controller.npz``,
+    ``OUT/summary.md`` and ``OUT/rig_training.json``. ``overrides``: more ppo_fast config
+    overrides; ``tuning``: the PID search (default ``configs/agents/tuning.yaml``);
+    ``base``: the residual's base (``BASE_CHOICES``; ``choose_base``). Returns the summary
+    figures, the controller's path and the base."""
+    _check_base(base)
     rig, out = load_rig(report_dir), Path(out)
     suite = suite or load_suite()
-    log(f"[1/4] rig: {rig.cylinder}, tube {rig.params['tube_length_m']:g} m -> {rig.env_id}")
+    log(f"[1/5] rig: {rig.cylinder}, tube {rig.params['tube_length_m']:g} m -> {rig.env_id}")
     randomization = rig_randomization(report_dir)
-    log(f"[2/4] PID gains searched on the fitted rig ({len(randomization)} randomised params)")
+    log(f"[2/5] PID gains searched on the fitted rig ({len(randomization)} randomised params)")
     pid_gains = retuned_pid_gains(rig, tuning)
-    config = agent_config_path(f"ppo_fast-{rig.variant.lower()}")
-    env_kwargs = {**rig.env_options, "domain_randomization": randomization}
-    merged = {
-        **{f"env_kwargs.{k}": v for k, v in env_kwargs.items()},
-        # the gains and validation of the registered variant: the rig's tube may have none
-        "residual.variant": rig.variant,
-        "training.validation_variants": [rig.variant],
-        **(overrides or {}),
-    }
-    log(f"[3/4] training ({minutes} min, {steps} steps at most) from {config.name}")
-    training = train(
-        config, rig.env_id, seed, out / "training", minutes, steps, overrides=merged, log=log
+    log("[3/5] suite on the fitted rig: PID and sliding mode, nominal and retuned")
+    classical = suite_summary(rig, rig_controllers(rig, pid_gains, suite), suite)
+    chosen = choose_base(classical, base)
+    gains = {"pid": pid_gains, "sliding_mode": classical_gains("sliding_mode", rig.variant)}
+    log(f"      residual base: {chosen['kind']} ({chosen['reason']})")
+    held = _train_residual(
+        rig,
+        out,
+        randomization,
+        (chosen["kind"], gains[chosen["kind"]]),
+        minutes=minutes,
+        steps=steps,
+        seed=seed,
+        overrides=overrides,
+        log=log,
     )
-    base = training["config"]["residual"]["base"] if training["config"].get("residual") else None
     probe = gym.make_vec(
         rig.env_id, num_envs=1, preview_steps=suite.preview_steps, **rig.env_options
     )
@@ -178,34 +268,47 @@ def train_for_rig(
         out / "training" / "actor.npz",
         out / "controller.npz",
         context,
-        None if base is None else (base, classical_gains(base, rig.variant)),
+        held,
         name=f"rig-{rig.report_dir.name}",
         source=f"pneumatic-env train --rig {rig.report_dir}",
     )
-    log(f"[4/4] suite on the fitted rig: {path.name}, PID and sliding mode")
-    figures = suite_summary(rig, [str(path), *rig_controllers(rig, pid_gains, suite)], suite)
+    log(f"[5/5] suite on the fitted rig: {path.name}")
+    figures = suite_summary(rig, [str(path)], suite) + classical
     figures[0]["controller"] = "controller.npz (train --rig)"
-    (out / "summary.md").write_text(summary_markdown(rig, figures, command), encoding="utf-8")
+    record = {**chosen, "gains": None if held is None else held[1]}
+    (out / "summary.md").write_text(
+        summary_markdown(rig, figures, record, command), encoding="utf-8"
+    )
     (out / "rig_training.json").write_text(
         json.dumps(
-            {"figures": figures, "pid_gains": pid_gains, "randomization": randomization},
+            {
+                "figures": figures,
+                "base": record,
+                "pid_gains": pid_gains,
+                "randomization": randomization,
+            },
             indent=2,
         ),
         encoding="utf-8",
     )
-    return {"figures": figures, "controller": str(path)}
+    return {"figures": figures, "controller": str(path), "base": record}
 
 
 def run(args) -> int:
-    """``pneumatic-env train --rig REPORT_DIR [--out OUT] [--minutes M] [--steps N]``."""
+    """``pneumatic-env train --rig REPORT_DIR [--out OUT] [--minutes M] [--steps N]
+    [--base auto|pid|sliding_mode]``."""
     import shlex
     import sys
 
     out = Path(args.out or Path("runs") / f"rig-{Path(args.rig).name}")
     command = "pneumatic-env " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     minutes = args.minutes if args.minutes is not None else DEFAULT_MINUTES
-    res = train_for_rig(args.rig, out, minutes, args.timesteps, args.seed, command=command)
+    base = getattr(args, "base", None) or "auto"
+    res = train_for_rig(
+        args.rig, out, minutes, args.timesteps, args.seed, command=command, base=base
+    )
     for f in res["figures"]:
         print(f"  {f['controller']}: mean RMS {f['rms_error_pct']:.2f} %")
+    print(f"  residual base: {res['base']['kind']} ({res['base']['reason']})")
     print(f"wrote {res['controller']} and {out / 'summary.md'}")
     return 0

@@ -6,7 +6,8 @@ features, residual policies; its docstring).
         --config configs/agents/ppo-numatics-2m.yaml [--timesteps N] [--seed S] [--out DIR]
     pneumatic-env train --algo ppo_fast --env pneumatic_env/ForceTrack-Numatics-2m-v0 \\
         [--config FILE] [--seed S] [--minutes M] [--out DIR] [--resume]
-    pneumatic-env train --rig REPORT_DIR [--out OUT] [--minutes M] [--steps N] [--seed S]
+    pneumatic-env train --rig REPORT_DIR [--out OUT] [--minutes M] [--steps N] [--seed S] \\
+        [--base auto|pid|sliding_mode]
         # a controller for the rig of an identification report (agents/rig_training.py)
 
 Hyperparameters come from ``configs/agents/<algo>-<variant>.yaml`` (one file per algorithm and
@@ -249,6 +250,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="train a controller for the fitted rig of `pneumatic-env identify --report "
         "REPORT_DIR` (writes OUT/controller.npz and OUT/summary.md; no --algo or --env)",
     )
+    parser.add_argument(
+        "--base",
+        choices=("auto", "sliding_mode", "pid"),  # rig_training.BASE_CHOICES (imports torch)
+        help="with --rig: the residual's base controller (default auto: the retuned PID or "
+        "the sliding mode on the fitted model, the lower mean RMS error on the fitted rig)",
+    )
     parser.add_argument("--algo", choices=ALGOS + ("ppo_fast",), help="required without --rig")
     parser.add_argument(
         "--env", help="env id, e.g. pneumatic_env/ForceTrack-Numatics-2m-v0 (without --rig)"
@@ -291,6 +298,8 @@ def run(args: argparse.Namespace) -> int:
         from .rig_training import run as run_rig  # imports torch: only when it runs
 
         return run_rig(args)
+    if args.base:
+        raise SystemExit("pneumatic-env train: --base goes with --rig REPORT_DIR")
     if not args.algo or not args.env:
         raise SystemExit("pneumatic-env train: give --algo and --env (or --rig REPORT_DIR)")
     if args.env not in gym.registry:

@@ -193,7 +193,10 @@ def test_train_rig_writes_a_controller_that_runs_by_file_name_alone(tmp_path):
     shutil.rmtree(tmp_path / "out")
     meta = json.loads(str(np.load(path)["meta"]))
     assert meta["format"] == FORMAT_SELF_CONTAINED
-    assert meta["base_controller"]["kind"] == "sliding_mode"
+    # auto: the base with the lower error on the fitted rig (here the sliding mode)
+    rms = {f["controller"]: f["rms_error_pct"] for f in res["figures"]}
+    assert rms["sliding_mode (fitted model)"] < rms["pid (retuned on the fitted rig)"]
+    assert meta["base_controller"]["kind"] == res["base"]["kind"] == "sliding_mode"
     assert meta["model"]["base_params"]["tube_length_m"] == 1.6
     # on the fitted rig it gives the summary's figure exactly, from the file alone
     rows, _ = run_suite(str(path), [rig.variant], suite, env_options=rig.env_options)
@@ -246,3 +249,115 @@ def test_bench_rig_runs_the_suite_on_the_fitted_rig(tmp_path, capsys):
     nominal, _ = run_suite("pid", [rig.variant], one)
     assert written[0]["rms_error_pct"] == pytest.approx(fitted[0]["rms_error_pct"], rel=1e-6)
     assert fitted[0]["rms_error_pct"] != nominal[0]["rms_error_pct"]  # another plant
+
+
+def _fake_suite_summary(pid_rms: float, smc_rms: float):
+    """``suite_summary`` with the retuned PID at ``pid_rms`` %, the sliding mode on the
+    fitted model at ``smc_rms`` %, any other controller at 9 %."""
+    from pneumatic_env.agents.rig_training import BASE_CANDIDATES
+
+    figures = {BASE_CANDIDATES["pid"]: pid_rms, BASE_CANDIDATES["sliding_mode"]: smc_rms}
+
+    def summary(rig, controllers, suite=None):
+        names = [getattr(c, "name", str(c)) for c in controllers]
+        zero = {"chatter_rms_a": 0.0, "air_mg": 0.0}
+        return [{"controller": n, "rms_error_pct": figures.get(n, 9.0), **zero} for n in names]
+
+    return summary
+
+
+def test_train_rig_sits_on_the_retuned_pid_when_it_wins_with_exactly_its_gains(
+    tmp_path, monkeypatch
+):
+    from pneumatic_env.agents import rig_training
+    from pneumatic_env.agents.pid import PIDController
+    from pneumatic_env.agents.registry import classical_gains
+
+    custom = {**classical_gains("pid", "Numatics-2m"), "kp_a_per_n": 0.0123, "ki_a_per_n_s": 0.3}
+    monkeypatch.setattr(rig_training, "retuned_pid_gains", lambda rig, tuning=None: custom)
+    monkeypatch.setattr(rig_training, "suite_summary", _fake_suite_summary(3.0, 4.0))
+    report = write_report(tmp_path / "report")
+    out = tmp_path / "out"
+    res = rig_training.train_for_rig(
+        report, out, minutes=None, steps=1, overrides=TINY_TRAINING, log=lambda *a, **k: None
+    )
+    assert res["base"]["kind"] == "pid"
+    assert "The residual's base: pid (auto:" in (out / "summary.md").read_text()
+    record = json.loads((out / "rig_training.json").read_text())["base"]
+    assert record["kind"] == "pid" and record["gains"] == custom
+    assert record["rms_error_pct"] == {"sliding_mode": 4.0, "pid": 3.0}
+    meta = json.loads(str(np.load(res["controller"])["meta"]))
+    assert meta["base_controller"] == {"kind": "pid", "gains": custom}
+    # by file name: the self-contained file and the trainer's own (v1, residual.gains)
+    env = gym.make_vec(
+        "pneumatic_env/ForceTrack-Numatics-2m-v0",
+        num_envs=2,
+        preview_steps=20,
+        normalize_observation=False,
+    )
+    from pneumatic_env.agents.base import ControllerContext
+
+    obs, _ = env.reset(seed=1)
+    for path in (res["controller"], out / "training" / "actor.npz"):
+        spec = resolve_controller(str(path), "Numatics-2m")
+        ctrl = spec.build(ControllerContext.from_env(env))
+        base = ctrl.residual.base
+        assert isinstance(base, PIDController)
+        assert (base.kp, base.ki) == (0.0123, 0.3)
+        twin = PIDController(base.context, **custom)  # the same gains built anew
+        ctrl.reset()
+        twin.reset()
+        ctrl.act(obs)
+        assert np.array_equal(ctrl.residual.u_base, twin.act(obs))
+    env.close()
+
+
+def test_train_rig_sits_on_the_sliding_mode_when_it_wins_or_when_told(tmp_path, monkeypatch):
+    from pneumatic_env.agents import rig_training
+
+    figures = _fake_suite_summary(4.0, 3.0)(None, rig_training.BASE_CANDIDATES.values())
+    assert rig_training.choose_base(figures)["kind"] == "sliding_mode"
+    told = rig_training.choose_base(figures, "pid")
+    assert told["kind"] == "pid" and told["reason"].startswith("given")
+    with pytest.raises(ValueError, match="base = 'lqr' is not allowed"):
+        rig_training.choose_base(figures, "lqr")
+    with pytest.raises(ValueError, match="base = 'lqr' is not allowed"):  # before any work
+        rig_training.train_for_rig(write_report(tmp_path / "r"), tmp_path / "o", base="lqr")
+
+
+def test_the_cli_base_choices_are_the_trainers():
+    import argparse
+
+    from pneumatic_env.agents.rig_training import BASE_CHOICES
+    from pneumatic_env.agents.train import add_arguments
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    (action,) = [a for a in parser._actions if a.dest == "base"]
+    assert tuple(action.choices) == BASE_CHOICES
+
+
+@pytest.mark.parametrize(
+    ("gains", "message"),
+    [
+        ([0.01], r"gains = \[0.01\] is not allowed: a mapping of the pid gains"),
+        ({"kp": 0.01}, r"unknown \['kp'\], missing \['kp_a_per_n'"),
+        ("nan", r"gains.kp_a_per_n = nan is not allowed: a finite number"),
+        ("text", r"gains.kp_a_per_n = 'fast' is not allowed"),
+    ],
+)
+def test_bad_residual_gains_are_refused_naming_the_field(gains, message):
+    from pneumatic_env.agents.registry import classical_gains
+    from pneumatic_env.agents.residual import ResidualConfig
+
+    good = classical_gains("pid", "Numatics-2m")
+    if gains == "nan":
+        gains = {**good, "kp_a_per_n": float("nan")}
+    elif gains == "text":
+        gains = {**good, "kp_a_per_n": "fast"}
+    ResidualConfig(base="pid", gains=good).validate()  # the same gains, well formed
+    with pytest.raises(ValueError, match=message):
+        ResidualConfig(base="pid", gains=gains).validate()
+    # sliding-mode gains on a PID base: refused the same way
+    with pytest.raises(ValueError, match="the pid gains are"):
+        ResidualConfig(base="pid", gains=classical_gains("sliding_mode", "Numatics-2m")).validate()
