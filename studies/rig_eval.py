@@ -199,10 +199,12 @@ def train_and_evaluate(job: dict) -> dict:
             "failed": f"train --rig exited {done.returncode}: {done.stderr[-2000:]}",
         }
     t1 = time.time()
+    training = json.loads((out / "rig_training.json").read_text(encoding="utf-8"))
     return {
         "rig": rig.name,
         "seed": seed,
         "controller": str(controller),
+        "residual_base": training.get("base"),
         **_closed_loop(str(controller), job),
         "seconds": {"train": t1 - t0, "closed_loop": time.time() - t1},
     }
