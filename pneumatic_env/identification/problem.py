@@ -119,16 +119,18 @@ def _rollout_piece(ds: Dataset, params: np.ndarray, n_samples: int, substeps: in
 
 def _pieces(ds: Dataset, arr: np.ndarray, n_threads: int) -> list[tuple[np.ndarray, int]]:
     """The column groups of one job, each as (column indices, substeps): columns whose rod
-    moves and columns whose rod is clamped apart, each at its own substep, each cut into
-    up to ``n_threads`` contiguous parts."""
+    moves and columns whose rod is clamped apart, each at its own substep, each dealt out
+    into up to ``n_threads`` parts (every ``n_threads``-th column: a candidate's columns,
+    which cost alike and sit side by side, are shared by every part)."""
     moving = arr[_ROW["piston_mode"]] != MODE_FIXED
     pieces = []
     for group in (np.flatnonzero(~moving), np.flatnonzero(moving)):
         if group.size == 0:
             continue
         substeps = ds.substeps_moving if moving[group[0]] and ds.substeps_moving else ds.substeps
-        for part in np.array_split(group, min(n_threads, group.size)):
-            pieces.append((part, substeps))
+        n_parts = min(n_threads, group.size)
+        for first in range(n_parts):
+            pieces.append((group[first::n_parts], substeps))
     return pieces
 
 
