@@ -1,9 +1,9 @@
-"""The kernel's batch path: chunks of ``CHUNK_ENVS`` environments running the paper's
-model advance one RK4 substep at a time in single loops over the chunk that LLVM compiles
-to SIMD code (``advance_chunk``); a lane whose substep is stiff or crosses a piston event
-is redone by the general path, and environments with other effects on take
-``general_path.advance_env``. The step functions (``step_serial``, ``step_parallel``,
-``rollout_serial``) run the chunks of a batch.
+"""The kernel's batch path: chunks of ``CHUNK_ENVS`` environments running the paper's model
+(with the leak orifices, ``constants.batch_lane_kind``) advance one RK4 substep at a time
+in single loops over the chunk that LLVM compiles to SIMD code (``advance_chunk``); a lane
+whose substep is stiff or crosses a piston event is redone by the general path, and
+environments with other effects on take ``general_path.advance_env``. The step functions
+(``step_serial``, ``step_parallel``, ``rollout_serial``) run the chunks of a batch.
 """
 
 import math
@@ -13,6 +13,8 @@ from numba import njit, prange
 
 from . import layout as L
 from .constants import (
+    BATCH_GENERAL,
+    BATCH_LEAKS,
     C_BASE_ONLY,
     C_DELAY_SUBSTEPS,
     C_SPOOL_PLAY_BAND,
@@ -110,13 +112,10 @@ def begin_substeps(constants, work, n_lanes, h):
         work[W_REDO * CHUNK_ENVS + j] = 1.0 if stiff else 0.0
 
 
-@njit(cache=True, error_model="numpy")
-def base_substeps_vectorised(constants, work, n_lanes, h):
-    """RK4 substep of ``base_derivatives`` for every lane of a chunk; a loop LLVM vectorises.
-
-    ``error_model="numpy"`` lets a division by zero give inf instead of raising, so the
-    divisions do not stop vectorisation.
-    """
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _substeps_vectorised(constants, work, n_lanes, h, leaks):
+    """RK4 substep of ``batch_derivatives`` for every lane of a chunk; a loop LLVM
+    vectorises once ``leaks`` (a constant where this is inlined) has folded away."""
     for j in range(n_lanes):
         c = load_constants(constants, j)
         out = rk4_base_substep(
@@ -128,8 +127,26 @@ def base_substeps_vectorised(constants, work, n_lanes, h):
             work[(W_SPOOL_DELAYED + 1) * CHUNK_ENVS + j],
             work[(W_SPOOL_DELAYED + 2) * CHUNK_ENVS + j],
             h,
+            leaks,
         )
         _set_work_rows(work, 0, j, out)
+
+
+@njit(cache=True, error_model="numpy")
+def base_substeps_vectorised(constants, work, n_lanes, h):
+    """RK4 substep of ``base_derivatives`` for every lane of a chunk; a loop LLVM vectorises.
+
+    ``error_model="numpy"`` lets a division by zero give inf instead of raising, so the
+    divisions do not stop vectorisation.
+    """
+    _substeps_vectorised(constants, work, n_lanes, h, False)
+
+
+@njit(cache=True, error_model="numpy")
+def leaky_substeps_vectorised(constants, work, n_lanes, h):
+    """As ``base_substeps_vectorised`` with the leak orifices (``BATCH_LEAKS`` lanes; on a
+    ``BATCH_BASE`` lane their closed paths add 0.0, as in ``derivatives``)."""
+    _substeps_vectorised(constants, work, n_lanes, h, True)
 
 
 @njit(cache=True, error_model="numpy")
@@ -312,16 +329,17 @@ def advance_chunk(sim, first, stop, coil_current_a):
     control period with the coil currents ``coil_current_a`` (n_envs,) held; write their
     outputs.
 
-    ``first`` is a multiple of ``CHUNK_ENVS``. Environments where ``base_model_only``
-    holds advance together: per substep, one vectorised loop keeps the start state and
-    finds the piston's direction and the stiff lanes (``begin_substeps``), the delayed
-    spool positions are read (``delayed_spool_rows``), one vectorised RK4 substep
-    (``base_substeps_vectorised``) advances every lane, and one vectorised loop finds the
-    lanes whose piston met an event and applies the stops (``end_substeps``). A lane
-    whose substep needs splitting (stiff flow, ``refinement``) or crosses a piston event
-    is redone from the substep's start by the general path (``split_substep``). Other
-    environments take ``advance_env``. Either way an environment's result does not depend
-    on the rest of the batch.
+    ``first`` is a multiple of ``CHUNK_ENVS``. Environments of ``constants.batch_lane_kind``
+    ``BATCH_BASE`` or ``BATCH_LEAKS`` advance together (the leak orifices' RK4 loop,
+    ``leaky_substeps_vectorised``, where any lane has them): per substep, one vectorised
+    loop keeps the start state and finds the piston's direction and the stiff lanes
+    (``begin_substeps``), the delayed spool positions are read (``delayed_spool_rows``), one
+    vectorised RK4 substep (``base_substeps_vectorised``) advances every lane, and one
+    vectorised loop finds the lanes whose piston met an event and applies the stops
+    (``end_substeps``). A lane whose substep needs splitting (stiff flow, ``refinement``) or
+    crosses a piston event is redone from the substep's start by the general path
+    (``split_substep``). Other environments take ``advance_env``. Either way an
+    environment's result does not depend on the rest of the batch.
     """
     n = stop - first
     state, history, n_substeps = sim.state, sim.history, sim.n_substeps
@@ -330,9 +348,11 @@ def advance_chunk(sim, first, stop, coil_current_a):
     chunk_constants = sim.constants[first // CHUNK_ENVS]
     refresh_constants(sim.params, first, stop, h, sim.constants_key, chunk_constants)
     fast = chunk_constants[C_BASE_ONLY * CHUNK_ENVS :]
+    leaky = False
     for j in range(n):
-        if fast[j] == 0.0:
+        if fast[j] == BATCH_GENERAL:
             advance_env(sim, first + j, coil_current_a[first + j])
+        leaky |= fast[j] == BATCH_LEAKS
     # lanes advance_env advanced are computed below too, and ignored
     work = chunk_work(state, first, stop)
     fast_commands(chunk_constants, work, n, coil_current_a[first:stop], state[L.S_PLAY, first:stop])
@@ -340,7 +360,10 @@ def advance_chunk(sim, first, stop, coil_current_a):
     for sub in range(n_substeps):
         head_sub = ring_slot(sim.head[0] + sub, n_slots)
         prepare_substep(chunk_constants, work, history, first, n, head_sub, same_delay, h)
-        base_substeps_vectorised(chunk_constants, work, n, h)
+        if leaky:
+            leaky_substeps_vectorised(chunk_constants, work, n, h)
+        else:
+            base_substeps_vectorised(chunk_constants, work, n, h)
         end_substeps(chunk_constants, work, n)
         slot = ring_slot(head_sub + 1, n_slots)
         for row, channel in ((L.S_X_S, L.H_X_S), (L.S_P1, L.H_P1), (L.S_P2, L.H_P2)):

@@ -266,22 +266,14 @@ def env_constants(params, env, substep_s):
 
 
 @njit(cache=True)
-def base_model_only(c):
-    """Whether an environment runs the paper's model with no effect that needs ``derivatives``.
-
-    Then the spool overlap (p_w >= R_h, Eq. 43) keeps the supply and exhaust paths of a
-    chamber from being open together, and ``base_derivatives`` gives the same result with
-    two valve paths instead of four. Three effects are in it (the exhaust discharge ratio,
-    the tube volume as a dead volume, the spool friction, whose play acts before the
-    substeps); the others send the environment to the general path.
-    """
+def _base_apart_from_leaks(c):
+    """``base_model_only`` but for the two leak orifices (``leakage_area_m2``,
+    ``rod_seal_leak_area_m2``), which the batch path adds on (``BATCH_LEAKS``)."""
     return (
         c.energy == 0.0
         and c.supply_resistance == 0.0
         and c.exhaust_vent == 0.0
         and c.literal == 0.0
-        and c.leak_area == 0.0
-        and c.seal_leak == 0.0
         and c.null_leak == 0.0
         and c.coil_lag == 0.0
         and c.coil_force_lag == 0.0
@@ -293,6 +285,37 @@ def base_model_only(c):
         and c.half_width >= c.hole_radius
         and c.delay_substeps >= 1.0
     )
+
+
+@njit(cache=True)
+def base_model_only(c):
+    """Whether an environment runs the paper's model with no effect that needs ``derivatives``.
+
+    Then the spool overlap (p_w >= R_h, Eq. 43) keeps the supply and exhaust paths of a
+    chamber from being open together, and ``base_derivatives`` gives the same result with
+    two valve paths instead of four. Three effects are in it (the exhaust discharge ratio,
+    the tube volume as a dead volume, the spool friction, whose play acts before the
+    substeps); the leak orifices take the batch path too (``batch_lane_kind``); the others
+    send the environment to the general path.
+    """
+    return _base_apart_from_leaks(c) and c.leak_area == 0.0 and c.seal_leak == 0.0
+
+
+# How the batch path advances an environment (``batch_lane_kind``, the cache's row
+# C_BASE_ONLY): by the general path, with ``base_derivatives``, or with
+# ``base_derivatives`` and the leak orifices (cross-piston and rod-seal leakage).
+BATCH_GENERAL = 0.0
+BATCH_BASE = 1.0
+BATCH_LEAKS = 2.0
+
+
+@njit(cache=True)
+def batch_lane_kind(c):
+    """``BATCH_BASE`` where ``base_model_only`` holds, ``BATCH_LEAKS`` where it would but
+    for the leak orifices, else ``BATCH_GENERAL``."""
+    if not _base_apart_from_leaks(c):
+        return BATCH_GENERAL
+    return BATCH_BASE if c.leak_area == 0.0 and c.seal_leak == 0.0 else BATCH_LEAKS
 
 
 N_CONSTANTS = len(Constants._fields)
@@ -395,7 +418,7 @@ def load_constants(constants, lane):
 
 # The batch path caches the per-environment constants (``env_constants``) between control
 # periods: per chunk, the N_CONSTANTS rows of ``store_constants`` and a row C_BASE_ONLY
-# (1.0 where ``base_model_only`` holds); per environment, a key: the substep length they
+# (``batch_lane_kind``: 0.0 for the general path); per environment, a key: the substep length they
 # were derived for, NaN when stale. The parameters do not change behind the cache's back:
 # ``BatchSimulator.params`` is read-only, and ``set_params`` / ``set_parameter`` mark the
 # changed environments' keys stale. (A key of whole parameter columns, compared every
@@ -423,5 +446,5 @@ def refresh_constants(params, first, stop, substep_s, key, constants):
         if not key[env] == substep_s:
             c = env_constants(params, env, substep_s)
             store_constants(c, constants, j)
-            constants[C_BASE_ONLY * CHUNK_ENVS + j] = 1.0 if base_model_only(c) else 0.0
+            constants[C_BASE_ONLY * CHUNK_ENVS + j] = batch_lane_kind(c)
             key[env] = substep_s

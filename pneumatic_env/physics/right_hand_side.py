@@ -213,6 +213,17 @@ def base_derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, direction, spool
     loop over environments evaluates 1 area and 2 flows where the general form takes 2 and
     6, and compiles to SIMD code.
     """
+    return batch_derivatives(
+        c, coil_current_a, x_s, v_s, p1, p2, x, v, direction, spool_delayed, False
+    )
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def batch_derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, direction, spool_delayed, leaks):
+    """``base_derivatives``, with ``leaks`` (a constant where it is inlined, so the other
+    form compiles away) plus the leak orifices (cross-piston, rod seal) of the general
+    form: their flows added to the chambers' in- and outflows in ``derivatives``' order,
+    so the sums are its own bit for bit (a closed path adds 0.0)."""
     to_chamber_1 = spool_delayed > 0.0
     area = orifice_area_inv_radius(
         abs(spool_delayed), c.hole_radius, c.inv_hole_radius, c.half_width, c.holes
@@ -235,14 +246,26 @@ def base_derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, direction, spool
         ),
         p2,
     )
+    in_1, out_1 = max(flow_1, 0.0), max(-flow_1, 0.0)
+    in_2, out_2 = max(flow_2, 0.0), max(-flow_2, 0.0)
+    exhaust_rate = max(-flow_2, 0.0) if to_chamber_1 else max(-flow_1, 0.0)
+    if leaks:
+        t = c.inv_sqrt_t
+        leak_12 = path_mass_flow(c, c.discharge, c.leak_area, p1, p2, t, t, FLOW_LAW_PAPER)
+        seal_2 = path_mass_flow(c, c.discharge, c.seal_leak, p2, c.ambient_pa, t, t, FLOW_LAW_PAPER)
+        in_1 = in_1 + max(-leak_12, 0.0)
+        out_1 = out_1 + max(leak_12, 0.0)
+        in_2 = in_2 + max(leak_12, 0.0) + max(-seal_2, 0.0)
+        out_2 = out_2 + max(-leak_12, 0.0) + max(seal_2, 0.0)
+        exhaust_rate = exhaust_rate + max(seal_2, 0.0)
     velocity = v if direction != 0.0 else 0.0
     v1, v2 = _volumes(c, x)
     dp1 = pressure_rate(
         p1,
         v1,
         c.area_cap * velocity,
-        max(flow_1, 0.0),
-        max(-flow_1, 0.0),
+        in_1,
+        out_1,
         c.gas_rt,
         c.alpha_in,
         c.alpha_out,
@@ -252,8 +275,8 @@ def base_derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, direction, spool
         p2,
         v2,
         -c.area_rod * velocity,
-        max(flow_2, 0.0),
-        max(-flow_2, 0.0),
+        in_2,
+        out_2,
         c.gas_rt,
         c.alpha_in,
         c.alpha_out,
@@ -262,7 +285,6 @@ def base_derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, direction, spool
     accel, a_s = _motion_and_spool(
         c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction, c.dynamic_friction
     )
-    exhaust_rate = max(-flow_2, 0.0) if to_chamber_1 else max(-flow_1, 0.0)
     return v_s, a_s, dp1, dp2, velocity, accel, exhaust_rate, 0.0, 0.0
 
 
@@ -483,23 +505,62 @@ def _rk4_combine(c, y, k1, k2, k3, k4, hh, direction):
 
 @njit(cache=True, forceinline=True, error_model="numpy")
 def rk4_base_substep(
-    c, y, coil_current_a, direction, spool_delayed_start, spool_delayed_mid, spool_delayed_end, h
+    c,
+    y,
+    coil_current_a,
+    direction,
+    spool_delayed_start,
+    spool_delayed_mid,
+    spool_delayed_end,
+    h,
+    leaks,
 ):
-    """One whole RK4 substep of ``base_derivatives``; the delayed spool positions at its
-    start, middle and end are read from the ring buffer beforehand (``delayed_value``)."""
-    k1 = base_derivatives(
-        c, coil_current_a, y[0], y[1], y[2], y[3], y[4], y[5], direction, spool_delayed_start
+    """One whole RK4 substep of ``batch_derivatives`` (``leaks``: with the leak orifices);
+    the delayed spool positions at its start, middle and end are read from the ring buffer
+    beforehand (``delayed_value``)."""
+    k1 = batch_derivatives(
+        c, coil_current_a, y[0], y[1], y[2], y[3], y[4], y[5], direction, spool_delayed_start, leaks
     )
     y2 = _axpy(y, 0.5 * h, k1)
-    k2 = base_derivatives(
-        c, coil_current_a, y2[0], y2[1], y2[2], y2[3], y2[4], y2[5], direction, spool_delayed_mid
+    k2 = batch_derivatives(
+        c,
+        coil_current_a,
+        y2[0],
+        y2[1],
+        y2[2],
+        y2[3],
+        y2[4],
+        y2[5],
+        direction,
+        spool_delayed_mid,
+        leaks,
     )
     y3 = _axpy(y, 0.5 * h, k2)
-    k3 = base_derivatives(
-        c, coil_current_a, y3[0], y3[1], y3[2], y3[3], y3[4], y3[5], direction, spool_delayed_mid
+    k3 = batch_derivatives(
+        c,
+        coil_current_a,
+        y3[0],
+        y3[1],
+        y3[2],
+        y3[3],
+        y3[4],
+        y3[5],
+        direction,
+        spool_delayed_mid,
+        leaks,
     )
     y4 = _axpy(y, h, k3)
-    k4 = base_derivatives(
-        c, coil_current_a, y4[0], y4[1], y4[2], y4[3], y4[4], y4[5], direction, spool_delayed_end
+    k4 = batch_derivatives(
+        c,
+        coil_current_a,
+        y4[0],
+        y4[1],
+        y4[2],
+        y4[3],
+        y4[4],
+        y4[5],
+        direction,
+        spool_delayed_end,
+        leaks,
     )
     return _rk4_combine(c, y, k1, k2, k3, k4, h, direction)
