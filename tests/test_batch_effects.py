@@ -15,13 +15,33 @@ from pneumatic_env.physics import kernel
 from pneumatic_env.physics import layout as L
 from pneumatic_env.simulator import BatchSimulator
 
-# each effect the batch path takes, with a strong and a weak setting
-BATCH_EFFECTS = {
-    "leakage": ({"leakage_area_m2": 2e-7}, {"leakage_area_m2": 1e-9}),
-    "rod_seal_leak": ({"rod_seal_leak_area_m2": 2e-7}, {"rod_seal_leak_area_m2": 1e-9}),
+# each effect the batch path takes, with a strong and a weak setting, and the lane kind
+EFFECT_KINDS = {
+    "leakage": (({"leakage_area_m2": 2e-7}, {"leakage_area_m2": 1e-9}), K.BATCH_LEAKS),
+    "rod_seal_leak": (
+        ({"rod_seal_leak_area_m2": 2e-7}, {"rod_seal_leak_area_m2": 1e-9}),
+        K.BATCH_LEAKS,
+    ),
     "both_leaks": (
-        {"leakage_area_m2": 5e-8, "rod_seal_leak_area_m2": 1e-7},
-        {"leakage_area_m2": 1e-9, "rod_seal_leak_area_m2": 3e-9},
+        (
+            {"leakage_area_m2": 5e-8, "rod_seal_leak_area_m2": 1e-7},
+            {"leakage_area_m2": 1e-9, "rod_seal_leak_area_m2": 3e-9},
+        ),
+        K.BATCH_LEAKS,
+    ),
+    "coil_lag": (
+        (
+            {"coil_time_constant_s": 5e-3, "coil_lag_shape": 0.0},
+            {"coil_time_constant_s": 1e-3, "coil_lag_shape": 0.1},
+        ),
+        K.BATCH_BASE,
+    ),
+    "coil_lags_and_leaks": (
+        (
+            {"coil_time_constant_s": 2e-3, "coil_lag_shape": 0.25, "leakage_area_m2": 5e-8},
+            {"coil_time_constant_s": 3e-4, "coil_lag_shape": 0.2, "rod_seal_leak_area_m2": 5e-8},
+        ),
+        K.BATCH_LEAKS,
     ),
 }
 ROD_SETUPS = (
@@ -50,28 +70,29 @@ def _random_currents(rng, n_steps, n_envs, i_max=2.0):
 
 def _sets(effect):
     """Every rod setup with the effect's strong and weak setting, then a base-model lane and
-    a general-path lane (a coil lag) in the same chunk."""
+    a general-path lane (heat transfer) in the same chunk."""
     sets = [
         load_parameters("numatics", **rod, **setting)
-        for setting in BATCH_EFFECTS[effect]
+        for setting in EFFECT_KINDS[effect][0]
         for rod in ROD_SETUPS
     ]
     sets.append(load_parameters("airpel", **ROD_SETUPS[1]))
-    sets.append(load_parameters("numatics", coil_time_constant_s=1e-3, **ROD_SETUPS[1]))
+    sets.append(load_parameters("numatics", wall_heat_transfer_w_per_k=0.05, **ROD_SETUPS[1]))
     return sets
 
 
-@pytest.mark.parametrize("effect", sorted(BATCH_EFFECTS))
-def test_the_batch_path_takes_the_leak_lanes(effect):
+@pytest.mark.parametrize("effect", sorted(EFFECT_KINDS))
+def test_the_batch_path_takes_the_effect_lanes(effect):
     params = parameter_array(_sets(effect))
     kinds = [
         K.batch_lane_kind(kernel.env_constants(params, env, 2e-4)) for env in range(params.shape[1])
     ]
-    assert kinds == [K.BATCH_LEAKS] * (len(kinds) - 2) + [K.BATCH_BASE, K.BATCH_GENERAL]
+    kind = EFFECT_KINDS[effect][1]
+    assert kinds == [kind] * (len(kinds) - 2) + [K.BATCH_BASE, K.BATCH_GENERAL]
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
-@pytest.mark.parametrize("effect", sorted(BATCH_EFFECTS))
+@pytest.mark.parametrize("effect", sorted(EFFECT_KINDS))
 def test_batch_effects_reproduce_the_general_path_bit_for_bit(effect, seed):
     sets = _sets(effect)
     currents = _random_currents(np.random.default_rng(seed), 300, len(sets))

@@ -266,17 +266,16 @@ def env_constants(params, env, substep_s):
 
 
 @njit(cache=True)
-def _base_apart_from_leaks(c):
-    """``base_model_only`` but for the two leak orifices (``leakage_area_m2``,
-    ``rod_seal_leak_area_m2``), which the batch path adds on (``BATCH_LEAKS``)."""
+def _batch_path_effects_only(c):
+    """``base_model_only`` but for the effects the batch path adds on: the two leak
+    orifices (``leakage_area_m2``, ``rod_seal_leak_area_m2``; ``BATCH_LEAKS``) and the coil
+    lags (``coil_time_constant_s``; the currents at its RK4 stages, ``lagged_coil_rows``)."""
     return (
         c.energy == 0.0
         and c.supply_resistance == 0.0
         and c.exhaust_vent == 0.0
         and c.literal == 0.0
         and c.null_leak == 0.0
-        and c.coil_lag == 0.0
-        and c.coil_force_lag == 0.0
         and c.stribeck == 0.0
         and c.lugre == 0.0
         and c.flow_law == FLOW_LAW_PAPER
@@ -295,15 +294,22 @@ def base_model_only(c):
     chamber from being open together, and ``base_derivatives`` gives the same result with
     two valve paths instead of four. Three effects are in it (the exhaust discharge ratio,
     the tube volume as a dead volume, the spool friction, whose play acts before the
-    substeps); the leak orifices take the batch path too (``batch_lane_kind``); the others
-    send the environment to the general path.
+    substeps); the leak orifices and the coil lags take the batch path too
+    (``batch_lane_kind``); the others send the environment to the general path.
     """
-    return _base_apart_from_leaks(c) and c.leak_area == 0.0 and c.seal_leak == 0.0
+    return (
+        _batch_path_effects_only(c)
+        and c.leak_area == 0.0
+        and c.seal_leak == 0.0
+        and c.coil_lag == 0.0
+        and c.coil_force_lag == 0.0
+    )
 
 
 # How the batch path advances an environment (``batch_lane_kind``, the cache's row
 # C_BASE_ONLY): by the general path, with ``base_derivatives``, or with
-# ``base_derivatives`` and the leak orifices (cross-piston and rod-seal leakage).
+# ``base_derivatives`` and the leak orifices (cross-piston and rod-seal leakage); either
+# batch kind with or without the coil lags.
 BATCH_GENERAL = 0.0
 BATCH_BASE = 1.0
 BATCH_LEAKS = 2.0
@@ -311,9 +317,9 @@ BATCH_LEAKS = 2.0
 
 @njit(cache=True)
 def batch_lane_kind(c):
-    """``BATCH_BASE`` where ``base_model_only`` holds, ``BATCH_LEAKS`` where it would but
-    for the leak orifices, else ``BATCH_GENERAL``."""
-    if not _base_apart_from_leaks(c):
+    """``BATCH_BASE`` where ``base_model_only`` holds but for a coil lag, ``BATCH_LEAKS``
+    where it would but for the leak orifices (and a coil lag), else ``BATCH_GENERAL``."""
+    if not _batch_path_effects_only(c):
         return BATCH_GENERAL
     return BATCH_BASE if c.leak_area == 0.0 and c.seal_leak == 0.0 else BATCH_LEAKS
 
@@ -426,6 +432,7 @@ def load_constants(constants, lane):
 C_BASE_ONLY = N_CONSTANTS
 C_SPOOL_PLAY_BAND = Constants._fields.index("spool_play_band")  # read per control period
 C_DELAY_SUBSTEPS = Constants._fields.index("delay_substeps")  # read per substep
+C_COIL_LAG = Constants._fields.index("coil_lag")  # read per control period
 N_CACHED_CONSTANTS = N_CONSTANTS + 1
 
 

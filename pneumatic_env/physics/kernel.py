@@ -20,7 +20,7 @@ environment through the whole control period, ``derivatives``) takes environment
 other effects on, and redoes a lane's substep that is stiff or crosses a piston event.
 Both give the same numbers bit for bit (tests/test_physics.py).
 
-This module gathers the kernel's names from its five parts:
+This module gathers the kernel's names from its six parts:
 
 =========================  =============================================================
 ``constants``              ``Constants``, ``env_constants`` and the batch path's cache
@@ -29,24 +29,27 @@ This module gathers the kernel's names from its five parts:
 ``right_hand_side``        ``derivatives``, ``base_derivatives``, the delayed reads, RK4
 ``general_path``           ``advance_env``: refinement, piston events, outputs
 ``batch_path``             ``advance_chunk`` (SIMD chunks), the step functions
+``batch_work``             the batch path's work rows, the coil lags' stage currents
 =========================  =============================================================
 """
 
 from .batch_path import (
-    N_WORK,
     PARALLEL_CHUNKS_PER_HANDOUT,
-    W_CURRENT,
-    W_DIRECTION,
-    W_REDO,
-    W_SPOOL_DELAYED,
-    W_START,
     advance_chunk,
-    chunk_work,
     history_slots,
     prepare_substep,
     rollout_serial,
     step_parallel,
     step_serial,
+)
+from .batch_work import (
+    N_WORK,
+    W_CURRENT,
+    W_DIRECTION,
+    W_REDO,
+    W_SPOOL_DELAYED,
+    W_START,
+    chunk_work,
 )
 from .constants import (
     C_BASE_ONLY,

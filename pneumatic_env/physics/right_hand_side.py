@@ -504,63 +504,23 @@ def _rk4_combine(c, y, k1, k2, k3, k4, hh, direction):
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def rk4_base_substep(
-    c,
-    y,
-    coil_current_a,
-    direction,
-    spool_delayed_start,
-    spool_delayed_mid,
-    spool_delayed_end,
-    h,
-    leaks,
-):
-    """One whole RK4 substep of ``batch_derivatives`` (``leaks``: with the leak orifices);
-    the delayed spool positions at its start, middle and end are read from the ring buffer
-    beforehand (``delayed_value``)."""
+def rk4_base_substep(c, y, drive_a, direction, spool_delayed, h, leaks):
+    """One whole RK4 substep of ``batch_derivatives`` (``leaks``: with the leak orifices).
+    ``drive_a`` and ``spool_delayed`` are the currents driving the spool (``coil_at``) and
+    the delayed spool positions (``delayed_value``) at its start, middle and end."""
     k1 = batch_derivatives(
-        c, coil_current_a, y[0], y[1], y[2], y[3], y[4], y[5], direction, spool_delayed_start, leaks
+        c, drive_a[0], y[0], y[1], y[2], y[3], y[4], y[5], direction, spool_delayed[0], leaks
     )
     y2 = _axpy(y, 0.5 * h, k1)
     k2 = batch_derivatives(
-        c,
-        coil_current_a,
-        y2[0],
-        y2[1],
-        y2[2],
-        y2[3],
-        y2[4],
-        y2[5],
-        direction,
-        spool_delayed_mid,
-        leaks,
+        c, drive_a[1], y2[0], y2[1], y2[2], y2[3], y2[4], y2[5], direction, spool_delayed[1], leaks
     )
     y3 = _axpy(y, 0.5 * h, k2)
     k3 = batch_derivatives(
-        c,
-        coil_current_a,
-        y3[0],
-        y3[1],
-        y3[2],
-        y3[3],
-        y3[4],
-        y3[5],
-        direction,
-        spool_delayed_mid,
-        leaks,
+        c, drive_a[1], y3[0], y3[1], y3[2], y3[3], y3[4], y3[5], direction, spool_delayed[1], leaks
     )
     y4 = _axpy(y, h, k3)
     k4 = batch_derivatives(
-        c,
-        coil_current_a,
-        y4[0],
-        y4[1],
-        y4[2],
-        y4[3],
-        y4[4],
-        y4[5],
-        direction,
-        spool_delayed_end,
-        leaks,
+        c, drive_a[2], y4[0], y4[1], y4[2], y4[3], y4[4], y4[5], direction, spool_delayed[2], leaks
     )
     return _rk4_combine(c, y, k1, k2, k3, k4, h, direction)
