@@ -36,6 +36,17 @@ EFFECT_KINDS = {
         ),
         K.BATCH_BASE,
     ),
+    "heat_transfer": (
+        ({"wall_heat_transfer_w_per_k": 2.0}, {"wall_heat_transfer_w_per_k": 0.05}),
+        K.BATCH_BASE,
+    ),
+    "heat_transfer_and_leaks": (
+        (
+            {"wall_heat_transfer_w_per_k": 0.5, "leakage_area_m2": 5e-8},
+            {"wall_heat_transfer_w_per_k": 0.05, "rod_seal_leak_area_m2": 1e-7},
+        ),
+        K.BATCH_LEAKS,
+    ),
     "coil_lags_and_leaks": (
         (
             {"coil_time_constant_s": 2e-3, "coil_lag_shape": 0.25, "leakage_area_m2": 5e-8},
@@ -70,14 +81,14 @@ def _random_currents(rng, n_steps, n_envs, i_max=2.0):
 
 def _sets(effect):
     """Every rod setup with the effect's strong and weak setting, then a base-model lane and
-    a general-path lane (heat transfer) in the same chunk."""
+    a general-path lane (supply droop) in the same chunk."""
     sets = [
         load_parameters("numatics", **rod, **setting)
         for setting in EFFECT_KINDS[effect][0]
         for rod in ROD_SETUPS
     ]
     sets.append(load_parameters("airpel", **ROD_SETUPS[1]))
-    sets.append(load_parameters("numatics", wall_heat_transfer_w_per_k=0.05, **ROD_SETUPS[1]))
+    sets.append(load_parameters("numatics", supply_resistance_pa_s_per_kg=1e6, **ROD_SETUPS[1]))
     return sets
 
 

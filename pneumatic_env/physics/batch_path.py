@@ -12,6 +12,7 @@ import numpy as np
 from numba import njit, prange
 
 from . import layout as L
+from .batch_rhs import rk4_base_substep
 from .batch_work import (
     W_COIL,
     W_COIL_START,
@@ -32,6 +33,7 @@ from .constants import (
     C_BASE_ONLY,
     C_COIL_LAG,
     C_DELAY_SUBSTEPS,
+    C_ENERGY,
     C_SPOOL_PLAY_BAND,
     CHUNK_ENVS,
     load_constants,
@@ -57,7 +59,7 @@ from .piston import (
     output_force,
     pneumatic_force,
 )
-from .right_hand_side import N_RK, ring_slot, rk4_base_substep
+from .right_hand_side import N_RK, ring_slot
 from .vecmath import float_to_bits
 
 # The parallel steps run inside BatchSimulator.call_step_kernel, which has the threads
@@ -87,17 +89,18 @@ def begin_substeps(constants, work, n_lanes, h):
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def _substeps_vectorised(constants, work, n_lanes, h, leaks, lagged):
-    """RK4 substep of ``batch_derivatives`` for every lane of a chunk, the spool driven by
-    the held command or, ``lagged``, by the coil lags' currents (``lagged_coil_rows``); a
-    loop LLVM vectorises once ``leaks`` and ``lagged`` (constants where this is inlined)
-    have folded away."""
+def _substeps_vectorised(constants, work, n_lanes, h, leaks, energy, driven):
+    """RK4 substep of ``batch_rhs.batch_derivatives`` for every lane of a chunk, with the
+    leak orifices (``leaks``) and the energy equation (``energy``), the spool driven by the
+    held command ``W_CURRENT`` or, ``driven``, by the currents in ``W_DRIVE`` (the coil
+    lags'); a loop LLVM vectorises once the flags (constants where this is inlined) have
+    folded away."""
     k = CHUNK_ENVS
     for j in range(n_lanes):
         c = load_constants(constants, j)
         command = work[W_CURRENT * k + j]
         drive = (command, command, command)
-        if lagged:
+        if driven:
             drive = (
                 work[W_DRIVE * k + j],
                 work[(W_DRIVE + 1) * k + j],
@@ -109,8 +112,10 @@ def _substeps_vectorised(constants, work, n_lanes, h, leaks, lagged):
             work[(W_SPOOL_DELAYED + 2) * k + j],
         )
         direction = work[W_DIRECTION * k + j]
-        out = rk4_base_substep(c, work_rows(work, 0, j), drive, direction, spool_delayed, h, leaks)
-        set_work_rows(work, 0, j, out)
+        y = rk4_base_substep(
+            c, work_rows(work, 0, j), drive, direction, spool_delayed, h, leaks, energy
+        )
+        set_work_rows(work, 0, j, y)
 
 
 @njit(cache=True, error_model="numpy")
@@ -120,29 +125,25 @@ def base_substeps_vectorised(constants, work, n_lanes, h):
     ``error_model="numpy"`` lets a division by zero give inf instead of raising, so the
     divisions do not stop vectorisation.
     """
-    _substeps_vectorised(constants, work, n_lanes, h, False, False)
+    _substeps_vectorised(constants, work, n_lanes, h, False, False, False)
 
 
 @njit(cache=True, error_model="numpy")
-def leaky_substeps_vectorised(constants, work, n_lanes, h):
-    """As ``base_substeps_vectorised`` with the leak orifices (``BATCH_LEAKS`` lanes; on a
-    ``BATCH_BASE`` lane their closed paths add 0.0, as in ``derivatives``)."""
-    _substeps_vectorised(constants, work, n_lanes, h, True, False)
-
-
-@njit(cache=True, error_model="numpy")
-def chunk_substeps(constants, work, n_lanes, h, leaks, lagged):
-    """The chunk's RK4 loop: ``base_substeps_vectorised``, ``leaky_substeps_vectorised``, or
-    either with the spool driven by the coil lags' currents (``lagged``)."""
-    if lagged:
-        if leaks:
-            _substeps_vectorised(constants, work, n_lanes, h, True, True)
-        else:
-            _substeps_vectorised(constants, work, n_lanes, h, False, True)
-    elif leaks:
-        leaky_substeps_vectorised(constants, work, n_lanes, h)
-    else:
+def chunk_substeps(constants, work, n_lanes, h, leaks, energy, lagged):
+    """The chunk's RK4 loop: ``base_substeps_vectorised``, or with the effects its lanes
+    have (flags true where any lane has them; on another lane a leak path is closed and
+    adds 0.0, the energy equation is not selected), the spool then driven by ``W_DRIVE``
+    (the command, or with ``lagged`` the coil lags' currents, ``lagged_coil_rows``)."""
+    if not (leaks or energy or lagged):
         base_substeps_vectorised(constants, work, n_lanes, h)
+    elif leaks and energy:
+        _substeps_vectorised(constants, work, n_lanes, h, True, True, True)
+    elif leaks:
+        _substeps_vectorised(constants, work, n_lanes, h, True, False, True)
+    elif energy:
+        _substeps_vectorised(constants, work, n_lanes, h, False, True, True)
+    else:
+        _substeps_vectorised(constants, work, n_lanes, h, False, False, True)
 
 
 @njit(cache=True, error_model="numpy")
@@ -278,6 +279,8 @@ def fast_commands(constants, work, n_lanes, command_row, play_row):
         played = spool_play_current(held, command_row[j], constants[C_SPOOL_PLAY_BAND * k + j])
         play_row[j] = held if constants[C_BASE_ONLY * k + j] == 0.0 else played
         work[W_CURRENT * k + j] = played
+        # the drive without a coil lag (``chunk_substeps``)
+        work[W_DRIVE * k + j] = work[(W_DRIVE + 1) * k + j] = work[(W_DRIVE + 2) * k + j] = played
 
 
 @njit(cache=True, error_model="numpy")
@@ -334,12 +337,13 @@ def advance_chunk(sim, first, stop, coil_current_a):
     chunk_constants = sim.constants[first // CHUNK_ENVS]
     refresh_constants(sim.params, first, stop, h, sim.constants_key, chunk_constants)
     fast = chunk_constants[C_BASE_ONLY * CHUNK_ENVS :]
-    leaky = lagged = False
+    leaky = lagged = energy = False
     for j in range(n):
         if fast[j] == BATCH_GENERAL:
             advance_env(sim, first + j, coil_current_a[first + j])
         leaky |= fast[j] == BATCH_LEAKS
         lagged |= chunk_constants[C_COIL_LAG * CHUNK_ENVS + j] != 0.0
+        energy |= chunk_constants[C_ENERGY * CHUNK_ENVS + j] != 0.0
     # lanes advance_env advanced are computed below too, and ignored
     work = chunk_work(state, first, stop)
     fast_commands(chunk_constants, work, n, coil_current_a[first:stop], state[L.S_PLAY, first:stop])
@@ -349,7 +353,7 @@ def advance_chunk(sim, first, stop, coil_current_a):
         prepare_substep(chunk_constants, work, history, first, n, head_sub, same_delay, h)
         if lagged:
             lagged_coil_rows(chunk_constants, work, n)
-        chunk_substeps(chunk_constants, work, n, h, leaky, lagged)
+        chunk_substeps(chunk_constants, work, n, h, leaky, energy, lagged)
         end_substeps(chunk_constants, work, n)
         slot = ring_slot(head_sub + 1, n_slots)
         for row, channel in ((L.S_X_S, L.H_X_S), (L.S_P1, L.H_P1), (L.S_P2, L.H_P2)):

@@ -268,11 +268,11 @@ def env_constants(params, env, substep_s):
 @njit(cache=True)
 def _batch_path_effects_only(c):
     """``base_model_only`` but for the effects the batch path adds on: the two leak
-    orifices (``leakage_area_m2``, ``rod_seal_leak_area_m2``; ``BATCH_LEAKS``) and the coil
-    lags (``coil_time_constant_s``; the currents at its RK4 stages, ``lagged_coil_rows``)."""
+    orifices (``leakage_area_m2``, ``rod_seal_leak_area_m2``; ``BATCH_LEAKS``), the coil
+    lags (``coil_time_constant_s``; the currents at its RK4 stages, ``lagged_coil_rows``)
+    and the energy equation (``wall_heat_transfer_w_per_k``; ``batch_rhs``)."""
     return (
-        c.energy == 0.0
-        and c.supply_resistance == 0.0
+        c.supply_resistance == 0.0
         and c.exhaust_vent == 0.0
         and c.literal == 0.0
         and c.null_leak == 0.0
@@ -294,8 +294,8 @@ def base_model_only(c):
     chamber from being open together, and ``base_derivatives`` gives the same result with
     two valve paths instead of four. Three effects are in it (the exhaust discharge ratio,
     the tube volume as a dead volume, the spool friction, whose play acts before the
-    substeps); the leak orifices and the coil lags take the batch path too
-    (``batch_lane_kind``); the others send the environment to the general path.
+    substeps); the leak orifices, the coil lags and the energy equation take the batch
+    path too (``batch_lane_kind``); the others send the environment to the general path.
     """
     return (
         _batch_path_effects_only(c)
@@ -303,13 +303,14 @@ def base_model_only(c):
         and c.seal_leak == 0.0
         and c.coil_lag == 0.0
         and c.coil_force_lag == 0.0
+        and c.energy == 0.0
     )
 
 
 # How the batch path advances an environment (``batch_lane_kind``, the cache's row
 # C_BASE_ONLY): by the general path, with ``base_derivatives``, or with
 # ``base_derivatives`` and the leak orifices (cross-piston and rod-seal leakage); either
-# batch kind with or without the coil lags.
+# batch kind with or without the coil lags and the energy equation.
 BATCH_GENERAL = 0.0
 BATCH_BASE = 1.0
 BATCH_LEAKS = 2.0
@@ -317,8 +318,9 @@ BATCH_LEAKS = 2.0
 
 @njit(cache=True)
 def batch_lane_kind(c):
-    """``BATCH_BASE`` where ``base_model_only`` holds but for a coil lag, ``BATCH_LEAKS``
-    where it would but for the leak orifices (and a coil lag), else ``BATCH_GENERAL``."""
+    """``BATCH_BASE`` where ``base_model_only`` holds but for a coil lag or the energy
+    equation, ``BATCH_LEAKS`` where it would but for the leak orifices (and those), else
+    ``BATCH_GENERAL``."""
     if not _batch_path_effects_only(c):
         return BATCH_GENERAL
     return BATCH_BASE if c.leak_area == 0.0 and c.seal_leak == 0.0 else BATCH_LEAKS
@@ -433,6 +435,7 @@ C_BASE_ONLY = N_CONSTANTS
 C_SPOOL_PLAY_BAND = Constants._fields.index("spool_play_band")  # read per control period
 C_DELAY_SUBSTEPS = Constants._fields.index("delay_substeps")  # read per substep
 C_COIL_LAG = Constants._fields.index("coil_lag")  # read per control period
+C_ENERGY = Constants._fields.index("energy")  # read per control period
 N_CACHED_CONSTANTS = N_CONSTANTS + 1
 
 

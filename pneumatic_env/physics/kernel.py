@@ -20,13 +20,15 @@ environment through the whole control period, ``derivatives``) takes environment
 other effects on, and redoes a lane's substep that is stiff or crosses a piston event.
 Both give the same numbers bit for bit (tests/test_physics.py).
 
-This module gathers the kernel's names from its six parts:
+This module gathers the kernel's names from its seven parts:
 
 =========================  =============================================================
 ``constants``              ``Constants``, ``env_constants`` and the batch path's cache
 ``nodes``                  algebraic nodes: valve-chamber flows, supply droop, exhaust
                            node, the valve ends of the transmission lines
-``right_hand_side``        ``derivatives``, ``base_derivatives``, the delayed reads, RK4
+``right_hand_side``        ``derivatives``, the delayed reads, RK4
+``batch_rhs``              ``base_derivatives``, ``batch_derivatives``: the batch path's
+                           right-hand side, its RK4 substep
 ``general_path``           ``advance_env``: refinement, piston events, outputs
 ``batch_path``             ``advance_chunk`` (SIMD chunks), the step functions
 ``batch_work``             the batch path's work rows, the coil lags' stage currents
@@ -42,6 +44,7 @@ from .batch_path import (
     step_parallel,
     step_serial,
 )
+from .batch_rhs import base_derivatives, batch_derivatives, rk4_base_substep
 from .batch_work import (
     N_WORK,
     W_CURRENT,
@@ -93,11 +96,9 @@ from .nodes import (
 )
 from .right_hand_side import (
     N_RK,
-    base_derivatives,
     delayed_value,
     derivatives,
     ring_slot,
-    rk4_base_substep,
 )
 
 __all__ = [
@@ -129,6 +130,7 @@ __all__ = [
     "N_RK",
     "derivatives",
     "base_derivatives",
+    "batch_derivatives",
     "delayed_value",
     "ring_slot",
     "rk4_base_substep",
