@@ -20,8 +20,8 @@ one run on this machine:
   model's, measured interleaved: what a candidate's simulations cost beside the base.
 
 ``--candidate`` takes a comma-separated list (default: leakage, rod_seal_leak, coil_lag,
-spool_friction, heat_transfer, tube_waves); ``--no-jacobians`` prints only the kernel
-figures (a minute instead of many).
+spool_friction, heat_transfer, tube_volume, iso_flow_law, tube_waves); ``--no-jacobians``
+prints only the kernel figures (a few minutes instead of many).
 
 ``--campaign DIR`` (repeatable) times the recordings in DIR instead. Ratios within one
 invocation are what count on a shared machine.
@@ -41,7 +41,9 @@ import numpy as np
 
 __all__ = ["candidate_kernel_costs", "jacobian_timing", "kernel_throughput", "main"]
 
-DEFAULT_CANDIDATES = "leakage,rod_seal_leak,coil_lag,spool_friction,heat_transfer,tube_waves"
+DEFAULT_CANDIDATES = (
+    "leakage,rod_seal_leak,coil_lag,spool_friction,heat_transfer,tube_volume,iso_flow_law,tube_waves"
+)
 
 
 def _record(out: Path, effect: str, tube_length_m: float) -> Path:

@@ -15,44 +15,51 @@ from pneumatic_env.physics import kernel
 from pneumatic_env.physics import layout as L
 from pneumatic_env.simulator import BatchSimulator
 
-# each effect the batch path takes, with a strong and a weak setting, and the lane kind
-EFFECT_KINDS = {
-    "leakage": (({"leakage_area_m2": 2e-7}, {"leakage_area_m2": 1e-9}), K.BATCH_LEAKS),
-    "rod_seal_leak": (
-        ({"rod_seal_leak_area_m2": 2e-7}, {"rod_seal_leak_area_m2": 1e-9}),
-        K.BATCH_LEAKS,
-    ),
+# each effect the batch path takes (alone and together), a strong and a weak setting
+BATCH_EFFECTS = {
+    "leakage": ({"leakage_area_m2": 2e-7}, {"leakage_area_m2": 1e-9}),
+    "rod_seal_leak": ({"rod_seal_leak_area_m2": 2e-7}, {"rod_seal_leak_area_m2": 1e-9}),
     "both_leaks": (
-        (
-            {"leakage_area_m2": 5e-8, "rod_seal_leak_area_m2": 1e-7},
-            {"leakage_area_m2": 1e-9, "rod_seal_leak_area_m2": 3e-9},
-        ),
-        K.BATCH_LEAKS,
+        {"leakage_area_m2": 5e-8, "rod_seal_leak_area_m2": 1e-7},
+        {"leakage_area_m2": 1e-9, "rod_seal_leak_area_m2": 3e-9},
     ),
     "coil_lag": (
-        (
-            {"coil_time_constant_s": 5e-3, "coil_lag_shape": 0.0},
-            {"coil_time_constant_s": 1e-3, "coil_lag_shape": 0.1},
-        ),
-        K.BATCH_BASE,
+        {"coil_time_constant_s": 5e-3, "coil_lag_shape": 0.0},
+        {"coil_time_constant_s": 1e-3, "coil_lag_shape": 0.1},
     ),
-    "heat_transfer": (
-        ({"wall_heat_transfer_w_per_k": 2.0}, {"wall_heat_transfer_w_per_k": 0.05}),
-        K.BATCH_BASE,
-    ),
+    "heat_transfer": ({"wall_heat_transfer_w_per_k": 2.0}, {"wall_heat_transfer_w_per_k": 0.05}),
     "heat_transfer_and_leaks": (
-        (
-            {"wall_heat_transfer_w_per_k": 0.5, "leakage_area_m2": 5e-8},
-            {"wall_heat_transfer_w_per_k": 0.05, "rod_seal_leak_area_m2": 1e-7},
-        ),
-        K.BATCH_LEAKS,
+        {"wall_heat_transfer_w_per_k": 0.5, "leakage_area_m2": 5e-8},
+        {"wall_heat_transfer_w_per_k": 0.05, "rod_seal_leak_area_m2": 1e-7},
+    ),
+    "tube_air": (
+        {"tube_air_model": 1.0, "tube_volume_fraction": 1.0},
+        {"tube_air_model": 1.0, "tube_volume_fraction": 0.3},
+    ),
+    "iso_flow_law": (
+        {"flow_law": 1.0, "iso_critical_ratio_b": 0.3},
+        {"flow_law": 1.0, "iso_critical_ratio_b": 0.45, "leakage_area_m2": 5e-8},
     ),
     "coil_lags_and_leaks": (
-        (
-            {"coil_time_constant_s": 2e-3, "coil_lag_shape": 0.25, "leakage_area_m2": 5e-8},
-            {"coil_time_constant_s": 3e-4, "coil_lag_shape": 0.2, "rod_seal_leak_area_m2": 5e-8},
-        ),
-        K.BATCH_LEAKS,
+        {"coil_time_constant_s": 2e-3, "coil_lag_shape": 0.25, "leakage_area_m2": 5e-8},
+        {"coil_time_constant_s": 3e-4, "coil_lag_shape": 0.2, "rod_seal_leak_area_m2": 5e-8},
+    ),
+    "all_batch_effects": (
+        {
+            "wall_heat_transfer_w_per_k": 0.5,
+            "flow_law": 1.0,
+            "coil_time_constant_s": 2e-3,
+            "leakage_area_m2": 5e-8,
+            "rod_seal_leak_area_m2": 5e-8,
+            "spool_coulomb_friction_n": 0.05,
+        },
+        {
+            "tube_air_model": 1.0,
+            "tube_volume_fraction": 0.5,
+            "flow_law": 1.0,
+            "coil_time_constant_s": 1e-3,
+            "leakage_area_m2": 1e-9,
+        },
     ),
 }
 ROD_SETUPS = (
@@ -84,7 +91,7 @@ def _sets(effect):
     a general-path lane (supply droop) in the same chunk."""
     sets = [
         load_parameters("numatics", **rod, **setting)
-        for setting in EFFECT_KINDS[effect][0]
+        for setting in BATCH_EFFECTS[effect]
         for rod in ROD_SETUPS
     ]
     sets.append(load_parameters("airpel", **ROD_SETUPS[1]))
@@ -92,18 +99,24 @@ def _sets(effect):
     return sets
 
 
-@pytest.mark.parametrize("effect", sorted(EFFECT_KINDS))
+@pytest.mark.parametrize("effect", sorted(BATCH_EFFECTS))
 def test_the_batch_path_takes_the_effect_lanes(effect):
     params = parameter_array(_sets(effect))
     kinds = [
         K.batch_lane_kind(kernel.env_constants(params, env, 2e-4)) for env in range(params.shape[1])
     ]
-    kind = EFFECT_KINDS[effect][1]
-    assert kinds == [kind] * (len(kinds) - 2) + [K.BATCH_BASE, K.BATCH_GENERAL]
+    want = [
+        K.BATCH_LEAKS
+        if "leakage_area_m2" in setting or "rod_seal_leak_area_m2" in setting
+        else K.BATCH_BASE
+        for setting in BATCH_EFFECTS[effect]
+        for _ in ROD_SETUPS
+    ]
+    assert kinds == want + [K.BATCH_BASE, K.BATCH_GENERAL]
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
-@pytest.mark.parametrize("effect", sorted(EFFECT_KINDS))
+@pytest.mark.parametrize("effect", sorted(BATCH_EFFECTS))
 def test_batch_effects_reproduce_the_general_path_bit_for_bit(effect, seed):
     sets = _sets(effect)
     currents = _random_currents(np.random.default_rng(seed), 300, len(sets))

@@ -34,12 +34,15 @@ from .constants import (
     C_COIL_LAG,
     C_DELAY_SUBSTEPS,
     C_ENERGY,
+    C_FLOW_LAW,
     C_SPOOL_PLAY_BAND,
+    C_TUBE_AIR,
     CHUNK_ENVS,
     load_constants,
     refresh_constants,
 )
 from .effects import spool_play_current
+from .flow import FLOW_LAW_PAPER
 from .general_path import (
     OUTPUT_STATE_ROWS,
     STIFFNESS_LIMIT,
@@ -89,9 +92,10 @@ def begin_substeps(constants, work, n_lanes, h):
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def _substeps_vectorised(constants, work, n_lanes, h, leaks, energy, driven):
+def _substeps_vectorised(constants, work, n_lanes, h, leaks, selected, driven):
     """RK4 substep of ``batch_rhs.batch_derivatives`` for every lane of a chunk, with the
-    leak orifices (``leaks``) and the energy equation (``energy``), the spool driven by the
+    leak orifices (``leaks``) and the effects selected per lane (``selected``), the spool
+    driven by the
     held command ``W_CURRENT`` or, ``driven``, by the currents in ``W_DRIVE`` (the coil
     lags'); a loop LLVM vectorises once the flags (constants where this is inlined) have
     folded away."""
@@ -113,7 +117,7 @@ def _substeps_vectorised(constants, work, n_lanes, h, leaks, energy, driven):
         )
         direction = work[W_DIRECTION * k + j]
         y = rk4_base_substep(
-            c, work_rows(work, 0, j), drive, direction, spool_delayed, h, leaks, energy
+            c, work_rows(work, 0, j), drive, direction, spool_delayed, h, leaks, selected
         )
         set_work_rows(work, 0, j, y)
 
@@ -129,18 +133,19 @@ def base_substeps_vectorised(constants, work, n_lanes, h):
 
 
 @njit(cache=True, error_model="numpy")
-def chunk_substeps(constants, work, n_lanes, h, leaks, energy, lagged):
+def chunk_substeps(constants, work, n_lanes, h, leaks, selected, lagged):
     """The chunk's RK4 loop: ``base_substeps_vectorised``, or with the effects its lanes
     have (flags true where any lane has them; on another lane a leak path is closed and
-    adds 0.0, the energy equation is not selected), the spool then driven by ``W_DRIVE``
-    (the command, or with ``lagged`` the coil lags' currents, ``lagged_coil_rows``)."""
-    if not (leaks or energy or lagged):
+    adds 0.0, an effect selected per lane is not selected), the spool then driven by
+    ``W_DRIVE`` (the command, or with ``lagged`` the coil lags' currents,
+    ``lagged_coil_rows``)."""
+    if not (leaks or selected or lagged):
         base_substeps_vectorised(constants, work, n_lanes, h)
-    elif leaks and energy:
+    elif leaks and selected:
         _substeps_vectorised(constants, work, n_lanes, h, True, True, True)
     elif leaks:
         _substeps_vectorised(constants, work, n_lanes, h, True, False, True)
-    elif energy:
+    elif selected:
         _substeps_vectorised(constants, work, n_lanes, h, False, True, True)
     else:
         _substeps_vectorised(constants, work, n_lanes, h, False, False, True)
@@ -337,13 +342,10 @@ def advance_chunk(sim, first, stop, coil_current_a):
     chunk_constants = sim.constants[first // CHUNK_ENVS]
     refresh_constants(sim.params, first, stop, h, sim.constants_key, chunk_constants)
     fast = chunk_constants[C_BASE_ONLY * CHUNK_ENVS :]
-    leaky = lagged = energy = False
     for j in range(n):
         if fast[j] == BATCH_GENERAL:
             advance_env(sim, first + j, coil_current_a[first + j])
-        leaky |= fast[j] == BATCH_LEAKS
-        lagged |= chunk_constants[C_COIL_LAG * CHUNK_ENVS + j] != 0.0
-        energy |= chunk_constants[C_ENERGY * CHUNK_ENVS + j] != 0.0
+    leaky, selected, lagged = _chunk_effects(chunk_constants, n)
     # lanes advance_env advanced are computed below too, and ignored
     work = chunk_work(state, first, stop)
     fast_commands(chunk_constants, work, n, coil_current_a[first:stop], state[L.S_PLAY, first:stop])
@@ -353,7 +355,7 @@ def advance_chunk(sim, first, stop, coil_current_a):
         prepare_substep(chunk_constants, work, history, first, n, head_sub, same_delay, h)
         if lagged:
             lagged_coil_rows(chunk_constants, work, n)
-        chunk_substeps(chunk_constants, work, n, h, leaky, energy, lagged)
+        chunk_substeps(chunk_constants, work, n, h, leaky, selected, lagged)
         end_substeps(chunk_constants, work, n)
         slot = ring_slot(head_sub + 1, n_slots)
         for row, channel in ((L.S_X_S, L.H_X_S), (L.S_P1, L.H_P1), (L.S_P2, L.H_P2)):
@@ -361,6 +363,23 @@ def advance_chunk(sim, first, stop, coil_current_a):
         if _any_lane_set(work, W_REDO, n):
             _redo_lanes(chunk_constants, work, history, first, n, head_sub, slot, h, lagged)
     _store_fast_lanes(chunk_constants, work, state, sim.outputs, first, stop, lagged)
+
+
+@njit(cache=True)
+def _chunk_effects(chunk_constants, n_lanes):
+    """Whether any lane of a chunk has the leak orifices (``BATCH_LEAKS``), an effect
+    ``batch_rhs`` selects per lane (energy equation, tube air, ISO flow law), a coil lag."""
+    k = CHUNK_ENVS
+    leaky = selected = lagged = False
+    for j in range(n_lanes):
+        leaky |= chunk_constants[C_BASE_ONLY * k + j] == BATCH_LEAKS
+        selected |= (
+            (chunk_constants[C_ENERGY * k + j] != 0.0)
+            | (chunk_constants[C_TUBE_AIR * k + j] > 0.0)
+            | (chunk_constants[C_FLOW_LAW * k + j] != FLOW_LAW_PAPER)
+        )
+        lagged |= chunk_constants[C_COIL_LAG * k + j] != 0.0
+    return leaky, selected, lagged
 
 
 @njit(cache=True)
