@@ -15,10 +15,12 @@ neutral constant once per control period, so an effect that is off costs a branc
 Two paths share the sub-models. The batch path (``advance_chunk``, used by every step
 function) advances chunks of ``CHUNK_ENVS`` environments running the paper's model one
 RK4 substep at a time in a single loop over the chunk that LLVM compiles to SIMD code
-(``base_derivatives``, branch-free, ``vecmath``). The general path (``advance_env``, one
-environment through the whole control period, ``derivatives``) takes environments with
-other effects on, and redoes a lane's substep that is stiff or crosses a piston event.
-Both give the same numbers bit for bit (tests/test_physics.py).
+(``base_derivatives``, branch-free, ``vecmath``), and so those with the effects it adds on
+(``constants.batch_lane_kind``: leaks, coil lags, energy equation, tube air, ISO flow
+law; ``batch_derivatives``). The general path (``advance_env``, one environment through
+the whole control period, ``derivatives``) takes environments with other effects on, and
+redoes a lane's substep that is stiff or crosses a piston event. Both give the same
+numbers bit for bit (tests/test_physics.py, tests/test_batch_effects.py).
 
 This module gathers the kernel's names from its seven parts:
 
@@ -55,6 +57,9 @@ from .batch_work import (
     chunk_work,
 )
 from .constants import (
+    BATCH_BASE,
+    BATCH_GENERAL,
+    BATCH_LEAKS,
     C_BASE_ONLY,
     C_DELAY_SUBSTEPS,
     C_SPOOL_PLAY_BAND,
@@ -65,6 +70,7 @@ from .constants import (
     TEMPERATURE_FLOOR_FRACTION,
     Constants,
     base_model_only,
+    batch_lane_kind,
     constants_cache,
     env_constants,
     load_constants,
@@ -106,6 +112,10 @@ __all__ = [
     "Constants",
     "env_constants",
     "base_model_only",
+    "batch_lane_kind",
+    "BATCH_GENERAL",
+    "BATCH_BASE",
+    "BATCH_LEAKS",
     "CHUNK_ENVS",
     "N_CONSTANTS",
     "N_CACHED_CONSTANTS",
