@@ -324,11 +324,12 @@ def advance_chunk(sim, first, stop, coil_current_a):
     outputs.
 
     ``first`` is a multiple of ``CHUNK_ENVS``. Environments of ``constants.batch_lane_kind``
-    ``BATCH_BASE`` or ``BATCH_LEAKS`` advance together (the leak orifices' RK4 loop,
-    ``leaky_substeps_vectorised``, where any lane has them): per substep, one vectorised
-    loop keeps the start state and finds the piston's direction and the stiff lanes
-    (``begin_substeps``), the delayed spool positions are read (``delayed_spool_rows``), one
-    vectorised RK4 substep (``base_substeps_vectorised``) advances every lane, and one
+    ``BATCH_BASE`` or ``BATCH_LEAKS`` advance together: per substep, one vectorised loop
+    keeps the start state and finds the piston's direction and the stiff lanes
+    (``begin_substeps``), the delayed spool positions are read (``delayed_spool_rows``) and,
+    with a coil lag in the chunk, the currents driving the spool (``lagged_coil_rows``), one
+    vectorised RK4 substep (``chunk_substeps``, with the effects the chunk's lanes have:
+    ``_chunk_effects``) advances every lane, and one
     vectorised loop finds the lanes whose piston met an event and applies the stops
     (``end_substeps``). A lane whose substep needs splitting (stiff flow, ``refinement``) or
     crosses a piston event is redone from the substep's start by the general path
