@@ -14,7 +14,14 @@ one run on this machine:
   ``--repeats`` runs, the substeps they simulate, and the ratio of that time to the
   kernel's own time for those substeps (issue target: base <= 3, candidate <= 5);
 - each Jacobian's time per recording, so a recording that costs far more per substep
-  than the others shows.
+  than the others shows;
+- the kernel's cost per substep with each candidate switched on (its ``set`` values and
+  its parameters' initial values, on every lane of a chunk, one core) against the base
+  model's, measured interleaved: what a candidate's simulations cost beside the base.
+
+``--candidate`` takes a comma-separated list (default: leakage, rod_seal_leak, coil_lag,
+spool_friction, heat_transfer, tube_volume, iso_flow_law, tube_waves); ``--no-jacobians``
+prints only the kernel figures (a few minutes instead of many).
 
 ``--campaign DIR`` (repeatable) times the recordings in DIR instead. Ratios within one
 invocation are what count on a shared machine.
@@ -32,7 +39,11 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["jacobian_timing", "kernel_throughput", "main"]
+__all__ = ["candidate_kernel_costs", "jacobian_timing", "kernel_throughput", "main"]
+
+DEFAULT_CANDIDATES = (
+    "leakage,rod_seal_leak,coil_lag,spool_friction,heat_transfer,tube_volume,iso_flow_law,tube_waves"
+)
 
 
 def _record(out: Path, effect: str, tube_length_m: float) -> Path:
@@ -145,6 +156,76 @@ def kernel_throughput(folder: Path, repeats: int) -> tuple[float, float]:
     return rates[0], rates[1]
 
 
+def _candidate_values(values: dict, candidate: str) -> dict:
+    """``values`` (a recording's kernel parameters) with ``candidate`` switched on: its
+    ``set`` values (a text value names the parameter whose value it takes) and its
+    parameters' initial values."""
+    from pneumatic_env.identification.candidates import candidate_table
+
+    cand = candidate_table()[candidate]
+    out = dict(values)
+    out.update({k: float(values[v]) if isinstance(v, str) else v for k, v in cand.set.items()})
+    out.update({p.name: p.initial for p in cand.parameters if p.initial is not None})
+    return out
+
+
+def candidate_kernel_costs(
+    folder: Path, candidates: Sequence[str], repeats: int
+) -> dict[str, tuple[float, float]]:
+    """Seconds per substep of a full chunk on one core (``rollout``) of the rig's first
+    clamped and first moving recording, for the base model ('base') and each plant
+    candidate switched on, the runs interleaved (base, candidates, base, ...; median):
+    name -> (clamped, moving)."""
+    from pneumatic_env.identification.candidates import candidate_table
+    from pneumatic_env.identification.checks import read_checked
+    from pneumatic_env.identification.config import load_config
+    from pneumatic_env.identification.datasets import prepare_datasets
+    from pneumatic_env.params import parameter_array
+    from pneumatic_env.physics.constants import CHUNK_ENVS
+    from pneumatic_env.simulator import BatchSimulator
+
+    cfg = load_config()
+    table = candidate_table(cfg)
+    plant = [c for c in candidates if table[c].kind == "plant"]
+    recordings = [read_checked(p) for p in sorted(folder.glob("*.csv"))]
+    datasets, _ = prepare_datasets(recordings, None, cfg)
+    clamped = next(d for d in datasets if d.rod_mode == "fixed")
+    moving = next((d for d in datasets if d.rod_mode != "fixed"), clamped)
+    runs = []  # (name, column, simulator, currents, initial state)
+    for column, ds in enumerate((clamped, moving)):
+        block = np.repeat(ds.recording.i_c[:-1, None], CHUNK_ENVS, axis=1)
+        for name in ("base", *plant):
+            values = ds.values if name == "base" else _candidate_values(ds.values, name)
+            sim = BatchSimulator(parameter_array([values] * CHUNK_ENVS), ds.dt_s, ds.substeps)
+            runs.append((name, column, sim, block, ds.initial, block.size * ds.substeps))
+    seconds: dict[tuple[str, int], list[float]] = {(r[0], r[1]): [] for r in runs}
+    for repeat in range(repeats + 1):  # the first round compiles
+        for name, column, sim, block, initial, substeps in runs:
+            sim.reset(initial=initial)
+            t0 = time.perf_counter()
+            sim.rollout(block)
+            if repeat:
+                seconds[name, column].append((time.perf_counter() - t0) / substeps)
+    return {
+        name: (statistics.median(seconds[name, 0]), statistics.median(seconds[name, 1]))
+        for name in ("base", *plant)
+    }
+
+
+def _cost_table(costs: dict[str, tuple[float, float]]) -> list[str]:
+    base_clamped, base_moving = costs["base"]
+    lines = [
+        "| kernel, one core | ns/substep clamped | x base | ns/substep moving | x base |",
+        "|---|---|---|---|---|",
+    ]
+    for name, (clamped, moving) in costs.items():
+        lines.append(
+            f"| {name} | {clamped * 1e9:.0f} | {clamped / base_clamped:.1f} | "
+            f"{moving * 1e9:.0f} | {moving / base_moving:.1f} |"
+        )
+    return lines
+
+
 def _table(name: str, timing: dict, rate_both: float) -> list[str]:
     kernel_s = timing["substeps"] / rate_both
     lines = [
@@ -165,7 +246,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--campaign", action="append", metavar="DIR", help="time these recordings instead"
     )
     parser.add_argument(
-        "--candidate", default="tube_waves", help="the candidate to time ('none': no candidate)"
+        "--candidate",
+        default=DEFAULT_CANDIDATES,
+        help="comma-separated candidates to time ('none': no candidate)",
+    )
+    parser.add_argument(
+        "--no-jacobians", action="store_true", help="only the kernel's per-substep costs"
     )
     parser.add_argument("--repeats", type=int, default=3, help="runs per figure (median)")
     args = parser.parse_args(argv)
@@ -179,6 +265,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     for folder in folders:
         if not any(folder.glob("*.csv")):
             parser.error(f"{folder}: no recordings (*.csv)")
+    candidates = [c for c in args.candidate.split(",") if c and c != "none"]
+    print("\n".join(_cost_table(candidate_kernel_costs(folders[0], candidates, args.repeats))))
+    print(flush=True)
+    if args.no_jacobians:
+        return 0
     one, both = kernel_throughput(folders[0], args.repeats)
     print(
         f"kernel (base model, clamped rod): {one / 1e6:.2f} M substeps/s on one core, "
@@ -187,7 +278,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print("| Jacobian | columns | M substeps | s (median) | kernel s (both cores) | ratio |")
     print("|---|---|---|---|---|---|")
     for folder in folders:
-        for cand in (None, args.candidate) if args.candidate != "none" else (None,):
+        for cand in (None, *candidates):
             timing = jacobian_timing(_problem(folder, cand), args.repeats)
             name = f"{folder.name}: {cand or 'base'}"
             print("\n".join(_table(name, timing, both)), flush=True)

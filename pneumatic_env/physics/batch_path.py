@@ -1,9 +1,9 @@
-"""The kernel's batch path: chunks of ``CHUNK_ENVS`` environments running the paper's
-model advance one RK4 substep at a time in single loops over the chunk that LLVM compiles
-to SIMD code (``advance_chunk``); a lane whose substep is stiff or crosses a piston event
-is redone by the general path, and environments with other effects on take
-``general_path.advance_env``. The step functions (``step_serial``, ``step_parallel``,
-``rollout_serial``) run the chunks of a batch.
+"""The kernel's batch path: chunks of ``CHUNK_ENVS`` environments running the paper's model
+(with the leak orifices, ``constants.batch_lane_kind``) advance one RK4 substep at a time
+in single loops over the chunk that LLVM compiles to SIMD code (``advance_chunk``); a lane
+whose substep is stiff or crosses a piston event is redone by the general path, and
+environments with other effects on take ``general_path.advance_env``. The step functions
+(``step_serial``, ``step_parallel``, ``rollout_serial``) run the chunks of a batch.
 """
 
 import math
@@ -12,15 +12,37 @@ import numpy as np
 from numba import njit, prange
 
 from . import layout as L
+from .batch_rhs import rk4_base_substep
+from .batch_work import (
+    W_COIL,
+    W_COIL_START,
+    W_CURRENT,
+    W_DIRECTION,
+    W_DRIVE,
+    W_REDO,
+    W_SPOOL_DELAYED,
+    W_START,
+    chunk_work,
+    lagged_coil_rows,
+    set_work_rows,
+    work_rows,
+)
 from .constants import (
+    BATCH_GENERAL,
+    BATCH_LEAKS,
     C_BASE_ONLY,
+    C_COIL_LAG,
     C_DELAY_SUBSTEPS,
+    C_ENERGY,
+    C_FLOW_LAW,
     C_SPOOL_PLAY_BAND,
+    C_TUBE_AIR,
     CHUNK_ENVS,
     load_constants,
     refresh_constants,
 )
 from .effects import spool_play_current
+from .flow import FLOW_LAW_PAPER
 from .general_path import (
     OUTPUT_STATE_ROWS,
     STIFFNESS_LIMIT,
@@ -40,7 +62,7 @@ from .piston import (
     output_force,
     pneumatic_force,
 )
-from .right_hand_side import N_RK, ring_slot, rk4_base_substep
+from .right_hand_side import N_RK, ring_slot
 from .vecmath import float_to_bits
 
 # The parallel steps run inside BatchSimulator.call_step_kernel, which has the threads
@@ -48,47 +70,6 @@ from .vecmath import float_to_bits
 # ``parallel_chunksize``) rather than split them evenly up front: a core slowed by other
 # processes then takes fewer chunks instead of holding the others up at the region's end.
 PARALLEL_CHUNKS_PER_HANDOUT = 1
-
-# Rows of the batch path's work array, a flat array of N_WORK rows of CHUNK_ENVS lanes: the
-# RK4 state rows, the state at the substep's start, the inputs of one substep and the
-# lanes the general path redoes. The vectorised loops update the rows in place. Rows are
-# CHUNK_ENVS apart, a compile-time constant, so LLVM can prove the lanes independent (with
-# run-time row strides it gives up on the aliasing checks).
-W_START = N_RK  # the RK4 state at the substep's start: N_RK rows
-W_SPOOL_DELAYED = 2 * N_RK  # x_s(t - tau) at the substep's start, middle and end: 3 rows
-W_CURRENT = W_SPOOL_DELAYED + 3
-W_DIRECTION = W_CURRENT + 1
-W_REDO = W_DIRECTION + 1  # 1.0 where the general path redoes the substep (stiff, or an event)
-N_WORK = W_REDO + 1
-
-
-@njit(cache=True, forceinline=True, error_model="numpy")
-def _work_rows(work, first_row, j):
-    """The RK4 state tuple in rows ``first_row ..`` of lane ``j`` of the flat work array."""
-    i = first_row * CHUNK_ENVS + j
-    k = CHUNK_ENVS
-    return (
-        work[i],
-        work[i + k],
-        work[i + 2 * k],
-        work[i + 3 * k],
-        work[i + 4 * k],
-        work[i + 5 * k],
-        work[i + 6 * k],
-        work[i + 7 * k],
-        work[i + 8 * k],
-    )
-
-
-@njit(cache=True, forceinline=True, error_model="numpy")
-def _set_work_rows(work, first_row, j, y):
-    """Store the state tuple ``y`` in rows ``first_row ..`` of lane ``j`` (row by row: a
-    run-time tuple index would not vectorise)."""
-    i = first_row * CHUNK_ENVS + j
-    k = CHUNK_ENVS
-    work[i], work[i + k], work[i + 2 * k] = y[0], y[1], y[2]
-    work[i + 3 * k], work[i + 4 * k], work[i + 5 * k] = y[3], y[4], y[5]
-    work[i + 6 * k], work[i + 7 * k], work[i + 8 * k] = y[6], y[7], y[8]
 
 
 @njit(cache=True, error_model="numpy")
@@ -99,8 +80,8 @@ def begin_substeps(constants, work, n_lanes, h):
     would split the substep (stiff flow). A loop LLVM vectorises."""
     for j in range(n_lanes):
         c = load_constants(constants, j)
-        y = _work_rows(work, 0, j)
-        _set_work_rows(work, W_START, j, y)
+        y = work_rows(work, 0, j)
+        set_work_rows(work, W_START, j, y)
         applied = pneumatic_force(
             y[2], y[3], c.area_cap, c.area_rod, c.rod_area, c.ambient_pa
         ) - external_force(c.mode, y[4], c.load_force, c.spring_k, c.spring_rest)
@@ -110,6 +91,37 @@ def begin_substeps(constants, work, n_lanes, h):
         work[W_REDO * CHUNK_ENVS + j] = 1.0 if stiff else 0.0
 
 
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _substeps_vectorised(constants, work, n_lanes, h, leaks, selected, driven):
+    """RK4 substep of ``batch_rhs.batch_derivatives`` for every lane of a chunk, with the
+    leak orifices (``leaks``) and the effects selected per lane (``selected``), the spool
+    driven by the
+    held command ``W_CURRENT`` or, ``driven``, by the currents in ``W_DRIVE`` (the coil
+    lags'); a loop LLVM vectorises once the flags (constants where this is inlined) have
+    folded away."""
+    k = CHUNK_ENVS
+    for j in range(n_lanes):
+        c = load_constants(constants, j)
+        command = work[W_CURRENT * k + j]
+        drive = (command, command, command)
+        if driven:
+            drive = (
+                work[W_DRIVE * k + j],
+                work[(W_DRIVE + 1) * k + j],
+                work[(W_DRIVE + 2) * k + j],
+            )
+        spool_delayed = (
+            work[W_SPOOL_DELAYED * k + j],
+            work[(W_SPOOL_DELAYED + 1) * k + j],
+            work[(W_SPOOL_DELAYED + 2) * k + j],
+        )
+        direction = work[W_DIRECTION * k + j]
+        y = rk4_base_substep(
+            c, work_rows(work, 0, j), drive, direction, spool_delayed, h, leaks, selected
+        )
+        set_work_rows(work, 0, j, y)
+
+
 @njit(cache=True, error_model="numpy")
 def base_substeps_vectorised(constants, work, n_lanes, h):
     """RK4 substep of ``base_derivatives`` for every lane of a chunk; a loop LLVM vectorises.
@@ -117,19 +129,26 @@ def base_substeps_vectorised(constants, work, n_lanes, h):
     ``error_model="numpy"`` lets a division by zero give inf instead of raising, so the
     divisions do not stop vectorisation.
     """
-    for j in range(n_lanes):
-        c = load_constants(constants, j)
-        out = rk4_base_substep(
-            c,
-            _work_rows(work, 0, j),
-            work[W_CURRENT * CHUNK_ENVS + j],
-            work[W_DIRECTION * CHUNK_ENVS + j],
-            work[W_SPOOL_DELAYED * CHUNK_ENVS + j],
-            work[(W_SPOOL_DELAYED + 1) * CHUNK_ENVS + j],
-            work[(W_SPOOL_DELAYED + 2) * CHUNK_ENVS + j],
-            h,
-        )
-        _set_work_rows(work, 0, j, out)
+    _substeps_vectorised(constants, work, n_lanes, h, False, False, False)
+
+
+@njit(cache=True, error_model="numpy")
+def chunk_substeps(constants, work, n_lanes, h, leaks, selected, lagged):
+    """The chunk's RK4 loop: ``base_substeps_vectorised``, or with the effects its lanes
+    have (flags true where any lane has them; on another lane a leak path is closed and
+    adds 0.0, an effect selected per lane is not selected), the spool then driven by
+    ``W_DRIVE`` (the command, or with ``lagged`` the coil lags' currents,
+    ``lagged_coil_rows``)."""
+    if not (leaks or selected or lagged):
+        base_substeps_vectorised(constants, work, n_lanes, h)
+    elif leaks and selected:
+        _substeps_vectorised(constants, work, n_lanes, h, True, True, True)
+    elif leaks:
+        _substeps_vectorised(constants, work, n_lanes, h, True, False, True)
+    elif selected:
+        _substeps_vectorised(constants, work, n_lanes, h, False, True, True)
+    else:
+        _substeps_vectorised(constants, work, n_lanes, h, False, False, True)
 
 
 @njit(cache=True, error_model="numpy")
@@ -265,6 +284,8 @@ def fast_commands(constants, work, n_lanes, command_row, play_row):
         played = spool_play_current(held, command_row[j], constants[C_SPOOL_PLAY_BAND * k + j])
         play_row[j] = held if constants[C_BASE_ONLY * k + j] == 0.0 else played
         work[W_CURRENT * k + j] = played
+        # the drive without a coil lag (``chunk_substeps``)
+        work[W_DRIVE * k + j] = work[(W_DRIVE + 1) * k + j] = work[(W_DRIVE + 2) * k + j] = played
 
 
 @njit(cache=True, error_model="numpy")
@@ -275,7 +296,7 @@ def fast_output_forces(constants, work, n_lanes, force_row):
     k = CHUNK_ENVS
     for j in range(n_lanes):
         c = load_constants(constants, j)
-        y = _work_rows(work, 0, j)
+        y = work_rows(work, 0, j)
         force = output_force(
             c.mode,
             pneumatic_force(y[2], y[3], c.area_cap, c.area_rod, c.rod_area, c.ambient_pa),
@@ -285,16 +306,6 @@ def fast_output_forces(constants, work, n_lanes, force_row):
         )
         kept = force_row[j]
         force_row[j] = kept if constants[C_BASE_ONLY * k + j] == 0.0 else force
-
-
-@njit(cache=True)
-def chunk_work(state, first, stop):
-    """A new work array for environments ``first .. stop-1`` (one chunk): their RK4 state
-    rows, the other rows zero."""
-    work = np.zeros(N_WORK * CHUNK_ENVS)
-    for row in range(N_RK):
-        work[row * CHUNK_ENVS : row * CHUNK_ENVS + stop - first] = state[row, first:stop]
-    return work
 
 
 @njit(cache=True)
@@ -312,16 +323,18 @@ def advance_chunk(sim, first, stop, coil_current_a):
     control period with the coil currents ``coil_current_a`` (n_envs,) held; write their
     outputs.
 
-    ``first`` is a multiple of ``CHUNK_ENVS``. Environments where ``base_model_only``
-    holds advance together: per substep, one vectorised loop keeps the start state and
-    finds the piston's direction and the stiff lanes (``begin_substeps``), the delayed
-    spool positions are read (``delayed_spool_rows``), one vectorised RK4 substep
-    (``base_substeps_vectorised``) advances every lane, and one vectorised loop finds the
-    lanes whose piston met an event and applies the stops (``end_substeps``). A lane
-    whose substep needs splitting (stiff flow, ``refinement``) or crosses a piston event
-    is redone from the substep's start by the general path (``split_substep``). Other
-    environments take ``advance_env``. Either way an environment's result does not depend
-    on the rest of the batch.
+    ``first`` is a multiple of ``CHUNK_ENVS``. Environments of ``constants.batch_lane_kind``
+    ``BATCH_BASE`` or ``BATCH_LEAKS`` advance together: per substep, one vectorised loop
+    keeps the start state and finds the piston's direction and the stiff lanes
+    (``begin_substeps``), the delayed spool positions are read (``delayed_spool_rows``) and,
+    with a coil lag in the chunk, the currents driving the spool (``lagged_coil_rows``), one
+    vectorised RK4 substep (``chunk_substeps``, with the effects the chunk's lanes have:
+    ``_chunk_effects``) advances every lane, and one
+    vectorised loop finds the lanes whose piston met an event and applies the stops
+    (``end_substeps``). A lane whose substep needs splitting (stiff flow, ``refinement``) or
+    crosses a piston event is redone from the substep's start by the general path
+    (``split_substep``). Other environments take ``advance_env``. Either way an
+    environment's result does not depend on the rest of the batch.
     """
     n = stop - first
     state, history, n_substeps = sim.state, sim.history, sim.n_substeps
@@ -331,8 +344,9 @@ def advance_chunk(sim, first, stop, coil_current_a):
     refresh_constants(sim.params, first, stop, h, sim.constants_key, chunk_constants)
     fast = chunk_constants[C_BASE_ONLY * CHUNK_ENVS :]
     for j in range(n):
-        if fast[j] == 0.0:
+        if fast[j] == BATCH_GENERAL:
             advance_env(sim, first + j, coil_current_a[first + j])
+    leaky, selected, lagged = _chunk_effects(chunk_constants, n)
     # lanes advance_env advanced are computed below too, and ignored
     work = chunk_work(state, first, stop)
     fast_commands(chunk_constants, work, n, coil_current_a[first:stop], state[L.S_PLAY, first:stop])
@@ -340,28 +354,54 @@ def advance_chunk(sim, first, stop, coil_current_a):
     for sub in range(n_substeps):
         head_sub = ring_slot(sim.head[0] + sub, n_slots)
         prepare_substep(chunk_constants, work, history, first, n, head_sub, same_delay, h)
-        base_substeps_vectorised(chunk_constants, work, n, h)
+        if lagged:
+            lagged_coil_rows(chunk_constants, work, n)
+        chunk_substeps(chunk_constants, work, n, h, leaky, selected, lagged)
         end_substeps(chunk_constants, work, n)
         slot = ring_slot(head_sub + 1, n_slots)
         for row, channel in ((L.S_X_S, L.H_X_S), (L.S_P1, L.H_P1), (L.S_P2, L.H_P2)):
             copy_fast_lanes(chunk_constants, work, n, row, history[slot, channel, first:stop], True)
         if _any_lane_set(work, W_REDO, n):
-            _redo_lanes(chunk_constants, work, history, first, n, head_sub, slot, h)
-    _store_fast_lanes(chunk_constants, work, state, sim.outputs, first, stop)
+            _redo_lanes(chunk_constants, work, history, first, n, head_sub, slot, h, lagged)
+    _store_fast_lanes(chunk_constants, work, state, sim.outputs, first, stop, lagged)
 
 
 @njit(cache=True)
-def _redo_lanes(chunk_constants, work, history, first, n_lanes, head_sub, slot, h):
+def _chunk_effects(chunk_constants, n_lanes):
+    """Whether any lane of a chunk has the leak orifices (``BATCH_LEAKS``), an effect
+    ``batch_rhs`` selects per lane (energy equation, tube air, ISO flow law), a coil lag."""
+    k = CHUNK_ENVS
+    leaky = selected = lagged = False
+    for j in range(n_lanes):
+        leaky |= chunk_constants[C_BASE_ONLY * k + j] == BATCH_LEAKS
+        selected |= (
+            (chunk_constants[C_ENERGY * k + j] != 0.0)
+            | (chunk_constants[C_TUBE_AIR * k + j] > 0.0)
+            | (chunk_constants[C_FLOW_LAW * k + j] != FLOW_LAW_PAPER)
+        )
+        lagged |= chunk_constants[C_COIL_LAG * k + j] != 0.0
+    return leaky, selected, lagged
+
+
+@njit(cache=True)
+def _redo_lanes(chunk_constants, work, history, first, n_lanes, head_sub, slot, h, lagged):
     """Redo by the general path (``split_substep``) the substep after ring slot
     ``head_sub`` of the batch-path lanes of a chunk marked in work row ``W_REDO`` (stiff,
-    or a piston event), from the substep's start."""
+    or a piston event), from the substep's start (its currents in ``W_COIL_START`` when
+    the chunk has a coil lag, ``lagged``)."""
     fast = chunk_constants[C_BASE_ONLY * CHUNK_ENVS :]
     for j in range(n_lanes):
         if fast[j] != 0.0 and work[W_REDO * CHUNK_ENVS + j] != 0.0:
             env = first + j
             c = load_constants(chunk_constants, j)
-            y0 = _work_rows(work, W_START, j)
+            y0 = work_rows(work, W_START, j)
             current = work[W_CURRENT * CHUNK_ENVS + j]
+            coil_start = (current, current)
+            if lagged:
+                coil_start = (
+                    work[W_COIL_START * CHUNK_ENVS + j],
+                    work[(W_COIL_START + 1) * CHUNK_ENVS + j],
+                )
             y, _ = split_substep(
                 c,
                 history,
@@ -369,24 +409,26 @@ def _redo_lanes(chunk_constants, work, history, first, n_lanes, head_sub, slot, 
                 head_sub,
                 h,
                 current,
-                (current, current),
+                coil_start,
                 y0,
                 refinement(c, y0, h),
                 c.ambient_pa,
                 0.0,
             )
-            _set_work_rows(work, 0, j, close_substep(c, history, env, slot, y))
+            set_work_rows(work, 0, j, close_substep(c, history, env, slot, y))
 
 
 @njit(cache=True)
-def _store_fast_lanes(chunk_constants, work, state, outputs, first, stop):
+def _store_fast_lanes(chunk_constants, work, state, outputs, first, stop, lagged):
     """The state and outputs of the batch-path lanes of environments ``first .. stop-1``
-    (one chunk) as ``general_path._store_state`` writes them."""
+    (one chunk) as ``general_path._store_state`` writes them; the (coil, force) currents
+    are the command's without a coil lag in the chunk (``lagged``)."""
     n = stop - first
     for row in range(N_RK):
         copy_fast_lanes(chunk_constants, work, n, row, state[row, first:stop], False)
-    for row in (L.S_COIL, L.S_COIL_FORCE):  # no coil lag on the batch path
-        copy_fast_lanes(chunk_constants, work, n, W_CURRENT, state[row, first:stop], False)
+    for offset, row in enumerate((L.S_COIL, L.S_COIL_FORCE)):
+        coil_row = W_COIL + offset if lagged else W_CURRENT
+        copy_fast_lanes(chunk_constants, work, n, coil_row, state[row, first:stop], False)
     for output_row, row in OUTPUT_STATE_ROWS:
         copy_fast_lanes(chunk_constants, work, n, row, outputs[output_row, first:stop], False)
     fast_output_forces(chunk_constants, work, n, outputs[L.O_F, first:stop])

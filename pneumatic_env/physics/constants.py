@@ -266,6 +266,26 @@ def env_constants(params, env, substep_s):
 
 
 @njit(cache=True)
+def _batch_path_effects_only(c):
+    """``base_model_only`` but for the effects the batch path adds on: the two leak
+    orifices (``leakage_area_m2``, ``rod_seal_leak_area_m2``; ``BATCH_LEAKS``), the coil
+    lags (``coil_time_constant_s``; the currents at its RK4 stages, ``lagged_coil_rows``),
+    and the energy equation, the tubes' isothermal air and the ISO 6358 flow law
+    (``batch_rhs``, selected per lane)."""
+    return (
+        c.supply_resistance == 0.0
+        and c.exhaust_vent == 0.0
+        and c.literal == 0.0
+        and c.null_leak == 0.0
+        and c.stribeck == 0.0
+        and c.lugre == 0.0
+        and c.waves == 0.0
+        and c.half_width >= c.hole_radius
+        and c.delay_substeps >= 1.0
+    )
+
+
+@njit(cache=True)
 def base_model_only(c):
     """Whether an environment runs the paper's model with no effect that needs ``derivatives``.
 
@@ -273,26 +293,39 @@ def base_model_only(c):
     chamber from being open together, and ``base_derivatives`` gives the same result with
     two valve paths instead of four. Three effects are in it (the exhaust discharge ratio,
     the tube volume as a dead volume, the spool friction, whose play acts before the
-    substeps); the others send the environment to the general path.
+    substeps); the leak orifices, the coil lags, the energy equation, the tubes'
+    isothermal air and the ISO flow law take the batch path too (``batch_lane_kind``); the
+    others send the environment to the general path.
     """
     return (
-        c.energy == 0.0
-        and c.supply_resistance == 0.0
-        and c.exhaust_vent == 0.0
-        and c.literal == 0.0
+        _batch_path_effects_only(c)
         and c.leak_area == 0.0
         and c.seal_leak == 0.0
-        and c.null_leak == 0.0
         and c.coil_lag == 0.0
         and c.coil_force_lag == 0.0
-        and c.stribeck == 0.0
-        and c.lugre == 0.0
-        and c.flow_law == FLOW_LAW_PAPER
-        and c.waves == 0.0
+        and c.energy == 0.0
         and c.tube_air == 0.0
-        and c.half_width >= c.hole_radius
-        and c.delay_substeps >= 1.0
+        and c.flow_law == FLOW_LAW_PAPER
     )
+
+
+# How the batch path advances an environment (``batch_lane_kind``, the cache's row
+# C_BASE_ONLY): by the general path, with ``base_derivatives``, or with
+# ``base_derivatives`` and the leak orifices (cross-piston and rod-seal leakage); either
+# batch kind with or without the coil lags and the effects ``batch_rhs`` selects per lane.
+BATCH_GENERAL = 0.0
+BATCH_BASE = 1.0
+BATCH_LEAKS = 2.0
+
+
+@njit(cache=True)
+def batch_lane_kind(c):
+    """``BATCH_BASE`` where ``base_model_only`` holds but for the effects the batch path
+    adds on other than the leak orifices (``_batch_path_effects_only``), ``BATCH_LEAKS``
+    where it would but for the leak orifices, else ``BATCH_GENERAL``."""
+    if not _batch_path_effects_only(c):
+        return BATCH_GENERAL
+    return BATCH_BASE if c.leak_area == 0.0 and c.seal_leak == 0.0 else BATCH_LEAKS
 
 
 N_CONSTANTS = len(Constants._fields)
@@ -395,7 +428,7 @@ def load_constants(constants, lane):
 
 # The batch path caches the per-environment constants (``env_constants``) between control
 # periods: per chunk, the N_CONSTANTS rows of ``store_constants`` and a row C_BASE_ONLY
-# (1.0 where ``base_model_only`` holds); per environment, a key: the substep length they
+# (``batch_lane_kind``: 0.0 for the general path); per environment, a key: the substep length they
 # were derived for, NaN when stale. The parameters do not change behind the cache's back:
 # ``BatchSimulator.params`` is read-only, and ``set_params`` / ``set_parameter`` mark the
 # changed environments' keys stale. (A key of whole parameter columns, compared every
@@ -403,6 +436,10 @@ def load_constants(constants, lane):
 C_BASE_ONLY = N_CONSTANTS
 C_SPOOL_PLAY_BAND = Constants._fields.index("spool_play_band")  # read per control period
 C_DELAY_SUBSTEPS = Constants._fields.index("delay_substeps")  # read per substep
+C_COIL_LAG = Constants._fields.index("coil_lag")  # read per control period
+C_ENERGY = Constants._fields.index("energy")  # read per control period
+C_TUBE_AIR = Constants._fields.index("tube_air")  # read per control period
+C_FLOW_LAW = Constants._fields.index("flow_law")  # read per control period
 N_CACHED_CONSTANTS = N_CONSTANTS + 1
 
 
@@ -423,5 +460,5 @@ def refresh_constants(params, first, stop, substep_s, key, constants):
         if not key[env] == substep_s:
             c = env_constants(params, env, substep_s)
             store_constants(c, constants, j)
-            constants[C_BASE_ONLY * CHUNK_ENVS + j] = 1.0 if base_model_only(c) else 0.0
+            constants[C_BASE_ONLY * CHUNK_ENVS + j] = batch_lane_kind(c)
             key[env] = substep_s

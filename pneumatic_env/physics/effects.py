@@ -125,7 +125,7 @@ def lagged_coil_force_current(
     )
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True, error_model="numpy")  # inlined: the batch path's SIMD loop
 def chamber_energy_rates(
     pressure_pa,
     temperature_k,

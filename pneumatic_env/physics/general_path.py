@@ -234,6 +234,14 @@ def exhaust_node_after_substep(c, history, env, slot, y, exhaust_node_pa, h):
     )
 
 
+@njit(cache=True, inline="always")
+def coil_at_substep_start(c, command_a, coil):
+    """The (coil, force) currents a substep starts from (``coil_at``'s ``coil_start``):
+    ``coil``, those at the last boundary, where a lag holds them; the command without."""
+    coil_now = coil[0] if c.coil_lag else command_a
+    return coil_now, coil[1] if c.coil_force_lag else coil_now
+
+
 @njit(cache=True)
 def advance_env(sim, env, coil_current_a):
     """Advance environment ``env`` of ``sim`` (``layout.SimArrays``) by one control period
@@ -264,8 +272,7 @@ def advance_env(sim, env, coil_current_a):
     bristle_m = state[L.S_BRISTLE, env]
     for sub in range(n_substeps):
         head_sub = ring_slot(sim.head[0] + sub, n_slots)
-        coil_now = coil[0] if c.coil_lag else coil_current_a  # the command without a lag
-        coil_start = (coil_now, coil[1] if c.coil_force_lag else coil_now)
+        coil_start = coil_at_substep_start(c, coil_current_a, coil)
         y, bristle_m = split_substep(
             c,
             history,

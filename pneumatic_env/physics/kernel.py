@@ -15,40 +15,51 @@ neutral constant once per control period, so an effect that is off costs a branc
 Two paths share the sub-models. The batch path (``advance_chunk``, used by every step
 function) advances chunks of ``CHUNK_ENVS`` environments running the paper's model one
 RK4 substep at a time in a single loop over the chunk that LLVM compiles to SIMD code
-(``base_derivatives``, branch-free, ``vecmath``). The general path (``advance_env``, one
-environment through the whole control period, ``derivatives``) takes environments with
-other effects on, and redoes a lane's substep that is stiff or crosses a piston event.
-Both give the same numbers bit for bit (tests/test_physics.py).
+(``base_derivatives``, branch-free, ``vecmath``), and so those with the effects it adds on
+(``constants.batch_lane_kind``: leaks, coil lags, energy equation, tube air, ISO flow
+law; ``batch_derivatives``). The general path (``advance_env``, one environment through
+the whole control period, ``derivatives``) takes environments with other effects on, and
+redoes a lane's substep that is stiff or crosses a piston event. Both give the same
+numbers bit for bit (tests/test_physics.py, tests/test_batch_effects.py).
 
-This module gathers the kernel's names from its five parts:
+This module gathers the kernel's names from its seven parts:
 
 =========================  =============================================================
 ``constants``              ``Constants``, ``env_constants`` and the batch path's cache
 ``nodes``                  algebraic nodes: valve-chamber flows, supply droop, exhaust
                            node, the valve ends of the transmission lines
-``right_hand_side``        ``derivatives``, ``base_derivatives``, the delayed reads, RK4
+``right_hand_side``        ``derivatives``, the delayed reads, RK4
+``batch_rhs``              ``base_derivatives``, ``batch_derivatives``: the batch path's
+                           right-hand side, its RK4 substep
 ``general_path``           ``advance_env``: refinement, piston events, outputs
 ``batch_path``             ``advance_chunk`` (SIMD chunks), the step functions
+``batch_work``             the batch path's work rows, the coil lags' stage currents
 =========================  =============================================================
 """
 
 from .batch_path import (
-    N_WORK,
     PARALLEL_CHUNKS_PER_HANDOUT,
-    W_CURRENT,
-    W_DIRECTION,
-    W_REDO,
-    W_SPOOL_DELAYED,
-    W_START,
     advance_chunk,
-    chunk_work,
     history_slots,
     prepare_substep,
     rollout_serial,
     step_parallel,
     step_serial,
 )
+from .batch_rhs import base_derivatives, batch_derivatives, rk4_base_substep
+from .batch_work import (
+    N_WORK,
+    W_CURRENT,
+    W_DIRECTION,
+    W_REDO,
+    W_SPOOL_DELAYED,
+    W_START,
+    chunk_work,
+)
 from .constants import (
+    BATCH_BASE,
+    BATCH_GENERAL,
+    BATCH_LEAKS,
     C_BASE_ONLY,
     C_DELAY_SUBSTEPS,
     C_SPOOL_PLAY_BAND,
@@ -59,6 +70,7 @@ from .constants import (
     TEMPERATURE_FLOOR_FRACTION,
     Constants,
     base_model_only,
+    batch_lane_kind,
     constants_cache,
     env_constants,
     load_constants,
@@ -90,11 +102,9 @@ from .nodes import (
 )
 from .right_hand_side import (
     N_RK,
-    base_derivatives,
     delayed_value,
     derivatives,
     ring_slot,
-    rk4_base_substep,
 )
 
 __all__ = [
@@ -102,6 +112,10 @@ __all__ = [
     "Constants",
     "env_constants",
     "base_model_only",
+    "batch_lane_kind",
+    "BATCH_GENERAL",
+    "BATCH_BASE",
+    "BATCH_LEAKS",
     "CHUNK_ENVS",
     "N_CONSTANTS",
     "N_CACHED_CONSTANTS",
@@ -126,6 +140,7 @@ __all__ = [
     "N_RK",
     "derivatives",
     "base_derivatives",
+    "batch_derivatives",
     "delayed_value",
     "ring_slot",
     "rk4_base_substep",

@@ -4,8 +4,8 @@
 effect); ``base_derivatives`` the paper's model where ``constants.base_model_only`` holds,
 branch-free so that a loop over environments compiles to SIMD code. The delayed inputs are
 read from the ring buffer of substep boundaries (``delayed_value``); ``rk4_step`` takes one RK4
-step of the general form over a fraction of a substep, ``rk4_base_substep`` one whole
-substep of the base form.
+step of the general form over a fraction of a substep (``batch_rhs.rk4_base_substep`` one
+whole substep of the batch path's form).
 """
 
 import math
@@ -24,10 +24,9 @@ from .effects import (
     rate_with_isothermal_tube_air,
     stribeck_friction,
 )
-from .flow import FLOW_LAW_PAPER
-from .nodes import chamber_end_flow, line_flows, path_mass_flow, valve_chamber_flows
+from .nodes import line_flows, path_mass_flow, valve_chamber_flows
 from .piston import external_force, piston_acceleration, pneumatic_force
-from .valve import orifice_area_inv_radius, spool_acceleration
+from .valve import spool_acceleration
 
 N_RK = 9  # state rows the RK4 integrates (S_X_S .. S_T2)
 
@@ -201,69 +200,6 @@ def _chamber_rates(c, p1, p2, x, t1, t2, velocity, flows):
         dp1 = rate_with_isothermal_tube_air(dp1, v1, c.tube_air, c.alpha_in, c.alpha_out)
         dp2 = rate_with_isothermal_tube_air(dp2, v2, c.tube_air, c.alpha_in, c.alpha_out)
     return dp1, dp2, 0.0, 0.0
-
-
-@njit(cache=True, forceinline=True, error_model="numpy")
-def base_derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, direction, spool_delayed):
-    """``derivatives`` for an environment where ``base_model_only`` holds, branch-free.
-
-    With x_s(t - tau) > 0 chamber 1 is open to the supply and chamber 2 to the exhaust
-    through the same area A_in(x_s) (Eqs. 44, 45); with x_s <= 0 the other way round
-    through A_in(-x_s). Each chamber exchanges air through one orifice and one tube, so a
-    loop over environments evaluates 1 area and 2 flows where the general form takes 2 and
-    6, and compiles to SIMD code.
-    """
-    to_chamber_1 = spool_delayed > 0.0
-    area = orifice_area_inv_radius(
-        abs(spool_delayed), c.hole_radius, c.inv_hole_radius, c.half_width, c.holes
-    )
-    node_1 = c.supply_pa if to_chamber_1 else c.ambient_pa
-    node_2 = c.ambient_pa if to_chamber_1 else c.supply_pa
-    discharge_1 = c.discharge if to_chamber_1 else c.discharge_ex
-    discharge_2 = c.discharge_ex if to_chamber_1 else c.discharge
-    flow_1 = chamber_end_flow(
-        c,
-        path_mass_flow(
-            c, discharge_1, area, node_1, p1, c.inv_sqrt_t, c.inv_sqrt_t, FLOW_LAW_PAPER
-        ),
-        p1,
-    )
-    flow_2 = chamber_end_flow(
-        c,
-        path_mass_flow(
-            c, discharge_2, area, node_2, p2, c.inv_sqrt_t, c.inv_sqrt_t, FLOW_LAW_PAPER
-        ),
-        p2,
-    )
-    velocity = v if direction != 0.0 else 0.0
-    v1, v2 = _volumes(c, x)
-    dp1 = pressure_rate(
-        p1,
-        v1,
-        c.area_cap * velocity,
-        max(flow_1, 0.0),
-        max(-flow_1, 0.0),
-        c.gas_rt,
-        c.alpha_in,
-        c.alpha_out,
-        c.alpha_motion,
-    )
-    dp2 = pressure_rate(
-        p2,
-        v2,
-        -c.area_rod * velocity,
-        max(flow_2, 0.0),
-        max(-flow_2, 0.0),
-        c.gas_rt,
-        c.alpha_in,
-        c.alpha_out,
-        c.alpha_motion,
-    )
-    accel, a_s = _motion_and_spool(
-        c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction, c.dynamic_friction
-    )
-    exhaust_rate = max(-flow_2, 0.0) if to_chamber_1 else max(-flow_1, 0.0)
-    return v_s, a_s, dp1, dp2, velocity, accel, exhaust_rate, 0.0, 0.0
 
 
 @njit(cache=True, forceinline=True)
@@ -479,27 +415,3 @@ def _rk4_combine(c, y, k1, k2, k3, k4, hh, direction):
         t1,
         t2,
     )
-
-
-@njit(cache=True, forceinline=True, error_model="numpy")
-def rk4_base_substep(
-    c, y, coil_current_a, direction, spool_delayed_start, spool_delayed_mid, spool_delayed_end, h
-):
-    """One whole RK4 substep of ``base_derivatives``; the delayed spool positions at its
-    start, middle and end are read from the ring buffer beforehand (``delayed_value``)."""
-    k1 = base_derivatives(
-        c, coil_current_a, y[0], y[1], y[2], y[3], y[4], y[5], direction, spool_delayed_start
-    )
-    y2 = _axpy(y, 0.5 * h, k1)
-    k2 = base_derivatives(
-        c, coil_current_a, y2[0], y2[1], y2[2], y2[3], y2[4], y2[5], direction, spool_delayed_mid
-    )
-    y3 = _axpy(y, 0.5 * h, k2)
-    k3 = base_derivatives(
-        c, coil_current_a, y3[0], y3[1], y3[2], y3[3], y3[4], y3[5], direction, spool_delayed_mid
-    )
-    y4 = _axpy(y, h, k3)
-    k4 = base_derivatives(
-        c, coil_current_a, y4[0], y4[1], y4[2], y4[3], y4[4], y4[5], direction, spool_delayed_end
-    )
-    return _rk4_combine(c, y, k1, k2, k3, k4, h, direction)

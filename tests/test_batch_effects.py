@@ -1,0 +1,136 @@
+"""The effects the batch path advances (``constants.batch_lane_kind``) against the general
+path (``general_path.advance_env``), bit for bit: states and outputs after every control
+period, random piecewise-constant currents, free and spring rods that meet the stops and
+reverse (piston events, redone substeps), in chunks that mix them with base-model lanes
+and general-path lanes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pneumatic_env.params import load_numerics, load_parameters, parameter_array
+from pneumatic_env.physics import constants as K
+from pneumatic_env.physics import kernel
+from pneumatic_env.physics import layout as L
+from pneumatic_env.simulator import BatchSimulator
+
+# each effect the batch path takes (alone and together), a strong and a weak setting
+BATCH_EFFECTS = {
+    "leakage": ({"leakage_area_m2": 2e-7}, {"leakage_area_m2": 1e-9}),
+    "rod_seal_leak": ({"rod_seal_leak_area_m2": 2e-7}, {"rod_seal_leak_area_m2": 1e-9}),
+    "both_leaks": (
+        {"leakage_area_m2": 5e-8, "rod_seal_leak_area_m2": 1e-7},
+        {"leakage_area_m2": 1e-9, "rod_seal_leak_area_m2": 3e-9},
+    ),
+    "coil_lag": (
+        {"coil_time_constant_s": 5e-3, "coil_lag_shape": 0.0},
+        {"coil_time_constant_s": 1e-3, "coil_lag_shape": 0.1},
+    ),
+    "heat_transfer": ({"wall_heat_transfer_w_per_k": 2.0}, {"wall_heat_transfer_w_per_k": 0.05}),
+    "heat_transfer_and_leaks": (
+        {"wall_heat_transfer_w_per_k": 0.5, "leakage_area_m2": 5e-8},
+        {"wall_heat_transfer_w_per_k": 0.05, "rod_seal_leak_area_m2": 1e-7},
+    ),
+    "tube_air": (
+        {"tube_air_model": 1.0, "tube_volume_fraction": 1.0},
+        {"tube_air_model": 1.0, "tube_volume_fraction": 0.3},
+    ),
+    "iso_flow_law": (
+        {"flow_law": 1.0, "iso_critical_ratio_b": 0.3},
+        {"flow_law": 1.0, "iso_critical_ratio_b": 0.45, "leakage_area_m2": 5e-8},
+    ),
+    "coil_lags_and_leaks": (
+        {"coil_time_constant_s": 2e-3, "coil_lag_shape": 0.25, "leakage_area_m2": 5e-8},
+        {"coil_time_constant_s": 3e-4, "coil_lag_shape": 0.2, "rod_seal_leak_area_m2": 5e-8},
+    ),
+    "all_batch_effects": (
+        {
+            "wall_heat_transfer_w_per_k": 0.5,
+            "flow_law": 1.0,
+            "coil_time_constant_s": 2e-3,
+            "leakage_area_m2": 5e-8,
+            "rod_seal_leak_area_m2": 5e-8,
+            "spool_coulomb_friction_n": 0.05,
+        },
+        {
+            "tube_air_model": 1.0,
+            "tube_volume_fraction": 0.5,
+            "flow_law": 1.0,
+            "coil_time_constant_s": 1e-3,
+            "leakage_area_m2": 1e-9,
+        },
+    ),
+}
+ROD_SETUPS = (
+    {"tube_length_m": 2.0},
+    {"tube_length_m": 0.5, "piston_mode": "free", "load_mass_kg": 0.1},
+    {
+        "tube_length_m": 1.0,
+        "piston_mode": "spring",
+        "spring_stiffness_n_per_m": 4000.0,
+        "exhaust_discharge_ratio": 0.8,
+    },
+)
+
+
+def _random_currents(rng, n_steps, n_envs, i_max=2.0):
+    """Piecewise-constant currents in [-i_max, i_max], held 5-150 steps."""
+    out = np.empty((n_steps, n_envs))
+    for j in range(n_envs):
+        k = 0
+        while k < n_steps:
+            hold = int(rng.integers(5, 150))
+            out[k : k + hold, j] = rng.uniform(-i_max, i_max)
+            k += hold
+    return out
+
+
+def _sets(effect):
+    """Every rod setup with the effect's strong and weak setting, then a base-model lane and
+    a general-path lane (supply droop) in the same chunk."""
+    sets = [
+        load_parameters("numatics", **rod, **setting)
+        for setting in BATCH_EFFECTS[effect]
+        for rod in ROD_SETUPS
+    ]
+    sets.append(load_parameters("airpel", **ROD_SETUPS[1]))
+    sets.append(load_parameters("numatics", supply_resistance_pa_s_per_kg=1e6, **ROD_SETUPS[1]))
+    return sets
+
+
+@pytest.mark.parametrize("effect", sorted(BATCH_EFFECTS))
+def test_the_batch_path_takes_the_effect_lanes(effect):
+    params = parameter_array(_sets(effect))
+    kinds = [
+        K.batch_lane_kind(kernel.env_constants(params, env, 2e-4)) for env in range(params.shape[1])
+    ]
+    want = [
+        K.BATCH_LEAKS
+        if "leakage_area_m2" in setting or "rod_seal_leak_area_m2" in setting
+        else K.BATCH_BASE
+        for setting in BATCH_EFFECTS[effect]
+        for _ in ROD_SETUPS
+    ]
+    assert kinds == want + [K.BATCH_BASE, K.BATCH_GENERAL]
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.parametrize("effect", sorted(BATCH_EFFECTS))
+def test_batch_effects_reproduce_the_general_path_bit_for_bit(effect, seed):
+    sets = _sets(effect)
+    currents = _random_currents(np.random.default_rng(seed), 300, len(sets))
+    num = load_numerics()
+    batch = BatchSimulator(parameter_array(sets), num["control_dt_s"], num["substeps"])
+    general = BatchSimulator(parameter_array(sets), num["control_dt_s"], num["substeps"])
+    moved = False
+    for step_currents in currents:
+        batch.step(np.ascontiguousarray(step_currents))
+        for env in range(len(sets)):
+            kernel.advance_env(general.arrays, env, float(step_currents[env]))
+        general.advance_clock()
+        np.testing.assert_array_equal(batch.outputs, general.outputs)
+        moved |= bool(np.any(batch.outputs[L.O_V, 1:] != 0.0))
+    np.testing.assert_array_equal(batch.state, general.state)
+    np.testing.assert_array_equal(batch.history, general.history)
+    assert moved  # the free and spring rods really moved (events, stops, sticking)
