@@ -511,3 +511,25 @@ def test_identify_quick_names_the_effects_worth_a_full_fit(campaign_dir, tmp_pat
     assert worth.index("leakage") < worth.index("%")  # the leak is named first
     data = json.loads((tmp_path / "q" / "diagnosis.json").read_text())
     assert data["quick"] and data["selected"] == [] and data["confidence"] == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_greedy_rounds_find_both_effects_of_a_two_effect_rig(tmp_path, seed):
+    """A rig with a rod-seal leak and a pressure-sensor lag at once (the multi-effect
+    rig's plant, studies/rig_multi_effect.py, written apart from the candidates), recorded
+    as the small campaign: the greedy rounds select both, and nothing else, among four
+    candidates (two decoys of the same kinds: a cross-piston leak, a channel time skew)."""
+    paths = make_campaign(
+        tmp_path,
+        seed=seed,
+        campaign="small",
+        effects={"rod_seal_leak": 1.0, "pressure_sensor_lag": 1.0},
+        overwrite=True,
+    )
+    diag = diagnose(
+        [read_checked(p) for p in paths],
+        candidates=["rod_seal_leak", "pressure_sensor_lag", "leakage", "channel_time_skew"],
+        max_effects=3,
+    )
+    assert sorted(diag.selected) == ["pressure_sensor_lag", "rod_seal_leak"]
