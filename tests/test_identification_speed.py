@@ -6,6 +6,7 @@ The recordings come from the virtual rig (synthetic, never measured), 0.3-1 s lo
 
 from __future__ import annotations
 
+import math
 import threading
 
 import numpy as np
@@ -13,10 +14,13 @@ import pytest
 
 from pneumatic_env.identification import problem as fit_problem
 from pneumatic_env.identification.calibrate import run_fit
+from pneumatic_env.identification.candidates import available_candidates
 from pneumatic_env.identification.checks import read_checked
 from pneumatic_env.identification.config import load_config
 from pneumatic_env.identification.datasets import base_fit_parameters, prepare_datasets
 from pneumatic_env.identification.diagnose import diagnose, stopped_early
+from pneumatic_env.identification.holdout import Holdout
+from pneumatic_env.identification.screening import screen_candidates
 from pneumatic_env.studies.virtual_rig import make_recording
 
 ROLLOUT_PIECE = fit_problem._rollout_piece
@@ -94,6 +98,27 @@ def test_early_screening_ranks_the_true_effect_first(tmp_path):
     assert diag.base.n_jacobians >= n_min
     ranking = [entry["name"] for entry in diag.screening[0]["ranking"]]
     assert ranking[0] == "leakage"
+    # quick screens on the training rows only: the same ranking, to the bit, as a screening
+    # that simulates the held-out data too, and no held-out prediction
+    assert all(e["predicted_heldout_improvement"] is None for e in diag.screening[0]["ranking"])
+    cfg = load_config()
+    datasets, _ = prepare_datasets([read_checked(p) for p in paths], None, cfg)
+    split = Holdout(datasets, "auto", cfg)
+    full = screen_candidates(
+        available_candidates(candidates, cfg),
+        diag.base,
+        list(diag.base.parameters),
+        datasets,
+        split.train,
+        split.train_n,
+        split.held,
+        split.held_masks,
+        cfg,
+    )
+    assert [(s.name, s.predicted_delta_ic) for s in full] == [
+        (e["name"], e["predicted_delta_ic"]) for e in diag.screening[0]["ranking"]
+    ]
+    assert any(math.isfinite(s.predicted_heldout) for s in full)
 
 
 def test_a_fit_stops_where_its_cost_levels_off_close_to_the_converged_cost(tmp_path):

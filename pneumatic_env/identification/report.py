@@ -415,7 +415,12 @@ def _screening_lines(data: dict) -> list[str]:
             "",
             "One Gauss-Newton step per candidate from the current model, ranked by "
             "the linearised BIC change on the training rows (a ranking; refits "
-            "decide):",
+            "decide)"
+            + (
+                "; quick mode simulates the training rows only, so nothing is predicted held out:"
+                if data["quick"]
+                else ":"
+            ),
             "",
             "| candidate | predicted BIC change (ranks) | predicted training | predicted "
             "held out | per held-out recording |",

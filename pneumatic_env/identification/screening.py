@@ -238,10 +238,17 @@ def _starts(cand: Candidate, params: Sequence[FitParameter], values: dict, ds0, 
 
 
 def _simulate_columns(
-    ds: Dataset, specs: Sequence[tuple], base_sim: dict, plant_now: dict, sensor_now: dict, scopes
+    ds: Dataset,
+    n_samples: int,
+    specs: Sequence[tuple],
+    base_sim: dict,
+    plant_now: dict,
+    sensor_now: dict,
+    scopes,
 ) -> dict:
-    """Predictions on ``ds`` of every spec's start and perturbed columns (one batch
-    simulation of the plant columns; a sensor candidate reuses ``base_sim``)."""
+    """Predictions on the first ``n_samples`` of ``ds`` of every spec's start and perturbed
+    columns (one batch simulation of the plant columns; a sensor candidate reuses
+    ``base_sim``)."""
     plant_cols, plant_scopes, sensor_cols, owner = [], [], [], []
     sensor_parts = []
     for cand, params, start, _, perturbed in specs:
@@ -255,7 +262,7 @@ def _simulate_columns(
             else:
                 sensor_parts.append({**sensor_now, **var})
                 owner.append(("sensor", len(sensor_parts) - 1))
-    sims = simulate_unique(ds, plant_cols, ds.n_samples, plant_scopes) if plant_cols else {}
+    sims = simulate_unique(ds, plant_cols, n_samples, plant_scopes) if plant_cols else {}
     merged = {}
     for c in ds.channels:
         cols = [sims[c][:, j] if kind == "plant" else base_sim[c][:, 0] for kind, j in owner]
@@ -274,13 +281,19 @@ def screen_candidates(
     held: Sequence[Dataset],
     held_masks,
     config: IdentificationConfig,
+    training_only: bool = False,
 ) -> list[Screen]:
     """Predicted held-out improvement of each candidate over ``current`` (best first).
 
     ``free`` are the current model's refitted parameters; ``train``/``train_n`` the
     training recordings and samples, ``held``/``held_masks`` the held-out ones.
+    ``training_only`` (``--quick``): simulate the training samples only, which is all the
+    ranking reads; the held-out predictions are then NaN.
     """
     train_n = [train_n[k] for k in range(len(train))]
+    n_samples = None
+    if training_only:
+        datasets, held, held_masks, n_samples = list(train), [], [], train_n
     datasets, train, held = _coarse_datasets(datasets, train, held, config)
     # the piston's friction stays at the current fit's values: its free-run derivative is
     # a staircase (stick events), so a linear step in it extrapolates wildly held out
@@ -290,7 +303,13 @@ def screen_candidates(
     values = current.all_values()
     fixed = {k: v for k, v in values.items() if k not in names}
     problem = FitProblem(
-        datasets, free, fixed=fixed, config=config, label="screening", scopes=current.scopes
+        datasets,
+        free,
+        fixed=fixed,
+        n_samples=n_samples,
+        config=config,
+        label="screening",
+        scopes=current.scopes,
     )
     u0 = problem.initial_u(values)
     r_base = problem.residual(u0)
@@ -310,7 +329,9 @@ def screen_candidates(
             specs.append(_spec(cand, params, start, fd))
     base_sims = problem._plant(u0)
     preds = [
-        _simulate_columns(ds, specs, base_sims[k], plant_now, sensor_now, current.scopes)
+        _simulate_columns(
+            ds, problem.n_samples[k], specs, base_sims[k], plant_now, sensor_now, current.scopes
+        )
         for k, ds in enumerate(datasets)
     ]
     R = problem._residual_of(preds)
@@ -362,7 +383,11 @@ def _best_screens(
         }
         screen = Screen(
             cand,
-            predicted_heldout=(base_mean - mean) / base_mean if base_mean > 0 else 0.0,
+            predicted_heldout=(
+                (base_mean - mean) / base_mean
+                if base_mean > 0
+                else (math.nan if math.isnan(base_mean) else 0.0)
+            ),
             predicted_train=1.0 - train_rss / base_train if base_train > 0 else 0.0,
             per_recording={
                 k: (base_per[k] - per[k]) / base_per[k] if base_per[k] > 0 else 0.0 for k in per

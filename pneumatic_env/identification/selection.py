@@ -146,6 +146,7 @@ def selection_round(
         ctx.split.held,
         ctx.split.held_masks,
         ctx.cfg,
+        training_only=ctx.quick,
     )
     state.screening.append({"round": rnd, "ranking": [s.to_dict() for s in screens]})
     ctx.timings[f"screening_round_{rnd}"] = time.monotonic() - t_round
