@@ -62,6 +62,19 @@ BATCH_EFFECTS = {
             "wall_heat_transfer_w_per_k": 0.5,
         },
     ),
+    "exhaust_backpressure": (
+        {"exhaust_vent_area_m2": 5e-6, "exhaust_volume_m3": 0.0},
+        {"exhaust_vent_area_m2": 1e-4, "exhaust_volume_m3": 0.0},
+    ),
+    "exhaust_backpressure_and_effects": (
+        {"exhaust_vent_area_m2": 3e-6, "valve_null_leak_area_m2": 5e-8, "leakage_area_m2": 5e-8},
+        {
+            "exhaust_vent_area_m2": 2e-5,
+            "coil_time_constant_s": 2e-3,
+            "wall_heat_transfer_w_per_k": 0.5,
+            "rod_seal_leak_area_m2": 5e-8,
+        },
+    ),
     "all_batch_effects": (
         {
             "wall_heat_transfer_w_per_k": 0.5,
