@@ -25,6 +25,7 @@ from .nodes import (
 )
 from .right_hand_side import N_RK, _axpy, _rk4_combine, inv_sqrt_temperatures
 from .valve import orifice_area_inv_radius
+from .vecmath import float_to_bits
 
 # rows of a vented chunk's stage array: the stage's state, the four stages' slopes, the
 # valve's two areas, and the solver's bracket, guess and whether the lane has returned
@@ -90,33 +91,47 @@ def _stage_bracket(constants, work, rows, n_lanes, h, stage):
 @njit(cache=True, error_model="numpy")
 def _stage_iteration(constants, rows, n_lanes):
     """One Illinois step of ``exhaust_pressure_at_valve`` on every lane not done (the
-    others keep their rows); whether any lane is still iterating."""
+    others keep their rows)."""
     k = CHUNK_ENVS
-    open_lanes = 0.0
     for j in range(n_lanes):
         c = load_constants(constants, j)
         y7, y8 = rows[(V_STATE + 7) * k + j], rows[(V_STATE + 8) * k + j]
         inv_sqrt_t1, inv_sqrt_t2 = inv_sqrt_temperatures(c, y7, y8)
+        # every row loaded up front and selected below: no conditional load or store
         guess = rows[V_GUESS * k + j]
-        lo, lo_f = rows[V_LO * k + j], rows[V_LO_F * k + j]
-        hi, hi_f = rows[V_HI * k + j], rows[V_HI_F * k + j]
-        side = int(rows[V_SIDE * k + j])
+        bracket = (
+            rows[V_LO * k + j],
+            rows[V_LO_F * k + j],
+            rows[V_HI * k + j],
+            rows[V_HI_F * k + j],
+            rows[V_SIDE * k + j],  # 0.0, 1.0 or -1.0
+        )
         f_guess = _balance(c, guess, rows, j, inv_sqrt_t1, inv_sqrt_t2)
-        lo, lo_f, hi, hi_f, side = _illinois_update(lo, lo_f, hi, hi_f, guess, f_guess, side)
+        lo, lo_f, hi, hi_f, side = _illinois_update(
+            bracket[0], bracket[1], bracket[2], bracket[3], guess, f_guess, bracket[4]
+        )
         new_guess = (lo * hi_f - hi * lo_f) / (hi_f - lo_f)
         tolerance = SUPPLY_DROOP_RTOL * c.supply_pa
-        done_before = rows[V_DONE * k + j] != 0.0
-        kept = done_before | (f_guess == 0.0)
+        kept = (rows[V_DONE * k + j] != 0.0) | (f_guess == 0.0)
         done = kept | (abs(new_guess - guess) <= tolerance)
         rows[V_GUESS * k + j] = guess if kept else new_guess
-        rows[V_LO * k + j] = rows[V_LO * k + j] if kept else lo
-        rows[V_LO_F * k + j] = rows[V_LO_F * k + j] if kept else lo_f
-        rows[V_HI * k + j] = rows[V_HI * k + j] if kept else hi
-        rows[V_HI_F * k + j] = rows[V_HI_F * k + j] if kept else hi_f
-        rows[V_SIDE * k + j] = rows[V_SIDE * k + j] if kept else float(side)
+        rows[V_LO * k + j] = bracket[0] if kept else lo
+        rows[V_LO_F * k + j] = bracket[1] if kept else lo_f
+        rows[V_HI * k + j] = bracket[2] if kept else hi
+        rows[V_HI_F * k + j] = bracket[3] if kept else hi_f
+        rows[V_SIDE * k + j] = bracket[4] if kept else float(side)
         rows[V_DONE * k + j] = 1.0 if done else 0.0
-        open_lanes += 0.0 if done else 1.0
-    return open_lanes > 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def _any_lane_open(rows, n_lanes):
+    """Whether any lane is still iterating: an OR of the bits of (done - 1), 0.0 where done,
+    a reduction LLVM vectorises (in ``_stage_iteration``'s loop it would stop its
+    vectorisation)."""
+    bits = 0
+    for j in range(n_lanes):
+        bits |= float_to_bits(rows[V_DONE * CHUNK_ENVS + j] - 1.0)
+    return bits != 0
 
 
 @njit(cache=True, error_model="numpy")
@@ -150,8 +165,9 @@ def vented_substeps(constants, work, n_lanes, h, leaks, selected):
     for stage in range(4):
         _stage_bracket(constants, work, rows, n_lanes, h, stage)
         for _ in range(SUPPLY_DROOP_MAX_ITERATIONS):
-            if not _stage_iteration(constants, rows, n_lanes):
+            if not _any_lane_open(rows, n_lanes):
                 break
+            _stage_iteration(constants, rows, n_lanes)
         if leaks and selected:
             _stage_slopes(constants, work, rows, n_lanes, stage, True, True)
         elif leaks:
