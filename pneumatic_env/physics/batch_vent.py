@@ -4,11 +4,14 @@
 The pressure behind the valve's exhaust ports is a root the general path solves at every
 RK4 stage (``nodes.exhaust_pressure_at_valve``). A solver's loop inside the substep's loop
 over lanes would keep LLVM from vectorising it, so a chunk with a vent takes each RK4 stage
-in three vectorised loops instead (``vented_substeps``): the stage's state and the solver's
-bracket (``_stage_bracket``), the Illinois iterations of all lanes in lockstep
-(``_stage_iterations``: a lane that has returned keeps its root, the others take the same
-steps in the same order as on the general path), and the stage's slopes at the node's
-pressure (``_stage_slopes``, the valve's four paths). Bit for bit the general path.
+in three loops over its lanes instead (``vented_substeps``): the stage's state and the
+solver's bracket (``_stage_bracket``), the Illinois iterations of all lanes in lockstep
+(``_stage_iteration``, vectorised: a lane that has returned keeps its root, the others take
+the same steps in the same order as on the general path), and the stage's slopes at the
+node's pressure (``_stage_slopes``, the valve's four paths). Bit for bit the general path.
+The first and last loops stay scalar: they read or write the slopes at rows that depend on
+the stage at run time, which LLVM does not prove apart from the rows they write or read
+(a stage made a compile-time constant would lift this).
 """
 
 import numpy as np
