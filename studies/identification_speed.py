@@ -20,7 +20,8 @@ one run on this machine:
   model's, measured interleaved: what a candidate's simulations cost beside the base.
 
 ``--candidate`` takes a comma-separated list (default: leakage, rod_seal_leak, coil_lag,
-spool_friction, heat_transfer, tube_volume, iso_flow_law, tube_waves); ``--no-jacobians``
+spool_friction, heat_transfer, tube_volume, iso_flow_law, valve_null_leak,
+exhaust_backpressure, tube_waves); ``--no-jacobians``
 prints only the kernel figures (a few minutes instead of many).
 
 ``--campaign DIR`` (repeatable) times the recordings in DIR instead. Ratios within one
@@ -42,7 +43,8 @@ import numpy as np
 __all__ = ["candidate_kernel_costs", "jacobian_timing", "kernel_throughput", "main"]
 
 DEFAULT_CANDIDATES = (
-    "leakage,rod_seal_leak,coil_lag,spool_friction,heat_transfer,tube_volume,iso_flow_law,tube_waves"
+    "leakage,rod_seal_leak,coil_lag,spool_friction,heat_transfer,tube_volume,iso_flow_law,"
+    "valve_null_leak,exhaust_backpressure,tube_waves"
 )
 
 

@@ -44,6 +44,37 @@ BATCH_EFFECTS = {
         {"coil_time_constant_s": 2e-3, "coil_lag_shape": 0.25, "leakage_area_m2": 5e-8},
         {"coil_time_constant_s": 3e-4, "coil_lag_shape": 0.2, "rod_seal_leak_area_m2": 5e-8},
     ),
+    "valve_null_leak": (
+        {"valve_null_leak_area_m2": 2e-7},
+        {"valve_null_leak_area_m2": 2e-8},
+    ),
+    "null_leak_leak_and_coil_lag": (
+        {
+            "valve_null_leak_area_m2": 5e-8,
+            "leakage_area_m2": 5e-8,
+            "coil_time_constant_s": 2e-3,
+            "coil_lag_shape": 0.25,
+        },
+        {
+            "valve_null_leak_area_m2": 1e-9,
+            "rod_seal_leak_area_m2": 5e-8,
+            "coil_time_constant_s": 3e-4,
+            "wall_heat_transfer_w_per_k": 0.5,
+        },
+    ),
+    "exhaust_backpressure": (
+        {"exhaust_vent_area_m2": 5e-6, "exhaust_volume_m3": 0.0},
+        {"exhaust_vent_area_m2": 1e-4, "exhaust_volume_m3": 0.0},
+    ),
+    "exhaust_backpressure_and_effects": (
+        {"exhaust_vent_area_m2": 3e-6, "valve_null_leak_area_m2": 5e-8, "leakage_area_m2": 5e-8},
+        {
+            "exhaust_vent_area_m2": 2e-5,
+            "coil_time_constant_s": 2e-3,
+            "wall_heat_transfer_w_per_k": 0.5,
+            "rod_seal_leak_area_m2": 5e-8,
+        },
+    ),
     "all_batch_effects": (
         {
             "wall_heat_transfer_w_per_k": 0.5,
@@ -52,6 +83,7 @@ BATCH_EFFECTS = {
             "leakage_area_m2": 5e-8,
             "rod_seal_leak_area_m2": 5e-8,
             "spool_coulomb_friction_n": 0.05,
+            "valve_null_leak_area_m2": 2e-8,
         },
         {
             "tube_air_model": 1.0,

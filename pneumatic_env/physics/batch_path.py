@@ -1,5 +1,5 @@
 """The kernel's batch path: chunks of ``CHUNK_ENVS`` environments running the paper's model
-(with the leak orifices, ``constants.batch_lane_kind``) advance one RK4 substep at a time
+(with the effects of ``constants.batch_lane_kind``) advance one RK4 substep at a time
 in single loops over the chunk that LLVM compiles to SIMD code (``advance_chunk``); a lane
 whose substep is stiff or crosses a piston event is redone by the general path, and
 environments with other effects on take ``general_path.advance_env``. The step functions
@@ -13,6 +13,7 @@ from numba import njit, prange
 
 from . import layout as L
 from .batch_rhs import rk4_base_substep
+from .batch_vent import vented_substeps
 from .batch_work import (
     W_COIL,
     W_COIL_START,
@@ -29,20 +30,15 @@ from .batch_work import (
 )
 from .constants import (
     BATCH_GENERAL,
-    BATCH_LEAKS,
     C_BASE_ONLY,
-    C_COIL_LAG,
     C_DELAY_SUBSTEPS,
-    C_ENERGY,
-    C_FLOW_LAW,
     C_SPOOL_PLAY_BAND,
-    C_TUBE_AIR,
     CHUNK_ENVS,
+    chunk_effects,
     load_constants,
     refresh_constants,
 )
 from .effects import spool_play_current
-from .flow import FLOW_LAW_PAPER
 from .general_path import (
     OUTPUT_STATE_ROWS,
     STIFFNESS_LIMIT,
@@ -92,13 +88,12 @@ def begin_substeps(constants, work, n_lanes, h):
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def _substeps_vectorised(constants, work, n_lanes, h, leaks, selected, driven):
+def _substeps_vectorised(constants, work, n_lanes, h, leaks, selected, four_paths, driven):
     """RK4 substep of ``batch_rhs.batch_derivatives`` for every lane of a chunk, with the
-    leak orifices (``leaks``) and the effects selected per lane (``selected``), the spool
-    driven by the
-    held command ``W_CURRENT`` or, ``driven``, by the currents in ``W_DRIVE`` (the coil
-    lags'); a loop LLVM vectorises once the flags (constants where this is inlined) have
-    folded away."""
+    leak orifices (``leaks``), the effects selected per lane (``selected``) and the valve's
+    four paths (``four_paths``), the spool driven by the held command ``W_CURRENT`` or,
+    ``driven``, by the currents in ``W_DRIVE`` (the coil lags'); a loop LLVM vectorises
+    once the flags (constants where this is inlined) have folded away."""
     k = CHUNK_ENVS
     for j in range(n_lanes):
         c = load_constants(constants, j)
@@ -116,9 +111,8 @@ def _substeps_vectorised(constants, work, n_lanes, h, leaks, selected, driven):
             work[(W_SPOOL_DELAYED + 2) * k + j],
         )
         direction = work[W_DIRECTION * k + j]
-        y = rk4_base_substep(
-            c, work_rows(work, 0, j), drive, direction, spool_delayed, h, leaks, selected
-        )
+        y = work_rows(work, 0, j)
+        y = rk4_base_substep(c, y, drive, direction, spool_delayed, h, leaks, selected, four_paths)
         set_work_rows(work, 0, j, y)
 
 
@@ -129,26 +123,39 @@ def base_substeps_vectorised(constants, work, n_lanes, h):
     ``error_model="numpy"`` lets a division by zero give inf instead of raising, so the
     divisions do not stop vectorisation.
     """
-    _substeps_vectorised(constants, work, n_lanes, h, False, False, False)
+    _substeps_vectorised(constants, work, n_lanes, h, False, False, False, False)
 
 
 @njit(cache=True, error_model="numpy")
-def chunk_substeps(constants, work, n_lanes, h, leaks, selected, lagged):
+def chunk_substeps(constants, work, n_lanes, h, leaks, selected, lagged, four_paths, vented):
     """The chunk's RK4 loop: ``base_substeps_vectorised``, or with the effects its lanes
-    have (flags true where any lane has them; on another lane a leak path is closed and
-    adds 0.0, an effect selected per lane is not selected), the spool then driven by
-    ``W_DRIVE`` (the command, or with ``lagged`` the coil lags' currents,
-    ``lagged_coil_rows``)."""
-    if not (leaks or selected or lagged):
+    have (flags true where any lane has them; on another lane a leak path, or a valve
+    path without a null leak, is closed and adds 0.0, an effect selected per lane is not
+    selected), the spool then driven by ``W_DRIVE`` (the command, or with ``lagged`` the
+    coil lags' currents, ``lagged_coil_rows``), or stage by stage with an exhaust vent
+    (``batch_vent.vented_substeps``)."""
+    if vented:
+        vented_substeps(constants, work, n_lanes, h, leaks, selected)
+    elif not (leaks or selected or lagged or four_paths):
         base_substeps_vectorised(constants, work, n_lanes, h)
-    elif leaks and selected:
-        _substeps_vectorised(constants, work, n_lanes, h, True, True, True)
-    elif leaks:
-        _substeps_vectorised(constants, work, n_lanes, h, True, False, True)
-    elif selected:
-        _substeps_vectorised(constants, work, n_lanes, h, False, True, True)
+    elif four_paths:
+        _driven_substeps(constants, work, n_lanes, h, leaks, selected, True)
     else:
-        _substeps_vectorised(constants, work, n_lanes, h, False, False, True)
+        _driven_substeps(constants, work, n_lanes, h, leaks, selected, False)
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _driven_substeps(constants, work, n_lanes, h, leaks, selected, four_paths):
+    """``_substeps_vectorised`` driven by ``W_DRIVE``, the flags made constants (one
+    vectorised loop per combination)."""
+    if leaks and selected:
+        _substeps_vectorised(constants, work, n_lanes, h, True, True, four_paths, True)
+    elif leaks:
+        _substeps_vectorised(constants, work, n_lanes, h, True, False, four_paths, True)
+    elif selected:
+        _substeps_vectorised(constants, work, n_lanes, h, False, True, four_paths, True)
+    else:
+        _substeps_vectorised(constants, work, n_lanes, h, False, False, four_paths, True)
 
 
 @njit(cache=True, error_model="numpy")
@@ -329,7 +336,7 @@ def advance_chunk(sim, first, stop, coil_current_a):
     (``begin_substeps``), the delayed spool positions are read (``delayed_spool_rows``) and,
     with a coil lag in the chunk, the currents driving the spool (``lagged_coil_rows``), one
     vectorised RK4 substep (``chunk_substeps``, with the effects the chunk's lanes have:
-    ``_chunk_effects``) advances every lane, and one
+    ``constants.chunk_effects``) advances every lane, and one
     vectorised loop finds the lanes whose piston met an event and applies the stops
     (``end_substeps``). A lane whose substep needs splitting (stiff flow, ``refinement``) or
     crosses a piston event is redone from the substep's start by the general path
@@ -346,7 +353,7 @@ def advance_chunk(sim, first, stop, coil_current_a):
     for j in range(n):
         if fast[j] == BATCH_GENERAL:
             advance_env(sim, first + j, coil_current_a[first + j])
-    leaky, selected, lagged = _chunk_effects(chunk_constants, n)
+    effects = chunk_effects(chunk_constants, n)  # leaky, selected, lagged, four_paths, vented
     # lanes advance_env advanced are computed below too, and ignored
     work = chunk_work(state, first, stop)
     fast_commands(chunk_constants, work, n, coil_current_a[first:stop], state[L.S_PLAY, first:stop])
@@ -354,33 +361,16 @@ def advance_chunk(sim, first, stop, coil_current_a):
     for sub in range(n_substeps):
         head_sub = ring_slot(sim.head[0] + sub, n_slots)
         prepare_substep(chunk_constants, work, history, first, n, head_sub, same_delay, h)
-        if lagged:
+        if effects[2]:
             lagged_coil_rows(chunk_constants, work, n)
-        chunk_substeps(chunk_constants, work, n, h, leaky, selected, lagged)
+        chunk_substeps(chunk_constants, work, n, h, *effects)
         end_substeps(chunk_constants, work, n)
         slot = ring_slot(head_sub + 1, n_slots)
         for row, channel in ((L.S_X_S, L.H_X_S), (L.S_P1, L.H_P1), (L.S_P2, L.H_P2)):
             copy_fast_lanes(chunk_constants, work, n, row, history[slot, channel, first:stop], True)
         if _any_lane_set(work, W_REDO, n):
-            _redo_lanes(chunk_constants, work, history, first, n, head_sub, slot, h, lagged)
-    _store_fast_lanes(chunk_constants, work, state, sim.outputs, first, stop, lagged)
-
-
-@njit(cache=True)
-def _chunk_effects(chunk_constants, n_lanes):
-    """Whether any lane of a chunk has the leak orifices (``BATCH_LEAKS``), an effect
-    ``batch_rhs`` selects per lane (energy equation, tube air, ISO flow law), a coil lag."""
-    k = CHUNK_ENVS
-    leaky = selected = lagged = False
-    for j in range(n_lanes):
-        leaky |= chunk_constants[C_BASE_ONLY * k + j] == BATCH_LEAKS
-        selected |= (
-            (chunk_constants[C_ENERGY * k + j] != 0.0)
-            | (chunk_constants[C_TUBE_AIR * k + j] > 0.0)
-            | (chunk_constants[C_FLOW_LAW * k + j] != FLOW_LAW_PAPER)
-        )
-        lagged |= chunk_constants[C_COIL_LAG * k + j] != 0.0
-    return leaky, selected, lagged
+            _redo_lanes(chunk_constants, work, history, first, n, head_sub, slot, h, effects[2])
+    _store_fast_lanes(chunk_constants, work, state, sim.outputs, first, stop, effects[2])
 
 
 @njit(cache=True)

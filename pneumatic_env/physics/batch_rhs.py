@@ -4,10 +4,11 @@ environments compiles to SIMD code, and its RK4 substep (``rk4_base_substep``).
 
 ``base_derivatives`` is the paper's model (``constants.base_model_only``);
 ``batch_derivatives`` adds, behind flags that are constants where it is inlined (so a loop
-without the effects compiles as before), the leak orifices (``leaks``) and the effects each
-lane selects for itself (``selected``: the energy equation with wall heat transfer, the
-tubes' isothermal air, the ISO 6358 flow law). Both give ``derivatives``' numbers bit for
-bit: the same operations in the same order, a closed leak path adding 0.0 as it does there.
+without the effects compiles as before), the leak orifices (``leaks``), the valve's four
+paths with its null leak (``four_paths``) and the effects each lane selects for itself
+(``selected``: the energy equation with wall heat transfer, the tubes' isothermal air, the
+ISO 6358 flow law). Both give ``derivatives``' numbers bit for bit: the same operations in
+the same order, a closed leak or valve path adding 0.0 as it does there.
 """
 
 import math
@@ -34,7 +35,9 @@ def base_derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, direction, spool
     """
     t = c.temperature
     y = (x_s, v_s, p1, p2, x, v, 0.0, t, t)
-    return batch_derivatives(c, coil_current_a, y, direction, spool_delayed, False, False)
+    return batch_derivatives(
+        c, coil_current_a, y, direction, spool_delayed, False, False, False, c.ambient_pa
+    )
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
@@ -75,18 +78,35 @@ def _chamber_rates(c, p, t, volume, volume_rate, flow_in, flow_out, enthalpy_in,
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def batch_derivatives(c, coil_current_a, y, direction, spool_delayed, leaks, selected):
-    """``base_derivatives`` of the RK4 state ``y``, plus with ``leaks`` the leak orifices
-    (cross-piston, rod seal: their flows added to the chambers' in- and outflows in
-    ``derivatives``' order) and with ``selected`` the effects each lane has on or off: the
-    energy equation (gas temperatures T1, T2, the valve's flows at the upstream air's
-    temperature), the tubes' isothermal air and the ISO 6358 flow law."""
-    x_s, v_s, p1, p2, x, v, t1, t2 = y[0], y[1], y[2], y[3], y[4], y[5], y[7], y[8]
-    inv_sqrt_t1 = inv_sqrt_t2 = c.inv_sqrt_t
-    law = c.flow_law if selected else FLOW_LAW_PAPER
-    if selected:  # right_hand_side.inv_sqrt_temperatures, lane by lane
-        inv_sqrt_t1 = 1.0 / math.sqrt(t1) if c.energy != 0.0 else c.inv_sqrt_t
-        inv_sqrt_t2 = 1.0 / math.sqrt(t2) if c.energy != 0.0 else c.inv_sqrt_t
+def _valve_flows(c, spool_delayed, p1, p2, inv_sqrt_t1, inv_sqrt_t2, law, four_paths, exhaust_pa):
+    """The valve's flows at the chamber ends of the tubes: (into 1, out of 1, into 2, out of
+    2, to the exhaust), kg/s. One path per chamber (``base_derivatives``), or with
+    ``four_paths`` the supply and exhaust paths of both chambers, each area plus the null
+    leak, as ``nodes.valve_chamber_flows`` gives them (supply at P_s, exhaust at
+    ``exhaust_pa``: P_a, or the node behind a vent)."""
+    t_node = c.inv_sqrt_t  # the supply's and the atmosphere's air
+    if four_paths:
+        radius, inv_radius = c.hole_radius, c.inv_hole_radius
+        area_a = orifice_area_inv_radius(spool_delayed, radius, inv_radius, c.half_width, c.holes)
+        area_b = orifice_area_inv_radius(-spool_delayed, radius, inv_radius, c.half_width, c.holes)
+        area_a = area_a + c.null_leak
+        area_b = area_b + c.null_leak
+        supply, d_supply, d_exhaust = c.supply_pa, c.discharge, c.discharge_ex
+        supply_1 = path_mass_flow(c, d_supply, area_a, supply, p1, t_node, inv_sqrt_t1, law)
+        exhaust_1 = path_mass_flow(c, d_exhaust, area_b, p1, exhaust_pa, inv_sqrt_t1, t_node, law)
+        supply_2 = path_mass_flow(c, d_supply, area_b, supply, p2, t_node, inv_sqrt_t2, law)
+        exhaust_2 = path_mass_flow(c, d_exhaust, area_a, p2, exhaust_pa, inv_sqrt_t2, t_node, law)
+        supply_1 = chamber_end_flow(c, supply_1, p1)
+        exhaust_1 = chamber_end_flow(c, exhaust_1, p1)
+        supply_2 = chamber_end_flow(c, supply_2, p2)
+        exhaust_2 = chamber_end_flow(c, exhaust_2, p2)
+        return (
+            max(supply_1, 0.0) + max(-exhaust_1, 0.0),
+            max(-supply_1, 0.0) + max(exhaust_1, 0.0),
+            max(supply_2, 0.0) + max(-exhaust_2, 0.0),
+            max(-supply_2, 0.0) + max(exhaust_2, 0.0),
+            max(exhaust_1, 0.0) + max(exhaust_2, 0.0),
+        )
     to_chamber_1 = spool_delayed > 0.0
     area = orifice_area_inv_radius(
         abs(spool_delayed), c.hole_radius, c.inv_hole_radius, c.half_width, c.holes
@@ -95,7 +115,6 @@ def batch_derivatives(c, coil_current_a, y, direction, spool_delayed, leaks, sel
     node_2 = c.ambient_pa if to_chamber_1 else c.supply_pa
     discharge_1 = c.discharge if to_chamber_1 else c.discharge_ex
     discharge_2 = c.discharge_ex if to_chamber_1 else c.discharge
-    t_node = c.inv_sqrt_t  # the supply's and the atmosphere's air
     flow_1 = chamber_end_flow(
         c,
         path_mass_flow(c, discharge_1, area, node_1, p1, t_node, inv_sqrt_t1, law),
@@ -106,11 +125,33 @@ def batch_derivatives(c, coil_current_a, y, direction, spool_delayed, leaks, sel
         path_mass_flow(c, discharge_2, area, node_2, p2, t_node, inv_sqrt_t2, law),
         p2,
     )
-    in_1, out_1 = max(flow_1, 0.0), max(-flow_1, 0.0)
-    in_2, out_2 = max(flow_2, 0.0), max(-flow_2, 0.0)
+    exhaust_rate = max(-flow_2, 0.0) if to_chamber_1 else max(-flow_1, 0.0)
+    return max(flow_1, 0.0), max(-flow_1, 0.0), max(flow_2, 0.0), max(-flow_2, 0.0), exhaust_rate
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def batch_derivatives(
+    c, coil_current_a, y, direction, spool_delayed, leaks, selected, four_paths, exhaust_pa
+):
+    """``base_derivatives`` of the RK4 state ``y``, plus with ``leaks`` the leak orifices
+    (cross-piston, rod seal: their flows added to the chambers' in- and outflows in
+    ``derivatives``' order), with ``selected`` the effects each lane has on or off (the
+    energy equation: gas temperatures T1, T2, the valve's flows at the upstream air's
+    temperature; the tubes' isothermal air; the ISO 6358 flow law) and with
+    ``four_paths`` the valve's four paths with its null leak (``_valve_flows``; their
+    exhaust at ``exhaust_pa``)."""
+    x_s, v_s, p1, p2, x, v, t1, t2 = y[0], y[1], y[2], y[3], y[4], y[5], y[7], y[8]
+    inv_sqrt_t1 = inv_sqrt_t2 = c.inv_sqrt_t
+    law = c.flow_law if selected else FLOW_LAW_PAPER
+    if selected:  # right_hand_side.inv_sqrt_temperatures, lane by lane
+        inv_sqrt_t1 = 1.0 / math.sqrt(t1) if c.energy != 0.0 else c.inv_sqrt_t
+        inv_sqrt_t2 = 1.0 / math.sqrt(t2) if c.energy != 0.0 else c.inv_sqrt_t
+    in_1, out_1, in_2, out_2, exhaust_rate = _valve_flows(
+        c, spool_delayed, p1, p2, inv_sqrt_t1, inv_sqrt_t2, law, four_paths, exhaust_pa
+    )
+    t_node = c.inv_sqrt_t
     enthalpy_1 = in_1 * c.temperature
     enthalpy_2 = in_2 * c.temperature
-    exhaust_rate = max(-flow_2, 0.0) if to_chamber_1 else max(-flow_1, 0.0)
     if leaks:
         leak_12 = path_mass_flow(c, c.discharge, c.leak_area, p1, p2, inv_sqrt_t1, inv_sqrt_t2, law)
         seal_2 = path_mass_flow(
@@ -139,19 +180,18 @@ def batch_derivatives(c, coil_current_a, y, direction, spool_delayed, leaks, sel
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def rk4_base_substep(c, y, drive_a, direction, spool_delayed, h, leaks, selected):
-    """One whole RK4 substep of ``batch_derivatives`` (``leaks``, ``selected``: with those
-    effects). ``drive_a`` and ``spool_delayed`` are the currents driving the spool
-    (``coil_at``) and the delayed spool positions (``delayed_value``) at its start, middle
-    and end."""
-    k1 = batch_derivatives(c, drive_a[0], y, direction, spool_delayed[0], leaks, selected)
+def rk4_base_substep(c, y, drive_a, direction, spool_delayed, h, leaks, selected, four_paths):
+    """One whole RK4 substep of ``batch_derivatives`` (``leaks``, ``selected``,
+    ``four_paths``: with those effects). ``drive_a`` and ``spool_delayed`` are the currents
+    driving the spool (``coil_at``) and the delayed spool positions (``delayed_value``) at
+    its start, middle and end."""
+    flags = (leaks, selected, four_paths, c.ambient_pa)
+    k1 = batch_derivatives(c, drive_a[0], y, direction, spool_delayed[0], *flags)
     k2 = batch_derivatives(
-        c, drive_a[1], _axpy(y, 0.5 * h, k1), direction, spool_delayed[1], leaks, selected
+        c, drive_a[1], _axpy(y, 0.5 * h, k1), direction, spool_delayed[1], *flags
     )
     k3 = batch_derivatives(
-        c, drive_a[1], _axpy(y, 0.5 * h, k2), direction, spool_delayed[1], leaks, selected
+        c, drive_a[1], _axpy(y, 0.5 * h, k2), direction, spool_delayed[1], *flags
     )
-    k4 = batch_derivatives(
-        c, drive_a[2], _axpy(y, h, k3), direction, spool_delayed[2], leaks, selected
-    )
+    k4 = batch_derivatives(c, drive_a[2], _axpy(y, h, k3), direction, spool_delayed[2], *flags)
     return _rk4_combine(c, y, k1, k2, k3, k4, h, direction)

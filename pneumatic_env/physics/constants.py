@@ -270,13 +270,14 @@ def _batch_path_effects_only(c):
     """``base_model_only`` but for the effects the batch path adds on: the two leak
     orifices (``leakage_area_m2``, ``rod_seal_leak_area_m2``; ``BATCH_LEAKS``), the coil
     lags (``coil_time_constant_s``; the currents at its RK4 stages, ``lagged_coil_rows``),
-    and the energy equation, the tubes' isothermal air and the ISO 6358 flow law
-    (``batch_rhs``, selected per lane)."""
+    the valve's null leak (``valve_null_leak_area_m2``: all four valve paths, in a chunk
+    with one), the exhaust back-pressure (a vent with no volume, ``batch_vent``) and the
+    energy equation, the tubes' isothermal air and the ISO 6358 flow
+    law (``batch_rhs``, selected per lane)."""
     return (
         c.supply_resistance == 0.0
-        and c.exhaust_vent == 0.0
+        and (c.exhaust_vent == 0.0 or c.exhaust_capacity == 0.0)
         and c.literal == 0.0
-        and c.null_leak == 0.0
         and c.stribeck == 0.0
         and c.lugre == 0.0
         and c.waves == 0.0
@@ -293,12 +294,14 @@ def base_model_only(c):
     chamber from being open together, and ``base_derivatives`` gives the same result with
     two valve paths instead of four. Three effects are in it (the exhaust discharge ratio,
     the tube volume as a dead volume, the spool friction, whose play acts before the
-    substeps); the leak orifices, the coil lags, the energy equation, the tubes'
-    isothermal air and the ISO flow law take the batch path too (``batch_lane_kind``); the
-    others send the environment to the general path.
+    substeps); the leak orifices, the coil lags, the valve's null leak, the energy
+    equation, the tubes' isothermal air and the ISO flow law take the batch path too
+    (``batch_lane_kind``); the others send the environment to the general path.
     """
     return (
         _batch_path_effects_only(c)
+        and c.exhaust_vent == 0.0
+        and c.null_leak == 0.0
         and c.leak_area == 0.0
         and c.seal_leak == 0.0
         and c.coil_lag == 0.0
@@ -312,7 +315,8 @@ def base_model_only(c):
 # How the batch path advances an environment (``batch_lane_kind``, the cache's row
 # C_BASE_ONLY): by the general path, with ``base_derivatives``, or with
 # ``base_derivatives`` and the leak orifices (cross-piston and rod-seal leakage); either
-# batch kind with or without the coil lags and the effects ``batch_rhs`` selects per lane.
+# batch kind with or without the coil lags, the valve's null leak and the effects
+# ``batch_rhs`` selects per lane.
 BATCH_GENERAL = 0.0
 BATCH_BASE = 1.0
 BATCH_LEAKS = 2.0
@@ -440,7 +444,31 @@ C_COIL_LAG = Constants._fields.index("coil_lag")  # read per control period
 C_ENERGY = Constants._fields.index("energy")  # read per control period
 C_TUBE_AIR = Constants._fields.index("tube_air")  # read per control period
 C_FLOW_LAW = Constants._fields.index("flow_law")  # read per control period
+C_NULL_LEAK = Constants._fields.index("null_leak")  # read per control period
+C_EXHAUST_VENT = Constants._fields.index("exhaust_vent")  # read per control period
 N_CACHED_CONSTANTS = N_CONSTANTS + 1
+
+
+@njit(cache=True)
+def chunk_effects(chunk_constants, n_lanes):
+    """Whether any lane of a chunk has the leak orifices (``BATCH_LEAKS``), an effect
+    ``batch_rhs`` selects per lane (energy equation, tube air, ISO flow law), a coil lag,
+    the valve's null leak (``batch_rhs._valve_flows``' four paths), an exhaust vent."""
+    k = CHUNK_ENVS
+    leaky = selected = lagged = four_paths = vented = False
+    for j in range(n_lanes):
+        leaky |= chunk_constants[C_BASE_ONLY * k + j] == BATCH_LEAKS
+        selected |= (
+            (chunk_constants[C_ENERGY * k + j] != 0.0)
+            | (chunk_constants[C_TUBE_AIR * k + j] > 0.0)
+            | (chunk_constants[C_FLOW_LAW * k + j] != FLOW_LAW_PAPER)
+        )
+        lagged |= chunk_constants[C_COIL_LAG * k + j] != 0.0
+        four_paths |= chunk_constants[C_NULL_LEAK * k + j] != 0.0
+        vented |= (chunk_constants[C_EXHAUST_VENT * k + j] > 0.0) & (
+            chunk_constants[C_BASE_ONLY * k + j] != BATCH_GENERAL
+        )
+    return leaky, selected, lagged, four_paths, vented
 
 
 def constants_cache(n_envs):

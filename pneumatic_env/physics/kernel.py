@@ -16,11 +16,12 @@ Two paths share the sub-models. The batch path (``advance_chunk``, used by every
 function) advances chunks of ``CHUNK_ENVS`` environments running the paper's model one
 RK4 substep at a time in a single loop over the chunk that LLVM compiles to SIMD code
 (``base_derivatives``, branch-free, ``vecmath``), and so those with the effects it adds on
-(``constants.batch_lane_kind``: leaks, coil lags, energy equation, tube air, ISO flow
-law; ``batch_derivatives``). The general path (``advance_env``, one environment through
-the whole control period, ``derivatives``) takes environments with other effects on, and
-redoes a lane's substep that is stiff or crosses a piston event. Both give the same
-numbers bit for bit (tests/test_physics.py, tests/test_batch_effects.py).
+(``constants.batch_lane_kind``: leaks, coil lags, valve null leak, exhaust back-pressure,
+energy equation, tube air, ISO flow law; ``batch_derivatives``, ``batch_vent``). The
+general path (``advance_env``, one environment through the whole control period,
+``derivatives``) takes environments with other effects on, and redoes a lane's substep
+that is stiff or crosses a piston event. Both give the same numbers bit for bit
+(tests/test_physics.py, tests/test_batch_effects.py).
 
 This module gathers the kernel's names from its seven parts:
 
