@@ -9,11 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pneumatic_env.params import load_numerics, load_parameters, parameter_array
+from pneumatic_env.params import load_parameters, parameter_array
 from pneumatic_env.physics import constants as K
 from pneumatic_env.physics import kernel
-from pneumatic_env.physics import layout as L
-from pneumatic_env.simulator import BatchSimulator
+from rollout_inputs import assert_batch_matches_general_path, random_currents
 
 # each effect the batch path takes (alone and together), a strong and a weak setting
 BATCH_EFFECTS = {
@@ -106,18 +105,6 @@ ROD_SETUPS = (
 )
 
 
-def _random_currents(rng, n_steps, n_envs, i_max=2.0):
-    """Piecewise-constant currents in [-i_max, i_max], held 5-150 steps."""
-    out = np.empty((n_steps, n_envs))
-    for j in range(n_envs):
-        k = 0
-        while k < n_steps:
-            hold = int(rng.integers(5, 150))
-            out[k : k + hold, j] = rng.uniform(-i_max, i_max)
-            k += hold
-    return out
-
-
 def _sets(effect):
     """Every rod setup with the effect's strong and weak setting, then a base-model lane and
     a general-path lane (supply droop) in the same chunk."""
@@ -151,18 +138,6 @@ def test_the_batch_path_takes_the_effect_lanes(effect):
 @pytest.mark.parametrize("effect", sorted(BATCH_EFFECTS))
 def test_batch_effects_reproduce_the_general_path_bit_for_bit(effect, seed):
     sets = _sets(effect)
-    currents = _random_currents(np.random.default_rng(seed), 300, len(sets))
-    num = load_numerics()
-    batch = BatchSimulator(parameter_array(sets), num["control_dt_s"], num["substeps"])
-    general = BatchSimulator(parameter_array(sets), num["control_dt_s"], num["substeps"])
-    moved = False
-    for step_currents in currents:
-        batch.step(np.ascontiguousarray(step_currents))
-        for env in range(len(sets)):
-            kernel.advance_env(general.arrays, env, float(step_currents[env]))
-        general.advance_clock()
-        np.testing.assert_array_equal(batch.outputs, general.outputs)
-        moved |= bool(np.any(batch.outputs[L.O_V, 1:] != 0.0))
-    np.testing.assert_array_equal(batch.state, general.state)
-    np.testing.assert_array_equal(batch.history, general.history)
+    currents = random_currents(np.random.default_rng(seed), 300, len(sets))
+    moved = assert_batch_matches_general_path(sets, currents)
     assert moved  # the free and spring rods really moved (events, stops, sticking)

@@ -28,6 +28,7 @@ from pneumatic_env.physics.tube import (
 )
 from pneumatic_env.physics.valve import orifice_area, steady_spool_position
 from pneumatic_env.simulator import INITIAL_STATE_KEYS, BatchSimulator
+from rollout_inputs import assert_batch_matches_general_path, random_currents
 
 CYLINDERS = ("numatics", "airpel")
 K_AIR, R_AIR = 1.4, 287.0
@@ -283,18 +284,6 @@ def test_leakage_conserves_mass_and_equalises(cylinder, position):
 # --------------------------------------------------------------------------- long random rollouts
 
 
-def _random_currents(rng, n_steps, n_envs, i_max=2.0):
-    """Piecewise-constant currents in [-i_max, i_max], held 5-150 steps."""
-    out = np.empty((n_steps, n_envs))
-    for j in range(n_envs):
-        k = 0
-        while k < n_steps:
-            hold = int(rng.integers(5, 150))
-            out[k : k + hold, j] = rng.uniform(-i_max, i_max)
-            k += hold
-    return out
-
-
 def _all_configurations(coupling):
     sets = []
     for cyl in CYLINDERS:
@@ -329,7 +318,7 @@ def test_random_rollouts_stay_physical(coupling):
     sets = _all_configurations(coupling)
     num = load_numerics()
     n_steps = int(round(2.0 / num["control_dt_s"]))
-    currents = _random_currents(np.random.default_rng(1), n_steps, len(sets))
+    currents = random_currents(np.random.default_rng(1), n_steps, len(sets))
     out = run_batch(sets, currents)
     assert np.all(np.isfinite(out))
     for j, p in enumerate(sets):
@@ -476,7 +465,7 @@ def _mixed_sets():
 
 def test_kernel_is_deterministic_and_batches_are_independent():
     sets = _mixed_sets()
-    currents = _random_currents(np.random.default_rng(7), 400, len(sets))
+    currents = random_currents(np.random.default_rng(7), 400, len(sets))
     batch = run_batch(sets, currents)
     assert np.array_equal(batch, run_batch(sets, currents))  # same inputs, same results
     for j, p in enumerate(sets):  # each env alone (its own, shorter delay buffer)
@@ -487,7 +476,7 @@ def test_kernel_is_deterministic_and_batches_are_independent():
 @pytest.mark.slow
 def test_step_by_step_serial_and_parallel_equal_rollout(numba_threads):
     sets = _mixed_sets()
-    currents = _random_currents(np.random.default_rng(8), 200, len(sets))
+    currents = random_currents(np.random.default_rng(8), 200, len(sets))
     rolled = run_batch(sets, currents)
     num = load_numerics()
     for parallel in (False, True):
@@ -500,7 +489,7 @@ def test_step_by_step_serial_and_parallel_equal_rollout(numba_threads):
 
 def test_reset_restores_the_initial_run():
     sets = _mixed_sets()
-    currents = _random_currents(np.random.default_rng(9), 100, len(sets))
+    currents = random_currents(np.random.default_rng(9), 100, len(sets))
     num = load_numerics()
     sim = BatchSimulator(parameter_array(sets), num["control_dt_s"], num["substeps"])
     first = sim.rollout(currents)
@@ -512,7 +501,7 @@ def test_reset_of_some_envs_restarts_them_and_leaves_the_others():
     """reset(envs) puts those columns (state, delay history, outputs, clock) where a fresh
     batch starts them and does not touch the other environments."""
     sets = _mixed_sets()
-    currents = _random_currents(np.random.default_rng(10), 60, len(sets))
+    currents = random_currents(np.random.default_rng(10), 60, len(sets))
     num = load_numerics()
     fresh = BatchSimulator(parameter_array(sets), num["control_dt_s"], num["substeps"])
     sim = BatchSimulator(parameter_array(sets), num["control_dt_s"], num["substeps"])
@@ -668,19 +657,8 @@ def test_batch_path_reproduces_the_general_path_bit_for_bit():
     """BatchSimulator.step (vectorised lanes, general path for stiff substeps and piston
     events) against kernel.advance_env (the general path alone), env by env."""
     sets = _eligible_sets()
-    currents = _random_currents(np.random.default_rng(11), 300, len(sets))
-    num = load_numerics()
-    batch = BatchSimulator(parameter_array(sets), num["control_dt_s"], num["substeps"])
-    general = BatchSimulator(parameter_array(sets), num["control_dt_s"], num["substeps"])
-    moved = False
-    for step_currents in currents:
-        batch.step(np.ascontiguousarray(step_currents))
-        for env in range(len(sets)):
-            kernel.advance_env(general.arrays, env, float(step_currents[env]))
-        general.advance_clock()
-        np.testing.assert_array_equal(batch.outputs, general.outputs)
-        moved |= bool(np.any(batch.outputs[L.O_V, 1:] != 0.0))
-    np.testing.assert_array_equal(batch.state, general.state)
+    currents = random_currents(np.random.default_rng(11), 300, len(sets))
+    moved = assert_batch_matches_general_path(sets, currents)
     assert moved  # the free and spring rods really moved (events, stops, sticking)
 
 
