@@ -473,17 +473,18 @@ class FitProblem:
 
     def _check_early_stop(self, u: np.ndarray) -> None:
         """Raise :class:`CostLevelledOff` when :attr:`early_stop` says the fit may stop at
-        ``u`` (the point of the latest Jacobian)."""
+        ``u`` (the point of the latest Jacobian), else :class:`CostPlateau` when
+        :attr:`plateau` does (the early stop first: a base fit stopped early for the
+        screening is finished at the fine substep, one that levelled off is not)."""
         self._jacobian_costs.append(self.cost_history[-1])
         self.fit_costs.append(self.cost_history[-1])
+        if self.early_stop is not None and len(self._jacobian_costs) >= max(2, self.early_stop[1]):
+            before, now = self._jacobian_costs[-2:]
+            decrease = (before - now) / before if before > 0 else 0.0
+            if decrease < self.early_stop[0]:
+                raise CostLevelledOff(np.array(u, dtype=float), decrease)
         if self.plateau is not None and len(self.fit_costs) > self.plateau[1]:
             before, now = self.fit_costs[-1 - self.plateau[1]], self.fit_costs[-1]
             decrease = (before - now) / before if before > 0 else 0.0
             if decrease < self.plateau[0]:
                 raise CostPlateau(np.array(u, dtype=float), now, decrease, self.plateau[1])
-        if self.early_stop is None or len(self._jacobian_costs) < max(2, self.early_stop[1]):
-            return
-        before, now = self._jacobian_costs[-2:]
-        decrease = (before - now) / before if before > 0 else 0.0
-        if decrease < self.early_stop[0]:
-            raise CostLevelledOff(np.array(u, dtype=float), decrease)

@@ -351,7 +351,8 @@ def _holds(c: dict) -> str:
 
 
 def _explains(c: dict) -> str:
-    """The held-out channels an effect's NRMSE drop, largest first (e.g. 'p1 -62 %')."""
+    """Each held-out channel's NRMSE change with the effect, largest drop first
+    (e.g. 'p1 -62.0 %')."""
     drops = sorted((c.get("explains_channels") or {}).items(), key=lambda kv: -kv[1])
     return ", ".join(f"{k} {_pct(-v)}" for k, v in drops) or "-"
 
