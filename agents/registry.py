@@ -28,13 +28,10 @@ __all__ = [
     "controller_names",
     "tuned_config_path",
     "CLASSICAL",
-    "CLASSICAL_CLASSES",
     "classical_gains",
 ]
 
 CLASSICAL = ("pid", "sliding_mode", "zero")
-#: the classical controllers with gains: name -> class
-CLASSICAL_CLASSES = {name: BASE_CLASSES[name] for name in ("pid", "sliding_mode")}
 
 
 def tuned_config_path(name: str, variant: str) -> Path:
@@ -74,7 +71,7 @@ def _classical(
         if preview_steps is None
         else preview_steps
     )
-    cls = CLASSICAL_CLASSES[name]
+    cls = BASE_CLASSES[name]
     return ControllerSpec(
         name,
         {"preview_steps": preview, "normalize_observation": False},
@@ -145,14 +142,10 @@ def learned_spec(path: str | Path, variant: str, name: str | None = None) -> Con
 
     def build(ctx: ControllerContext) -> Controller:
         ctx = actor.model_context(ctx)
-        held = actor.base_controller
         if residual is None:
-            base = None
-        elif held is not None:
-            base = CLASSICAL_CLASSES[held[0]](ctx, **held[1])
-        else:
-            base = make_base_controller(residual.base, ctx, variant, residual.gains)
-        return LearnedController(ctx, actor, base)
+            return LearnedController(ctx, actor, None)
+        kind, gains = actor.base_controller or (residual.base, residual.gains)
+        return LearnedController(ctx, actor, make_base_controller(kind, ctx, variant, gains))
 
     return ControllerSpec(
         label,

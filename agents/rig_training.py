@@ -41,8 +41,8 @@ from .bench_results import markdown_table
 from .config import agent_config_path, load_agent_config
 from .learned import write_self_contained
 from .ppo import train
-from .registry import CLASSICAL_CLASSES, classical_gains
-from .residual import BASE_CONTROLLERS
+from .registry import classical_gains
+from .residual import BASE_CLASSES, BASE_CONTROLLERS
 from .rig import FittedRig, load_rig, rig_randomization
 from .suite import Suite, load_suite
 from .tune_pid import grid_search
@@ -88,7 +88,7 @@ def _spec(name: str, kind: str, gains: dict, base_params: dict | None, preview: 
     def build(ctx: ControllerContext):
         if base_params is not None:
             ctx = dataclasses.replace(ctx, base_params=dict(base_params))
-        return CLASSICAL_CLASSES[kind](ctx, **gains)
+        return BASE_CLASSES[kind](ctx, **gains)
 
     return ControllerSpec(name, {"preview_steps": preview, "normalize_observation": False}, build)
 
