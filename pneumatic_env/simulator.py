@@ -313,6 +313,7 @@ class BatchSimulator:
             self.history[:, row, envs] = s["p1"]
         for row in (L.H_WAVE_VALVE_2, L.H_WAVE_CHAMBER_2):
             self.history[:, row, envs] = s["p2"]
+        kernel.line_exhaust_at_rest(self.params, self.state, self.history, envs)
         self.time_s[envs] = 0.0
         kernel.write_outputs(self.params, self.state, envs, self.outputs)
 

@@ -405,7 +405,7 @@ def _redo_lanes(chunk_constants, work, history, first, n_lanes, head_sub, slot, 
                 c.ambient_pa,
                 0.0,
             )
-            set_work_rows(work, 0, j, close_substep(c, history, env, slot, y))
+            set_work_rows(work, 0, j, close_substep(c, history, env, slot, y, h))
 
 
 @njit(cache=True)

@@ -181,21 +181,30 @@ def _record_history(history, env, slot, x_s, p1, p2):
 
 
 @njit(cache=True)
-def close_substep(c, history, env, slot, y):
-    """The end of a substep: the inelastic stops (``end_of_substep``) and the delay history
-    at the new boundary (written at substep boundaries only, whatever the splitting)."""
+def close_substep(c, history, env, slot, y, h):
+    """The end of a substep of ``h`` s: the inelastic stops (``end_of_substep``) and the
+    delay history at the new boundary (written at substep boundaries only, whatever the
+    splitting).
+
+    With the tubes as transmission lines, the waves the line ends send, and the lines'
+    valve exhaust: solved here once per boundary, it adds to the exhaust mass by the
+    trapezoid rule over the substep (the RK4 stages need only the chamber ends).
+    """
     x, v = end_of_substep(y[4], y[5], c.half_stroke)
-    y = (y[0], y[1], y[2], y[3], x, v, y[6], y[7], y[8])
+    exhaust_kg = y[6]
     if c.waves:  # the waves the line ends send at this boundary
-        flow_1, flow_2, _, port_1, q_1, port_2, q_2 = line_flows(
+        flow_1, flow_2, vented, port_1, q_1, port_2, q_2 = line_flows(
             c, y[0], arriving_waves(c, history, env, slot, 0.0), y[2], y[3]
         )
+        start = history[ring_slot(slot - 1, history.shape[0]), L.H_LINE_EXHAUST, env]
+        exhaust_kg += 0.5 * h * (start + vented)
+        history[slot, L.H_LINE_EXHAUST, env] = vented
         history[slot, L.H_WAVE_VALVE_1, env] = sent_wave(c, port_1, q_1)
         history[slot, L.H_WAVE_VALVE_2, env] = sent_wave(c, port_2, q_2)
         history[slot, L.H_WAVE_CHAMBER_1, env] = sent_wave(c, y[2], -flow_1)
         history[slot, L.H_WAVE_CHAMBER_2, env] = sent_wave(c, y[3], -flow_2)
     _record_history(history, env, slot, y[0], y[2], y[3])
-    return y
+    return (y[0], y[1], y[2], y[3], x, v, exhaust_kg, y[7], y[8])
 
 
 @njit(cache=True)
@@ -288,7 +297,7 @@ def advance_env(sim, env, coil_current_a):
         )
         coil = coil_at(c, coil_current_a, coil_start, 1.0)
         slot = ring_slot(head_sub + 1, n_slots)
-        y = close_substep(c, history, env, slot, y)
+        y = close_substep(c, history, env, slot, y, h)
         if c.exhaust_vent > 0.0 and c.exhaust_capacity > 0.0:
             exhaust_node_pa = exhaust_node_after_substep(
                 c, history, env, slot, y, exhaust_node_pa, h
@@ -334,3 +343,17 @@ def write_outputs(params, state, envs, outputs):
     """The outputs rows of ``envs`` from their state (after a reset)."""
     for env in envs:
         _store_outputs(env_constants(params, env, 1.0), state[:, env], env, outputs)
+
+
+@njit(cache=True)
+def line_exhaust_at_rest(params, state, history, envs):
+    """The lines' valve exhaust (kg/s) of ``envs`` in their state with the lines at rest
+    (each wave the pressure of its end), written to every history slot: where the first
+    substep's trapezoid (``close_substep``) starts; 0 without ``tube_waves``."""
+    for env in envs:
+        c = env_constants(params, env, 1.0)
+        vented = 0.0
+        if c.waves:
+            p1, p2 = state[L.S_P1, env], state[L.S_P2, env]
+            vented = line_flows(c, state[L.S_X_S, env], (p1, p2, p1, p2), p1, p2)[2]
+        history[:, L.H_LINE_EXHAUST, env] = vented

@@ -240,6 +240,8 @@ S_BRISTLE = S_BRISTLE_DEFLECTION_M
 # Channels kept in the tube-delay ring buffer, one sample per substep boundary. The wave
 # channels (Pa) are the transmission line's wave variables (tube_waves = 1, docs/effects.md):
 # the wave each tube end sends into the line, which arrives at the other end one delay later.
+# The line's valve exhaust (kg/s) at each boundary integrates the exhaust mass by the
+# trapezoid rule (``general_path.close_substep``).
 HISTORY_NAMES = (
     "spool_position_m",
     "p1_pa",
@@ -248,8 +250,18 @@ HISTORY_NAMES = (
     "wave_from_valve_2_pa",
     "wave_from_chamber_1_pa",
     "wave_from_chamber_2_pa",
+    "line_exhaust_kg_per_s",
 )
-H_X_S, H_P1, H_P2, H_WAVE_VALVE_1, H_WAVE_VALVE_2, H_WAVE_CHAMBER_1, H_WAVE_CHAMBER_2 = range(7)
+(
+    H_X_S,
+    H_P1,
+    H_P2,
+    H_WAVE_VALVE_1,
+    H_WAVE_VALVE_2,
+    H_WAVE_CHAMBER_1,
+    H_WAVE_CHAMBER_2,
+    H_LINE_EXHAUST,
+) = range(8)
 N_HISTORY = len(HISTORY_NAMES)
 
 # Outputs written once per control step.
@@ -284,7 +296,16 @@ def _check_rows(namespace: dict) -> None:
             )
     for rows, names in (
         (
-            (H_X_S, H_P1, H_P2, H_WAVE_VALVE_1, H_WAVE_VALVE_2, H_WAVE_CHAMBER_1, H_WAVE_CHAMBER_2),
+            (
+                H_X_S,
+                H_P1,
+                H_P2,
+                H_WAVE_VALVE_1,
+                H_WAVE_VALVE_2,
+                H_WAVE_CHAMBER_1,
+                H_WAVE_CHAMBER_2,
+                H_LINE_EXHAUST,
+            ),
             HISTORY_NAMES,
         ),
         ((O_P1, O_P2, O_X, O_F, O_V, O_X_S, O_EXHAUST), OUTPUT_NAMES),

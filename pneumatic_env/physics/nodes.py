@@ -393,6 +393,15 @@ def line_flows(c, spool_m, arriving, p1_pa, p2_pa):
     area_b = scalar_area(c, -spool_m) + c.null_leak
     port_1, q_1, exhaust_1 = _line_valve_end(c, area_a, area_b, arriving[0])
     port_2, q_2, exhaust_2 = _line_valve_end(c, area_b, area_a, arriving[1])
+    flow_1, flow_2 = line_chamber_flows(c, arriving, p1_pa, p2_pa)
+    return flow_1, flow_2, exhaust_1 + exhaust_2, port_1, q_1, port_2, q_2
+
+
+@njit(cache=True)
+def line_chamber_flows(c, arriving, p1_pa, p2_pa):
+    """The flows from the lines into chambers 1 and 2 (``line_flows``' first two), which
+    need only the waves arriving at the chamber ends: the chamber pressures' right-hand
+    side takes these, the valve end is solved once per substep boundary."""
     flow_1 = line_chamber_flow(
         arriving[2],
         p1_pa,
@@ -411,7 +420,7 @@ def line_flows(c, spool_m, arriving, p1_pa, p2_pa):
         c.viscosity,
         c.reynolds_turbulent,
     )
-    return flow_1, flow_2, exhaust_1 + exhaust_2, port_1, q_1, port_2, q_2
+    return flow_1, flow_2
 
 
 @njit(cache=True)

@@ -24,7 +24,7 @@ from .effects import (
     rate_with_isothermal_tube_air,
     stribeck_friction,
 )
-from .nodes import line_flows, path_mass_flow, valve_chamber_flows
+from .nodes import line_chamber_flows, path_mass_flow, valve_chamber_flows
 from .piston import external_force, piston_acceleration, pneumatic_force
 from .valve import spool_acceleration
 
@@ -84,17 +84,16 @@ def derivatives(
     ``coil_current_a`` is the current driving the spool (lagged if the coil lag is on).
     T1, T2 change only with the energy model on (``wall_heat_transfer_w_per_k > 0``).
     ``valve``: the ``ValveInputs``. With the tubes as transmission lines (``tube_waves``)
-    the chamber flows come from ``line_flows`` and the waves ``arriving`` at the line ends;
-    ``valve`` is then unused. With LuGre friction on, ``lugre_friction_n`` (held over the
+    the chamber flows come from the waves ``arriving`` at the line ends
+    (``line_chamber_flows``) and ``valve`` is unused; the lines' valve exhaust is added to
+    the exhaust mass at the substep boundaries (``general_path.close_substep``). With LuGre friction on, ``lugre_friction_n`` (held over the
     substep, ``lugre_bristle_step``) replaces the sliding friction.
     """
     x_s, v_s, p1, p2, x, v = y[0], y[1], y[2], y[3], y[4], y[5]
     t1, t2 = y[7], y[8]
     inv_sqrt_t1, inv_sqrt_t2 = inv_sqrt_temperatures(c, t1, t2)
-    flows = _chamber_mass_flows(
-        c, x_s, p1, p2, valve, arriving, exhaust_node_pa, inv_sqrt_t1, inv_sqrt_t2
-    )
-    supply_1, exhaust_1, supply_2, exhaust_2, leak_12, seal_2, vented = flows
+    flows = _chamber_mass_flows(c, p1, p2, valve, arriving, exhaust_node_pa, inv_sqrt_t1, inv_sqrt_t2)
+    supply_1, exhaust_1, supply_2, exhaust_2, leak_12, seal_2 = flows
     velocity = v if direction != 0.0 else 0.0
     dp1, dp2, dt1, dt2 = _chamber_rates(c, p1, p2, x, t1, t2, velocity, flows)
     # piston_acceleration applies friction * direction (+-1 while moving)
@@ -102,17 +101,16 @@ def derivatives(
     accel, a_s = _motion_and_spool(
         c, coil_current_a, x_s, v_s, p1, p2, x, velocity, direction, friction
     )
-    exhaust_rate = max(exhaust_1, 0.0) + max(exhaust_2, 0.0) + max(seal_2, 0.0) + vented
+    exhaust_rate = max(exhaust_1, 0.0) + max(exhaust_2, 0.0) + max(seal_2, 0.0)
     return v_s, a_s, dp1, dp2, velocity, accel, exhaust_rate, dt1, dt2
 
 
 @njit(cache=True, forceinline=True)  # inlined: a call would pass every constant
-def _chamber_mass_flows(c, x_s, p1, p2, valve, arriving, exhaust_node_pa, inv_sqrt_t1, inv_sqrt_t2):
+def _chamber_mass_flows(c, p1, p2, valve, arriving, exhaust_node_pa, inv_sqrt_t1, inv_sqrt_t2):
     """The signed mass flows of ``derivatives``: (supply -> 1, 1 -> exhaust, supply -> 2,
-    2 -> exhaust, leak 1 -> 2, rod seal 2 -> ambient, vented from the lines)."""
-    vented = 0.0
+    2 -> exhaust, leak 1 -> 2, rod seal 2 -> ambient)."""
     if c.waves:  # a signed flow into each chamber from its line; the line's air at T_s
-        supply_1, supply_2, vented, _, _, _, _ = line_flows(c, x_s, arriving, p1, p2)
+        supply_1, supply_2 = line_chamber_flows(c, arriving, p1, p2)
         exhaust_1 = 0.0
         exhaust_2 = 0.0
     else:
@@ -125,14 +123,14 @@ def _chamber_mass_flows(c, x_s, p1, p2, valve, arriving, exhaust_node_pa, inv_sq
     seal_2 = path_mass_flow(
         c, c.discharge, c.seal_leak, p2, c.ambient_pa, inv_sqrt_t2, c.inv_sqrt_t, c.flow_law
     )
-    return supply_1, exhaust_1, supply_2, exhaust_2, leak_12, seal_2, vented
+    return supply_1, exhaust_1, supply_2, exhaust_2, leak_12, seal_2
 
 
 @njit(cache=True, forceinline=True)  # inlined: a call would pass every constant
 def _chamber_rates(c, p1, p2, x, t1, t2, velocity, flows):
     """(dP1, dP2, dT1, dT2) of ``derivatives`` from its ``_chamber_mass_flows``: Eq. 14/16,
     or the energy model, with the isothermal tube air if on."""
-    supply_1, exhaust_1, supply_2, exhaust_2, leak_12, seal_2, _ = flows
+    supply_1, exhaust_1, supply_2, exhaust_2, leak_12, seal_2 = flows
     in_1 = max(supply_1, 0.0) + max(-exhaust_1, 0.0) + max(-leak_12, 0.0)
     out_1 = max(-supply_1, 0.0) + max(exhaust_1, 0.0) + max(leak_12, 0.0)
     in_2 = max(supply_2, 0.0) + max(-exhaust_2, 0.0) + max(leak_12, 0.0) + max(-seal_2, 0.0)
