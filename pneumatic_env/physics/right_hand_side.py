@@ -86,13 +86,16 @@ def derivatives(
     ``valve``: the ``ValveInputs``. With the tubes as transmission lines (``tube_waves``)
     the chamber flows come from the waves ``arriving`` at the line ends
     (``line_chamber_flows``) and ``valve`` is unused; the lines' valve exhaust is added to
-    the exhaust mass at the substep boundaries (``general_path.close_substep``). With LuGre friction on, ``lugre_friction_n`` (held over the
-    substep, ``lugre_bristle_step``) replaces the sliding friction.
+    the exhaust mass at the substep boundaries (``general_path.close_substep``). With LuGre
+    friction on, ``lugre_friction_n`` (held over the substep, ``lugre_bristle_step``)
+    replaces the sliding friction.
     """
     x_s, v_s, p1, p2, x, v = y[0], y[1], y[2], y[3], y[4], y[5]
     t1, t2 = y[7], y[8]
     inv_sqrt_t1, inv_sqrt_t2 = inv_sqrt_temperatures(c, t1, t2)
-    flows = _chamber_mass_flows(c, p1, p2, valve, arriving, exhaust_node_pa, inv_sqrt_t1, inv_sqrt_t2)
+    flows = _chamber_mass_flows(
+        c, p1, p2, valve, arriving, exhaust_node_pa, inv_sqrt_t1, inv_sqrt_t2
+    )
     supply_1, exhaust_1, supply_2, exhaust_2, leak_12, seal_2 = flows
     velocity = v if direction != 0.0 else 0.0
     dp1, dp2, dt1, dt2 = _chamber_rates(c, p1, p2, x, t1, t2, velocity, flows)
