@@ -73,7 +73,7 @@ class ValveInputs(NamedTuple):
     p2_pa: float  # chamber 2's, the same
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True)
 def derivatives(
     c, coil_current_a, y, direction, valve, arriving, exhaust_node_pa, lugre_friction_n=0.0
 ):
@@ -349,7 +349,7 @@ def coil_at(c, command_a, coil_start, frac):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True)
 def rk4_step(c, drive, frac0, dfrac, y, y0, direction):
     """One classical RK4 step over substep fractions [frac0, frac0 + dfrac] of the
     ``SubstepDrive`` ``drive``'s substep.
