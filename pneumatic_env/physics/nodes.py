@@ -75,7 +75,7 @@ def _illinois_update(lo, f_lo, hi, f_hi, x, f, side):
     return x, f, hi, f_hi, -1
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True)
 def _supply_flow(c, supply_pa, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2):
     """Total valve flow out of the supply (both paths, before the tubes), >= 0."""
     return max(
@@ -89,7 +89,7 @@ def _supply_flow(c, supply_pa, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqr
     )
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True)
 def supply_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2):
     """Supply pressure the valve sees through the supply resistance (effect, docs/effects.md).
 
@@ -212,7 +212,7 @@ def exhaust_pressure_at_valve(
     return guess
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True)
 def scalar_area(c, spool_m):
     """``orifice_area`` on the general (scalar) path, returning at once for a closed hole."""
     if spool_m <= c.half_width - c.hole_radius:
@@ -310,7 +310,7 @@ def _valve_supply_and_exhaust(
 LINE_PRESSURE_RTOL = 1e-10  # solver accuracy of the line's valve-end pressure, relative to P_s
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True)
 def _port_flow_into_line(c, supply_area, exhaust_area, port_pa):
     """Net valve flow into a line at valve-end pressure ``port_pa``, and its exhaust part
     (port -> atmosphere, Eq. 39; the line's air at ``temperature_k``)."""
@@ -330,7 +330,7 @@ def _port_flow_into_line(c, supply_area, exhaust_area, port_pa):
     return supply - exhaust, exhaust
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True)
 def _line_valve_end_residual(c, supply_area, exhaust_area, wave_in_pa, port_pa):
     """f(P) = P - W_in - (Z_c + R(q, P)/2) q(P) at a valve-end pressure, and q, the exhaust flow."""
     q, exhaust = _port_flow_into_line(c, supply_area, exhaust_area, port_pa)
@@ -397,7 +397,7 @@ def line_flows(c, spool_m, arriving, p1_pa, p2_pa):
     return flow_1, flow_2, exhaust_1 + exhaust_2, port_1, q_1, port_2, q_2
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True)
 def line_chamber_flows(c, arriving, p1_pa, p2_pa):
     """The flows from the lines into chambers 1 and 2 (``line_flows``' first two), which
     need only the waves arriving at the chamber ends: the chamber pressures' right-hand
@@ -423,7 +423,7 @@ def line_chamber_flows(c, arriving, p1_pa, p2_pa):
     return flow_1, flow_2
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True)
 def sent_wave(c, pressure_pa, mass_flow_into_line):
     """The wave a line end sends (``tube.line_end_wave``) with the line's friction there."""
     return line_end_wave(

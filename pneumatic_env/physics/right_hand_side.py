@@ -293,7 +293,7 @@ def _stage(c, drive, frac, coil_current_a, y, y0, direction):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, forceinline=True)
 def arriving_waves(c, history, env, head, frac):
     """The waves at the four line ends ``frac`` of a substep after boundary ``head``: each
     sent by the other end one delay earlier (the delay is at least one substep)."""
