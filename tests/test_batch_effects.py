@@ -141,3 +141,40 @@ def test_batch_effects_reproduce_the_general_path_bit_for_bit(effect, seed):
     currents = random_currents(np.random.default_rng(seed), 300, len(sets))
     moved = assert_batch_matches_general_path(sets, currents)
     assert moved  # the free and spring rods really moved (events, stops, sticking)
+
+
+# friction laws that act only on a moving rod: clamped, the batch path takes them
+FRICTION_LAWS = (
+    {"stribeck_velocity_m_per_s": 0.02, "static_friction_n": 8.0},
+    {"lugre_stiffness_n_per_m": 1e5, "lugre_damping_n_s_per_m": 300.0},
+    {"stribeck_velocity_m_per_s": 0.01, "lugre_stiffness_n_per_m": 2e4},
+)
+
+
+def _friction_sets():
+    """Each friction law on a clamped rod (two tubes, one with a leak) and on a free rod,
+    then a base-model lane."""
+    sets = []
+    for law in FRICTION_LAWS:
+        sets.append(load_parameters("numatics", **ROD_SETUPS[0], **law))
+        sets.append(load_parameters("airpel", tube_length_m=0.5, leakage_area_m2=5e-8, **law))
+        sets.append(load_parameters("numatics", **ROD_SETUPS[1], **law))
+    sets.append(load_parameters("airpel", **ROD_SETUPS[1]))
+    return sets
+
+
+def test_the_batch_path_takes_clamped_friction_laws():
+    params = parameter_array(_friction_sets())
+    kinds = [
+        K.batch_lane_kind(kernel.env_constants(params, env, 2e-4)) for env in range(params.shape[1])
+    ]
+    assert kinds == [K.BATCH_BASE, K.BATCH_LEAKS, K.BATCH_GENERAL] * len(FRICTION_LAWS) + [
+        K.BATCH_BASE
+    ]
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_clamped_friction_laws_reproduce_the_general_path_bit_for_bit(seed):
+    sets = _friction_sets()
+    currents = random_currents(np.random.default_rng(seed), 300, len(sets))
+    assert assert_batch_matches_general_path(sets, currents)

@@ -17,6 +17,7 @@ from . import layout as L
 from .derived import circle_area_m2, linear_flow_slope, piston_areas_m2, tube_delay_s
 from .effects import coil_decay, coil_time_constants, dead_volume_with_tube, spool_play_band
 from .flow import FLOW_LAW_ISO, FLOW_LAW_PAPER, flow_constants
+from .piston import MODE_FIXED
 from .tube import reynolds_per_mass_flow, sound_speed, viscous_scale
 
 CHUNK_ENVS = 64  # environments advanced together by the batch path (their arrays stay in L1/L2)
@@ -273,13 +274,14 @@ def _batch_path_effects_only(c):
     the valve's null leak (``valve_null_leak_area_m2``: all four valve paths, in a chunk
     with one), the exhaust back-pressure (a vent with no volume, ``batch_vent``) and the
     energy equation, the tubes' isothermal air and the ISO 6358 flow
-    law (``batch_rhs``, selected per lane)."""
+    law (``batch_rhs``, selected per lane). A clamped rod takes no friction, so the Stribeck
+    and LuGre laws change nothing there (the bristles hold at v = 0): the batch path
+    takes it."""
     return (
         c.supply_resistance == 0.0
         and (c.exhaust_vent == 0.0 or c.exhaust_capacity == 0.0)
         and c.literal == 0.0
-        and c.stribeck == 0.0
-        and c.lugre == 0.0
+        and ((c.stribeck == 0.0 and c.lugre == 0.0) or c.mode == MODE_FIXED)
         and c.waves == 0.0
         and c.half_width >= c.hole_radius
         and c.delay_substeps >= 1.0
