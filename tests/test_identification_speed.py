@@ -160,3 +160,24 @@ def test_a_fit_stops_where_its_cost_levels_off_close_to_the_converged_cost(tmp_p
             assert (before - now) / before < 0.01
             stopped_by_plateau += levelled.n_jacobians < full.n_jacobians
     assert stopped_by_plateau >= 1
+
+
+def test_always_refit_adds_the_named_candidates_below_the_top_once():
+    """``screening.always_refit`` names candidates refitted whatever their screening rank:
+    picked from below the top unless the top or the drift picks already hold them; an
+    unknown name is refused, naming the field, the value and what is allowed."""
+    from types import SimpleNamespace
+
+    from pneumatic_env.identification.config import ConfigError, load_config
+    from pneumatic_env.identification.selection import form_picks
+
+    cfg = load_config()
+    assert "heat_transfer" in cfg.names("screening", "always_refit")
+    screens = [SimpleNamespace(name=n) for n in ("leakage", "coil_lag", "heat_transfer", "lugre")]
+    top = screens[:2]
+    assert [s.name for s in form_picks(cfg, screens[2:], top)] == ["heat_transfer"]
+    assert form_picks(cfg, screens[3:], screens[:3]) == []  # ranked in the top: not twice
+    assert form_picks(cfg, screens[2:], [*top, screens[2]]) == []  # a drift pick already
+    cfg.raw["screening"]["always_refit"]["value"] = ["heat_transfer", "warp_drive"]
+    with pytest.raises(ConfigError, match=r"always_refit names \['warp_drive'\].*allowed are"):
+        form_picks(cfg, screens, top)

@@ -271,6 +271,15 @@ class IdentificationConfig:
         return self.number("diagnosis", name)
 
     # -- lists ----------------------------------------------------------------------------
+    def names(self, section: str, name: str) -> list[str]:
+        """A list of names (possibly empty), checked."""
+        v = self.value(section, name)
+        if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
+            raise ConfigError(
+                f"{self.path}: {section}.{name} = {v!r} is not allowed: must be a list of names"
+            )
+        return list(v)
+
     def base_fit_names(self, key: str) -> list[str]:
         names = self.raw["base_fit"][key]
         return list(names) if names != "all" else ["all"]

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 
 from . import progress
 from .calibrate import Dataset, FitResult, run_fit
-from .candidates import Candidate, separating_experiment
-from .config import IdentificationConfig
+from .candidates import Candidate, candidate_table, separating_experiment
+from .config import ConfigError, IdentificationConfig
 from .drift import base_drifts, suggested_effects
 from .holdout import Holdout
 from .later_effects import fit_freer_form, freer_form_check, second_effect_support
@@ -165,6 +165,8 @@ def _refit_round(ctx: RoundContext, state: Selection, screens: Sequence, rnd: in
     """Refit the screening's best few (in parallel); the rest keep the screening's score."""
     top_k = ctx.settings.top_k
     top = [] if ctx.quick else [*screens[:top_k], *drift_picks(ctx, state, screens[top_k:])]
+    if not ctx.quick:
+        top += form_picks(ctx.cfg, screens[top_k:], top)
     progress.stage(f"refitting {len(top)} candidates (round {rnd})", len(top) * ctx.plan.refit)
     t_refit = time.monotonic()
     # a refit starts from the config's warm start (starting from the screening's step
@@ -213,6 +215,24 @@ def drift_picks(ctx: RoundContext, state: Selection, rest: Sequence) -> list:
     picks = [by_name[name] for name in suggested if name in by_name][:n_max]
     for s in picks:
         log.info("%s: refitted too, as the base fit's drifts point at it", s.name)
+    return picks
+
+
+def form_picks(cfg: IdentificationConfig, rest: Sequence, taken: Sequence) -> list:
+    """The screens of ``rest`` (below the screening's top) whose candidate
+    ``screening.always_refit`` names and ``taken`` does not hold: effects that change the
+    model's form, which a one-step prediction misjudges, refitted whatever their rank."""
+    names = cfg.names("screening", "always_refit")
+    known = candidate_table(cfg)
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise ConfigError(
+            f"{cfg.path}: screening.always_refit names {unknown!r}, which are not "
+            f"candidates: allowed are {sorted(known)}"
+        )
+    picks = [s for s in rest if s.name in names and all(s is not t for t in taken)]
+    for s in picks:
+        log.info("%s: refitted too, whatever its screening (screening.always_refit)", s.name)
     return picks
 
 
