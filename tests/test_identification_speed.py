@@ -6,6 +6,7 @@ The recordings come from the virtual rig (synthetic, never measured), 0.3-1 s lo
 
 from __future__ import annotations
 
+import copy
 import math
 import threading
 
@@ -168,7 +169,11 @@ def test_always_refit_adds_the_named_candidates_below_the_top_once():
     unknown name is refused, naming the field, the value and what is allowed."""
     from types import SimpleNamespace
 
-    from pneumatic_env.identification.config import ConfigError, load_config
+    from pneumatic_env.identification.config import (
+        ConfigError,
+        IdentificationConfig,
+        load_config,
+    )
     from pneumatic_env.identification.selection import form_picks
 
     cfg = load_config()
@@ -178,6 +183,8 @@ def test_always_refit_adds_the_named_candidates_below_the_top_once():
     assert [s.name for s in form_picks(cfg, screens[2:], top)] == ["heat_transfer"]
     assert form_picks(cfg, screens[3:], screens[:3]) == []  # ranked in the top: not twice
     assert form_picks(cfg, screens[2:], [*top, screens[2]]) == []  # a drift pick already
-    cfg.raw["screening"]["always_refit"]["value"] = ["heat_transfer", "warp_drive"]
+    raw = copy.deepcopy(dict(cfg.raw))  # the loaded config is cached: change a copy
+    raw["screening"]["always_refit"]["value"] = ["heat_transfer", "warp_drive"]
+    wrong = IdentificationConfig(raw, cfg.path)
     with pytest.raises(ConfigError, match=r"always_refit names \['warp_drive'\].*allowed are"):
-        form_picks(cfg, screens, top)
+        form_picks(wrong, screens, top)
