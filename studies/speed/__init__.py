@@ -83,6 +83,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _loop_ns(loop: dict, op_ns: dict) -> float:
+    """A loop's instructions (per class) at the cost per operation: its ceiling, ns."""
+    return sum(count * op_ns[op] for op, count in loop.items())
+
+
+def _pair_ratios(measured: list, ceilings: list, median_ceiling: float) -> list:
+    """measured / ceiling of each pair. A pair whose operation costs timed as zero (the
+    operation's loop no slower than the copy loop, on a loaded machine) has no ceiling and
+    is left out; with none left, the ceiling of the median operation costs stands in."""
+    ratios = [ns / c for ns, c in zip(measured, ceilings) if c > 0.0]
+    return ratios or [median(measured) / median_ceiling]
+
+
 def _command(args) -> str:
     parts = ["pneumatic-env speed"]
     if args.quick:
@@ -123,23 +136,29 @@ def run(args) -> int:
         ceiling = kernel_ceiling(instructions, op_ns, serial["substeps"])
         # measured / ceiling of each pair (kernel, operation costs and the RK4 loop alone,
         # timed interleaved); the ratios reported are their medians
-        ratios = [
-            ns / kernel_ceiling(instructions, ops, serial["substeps"])["total_ns"]
-            for ns, ops, _ in pairs
-        ]
         rk4 = instructions["loops"]["base_substeps_vectorised"]
-        rk4_ceilings = [sum(count * ops[op] for op, count in rk4.items()) for _, ops, _ in pairs]
+        measured = [ns for ns, _, _ in pairs]
+        rk4_measured = [ns for _, _, ns in pairs]
         ceiling.update(
             op_ns=op_ns,
             lanes=instructions["lanes"],
             vectorised=instructions["vectorised"],
             parts=regimes["parts"],
             redone=regimes["redone"],
-            pair_ratios=ratios,
-            measured_ns=median([ns for ns, _, _ in pairs]),
-            rk4_ns=median([ns for _, _, ns in pairs]),
-            rk4_ceiling_ns=sum(count * op_ns[op] for op, count in rk4.items()),
-            rk4_ratios=[ns / c for (_, _, ns), c in zip(pairs, rk4_ceilings)],
+            pair_ratios=_pair_ratios(
+                measured,
+                [
+                    kernel_ceiling(instructions, o, serial["substeps"])["total_ns"]
+                    for _, o, _ in pairs
+                ],
+                ceiling["total_ns"],
+            ),
+            measured_ns=median(measured),
+            rk4_ns=median(rk4_measured),
+            rk4_ceiling_ns=_loop_ns(rk4, op_ns),
+            rk4_ratios=_pair_ratios(
+                rk4_measured, [_loop_ns(rk4, o) for _, o, _ in pairs], _loop_ns(rk4, op_ns)
+            ),
         )
         res["ceiling"] = ceiling
     finally:
