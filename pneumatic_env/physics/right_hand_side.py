@@ -349,7 +349,7 @@ def coil_at(c, command_a, coil_start, frac):
     )
 
 
-@njit(cache=True, forceinline=True)
+@njit(cache=True)
 def rk4_step(c, drive, frac0, dfrac, y, y0, direction):
     """One classical RK4 step over substep fractions [frac0, frac0 + dfrac] of the
     ``SubstepDrive`` ``drive``'s substep.
