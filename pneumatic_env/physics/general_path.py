@@ -351,9 +351,9 @@ def line_exhaust_at_rest(params, state, history, envs):
     (each wave the pressure of its end), written to every history slot: where the first
     substep's trapezoid (``close_substep``) starts; 0 without ``tube_waves``."""
     for env in envs:
-        c = env_constants(params, env, 1.0)
         vented = 0.0
-        if c.waves:
+        if params[L.P_TUBE_WAVES, env] == 1.0:  # env_constants' waves flag, read directly
+            c = env_constants(params, env, 1.0)
             p1, p2 = state[L.S_P1, env], state[L.S_P2, env]
             vented = line_flows(c, state[L.S_X_S, env], (p1, p2, p1, p2), p1, p2)[2]
         history[:, L.H_LINE_EXHAUST, env] = vented
