@@ -762,7 +762,8 @@ def test_transmission_line_follows_an_independent_segmented_line(
 
 
 def test_line_chamber_flow_solves_its_end_equation():
-    """m (Z_c + R(m)/2) = W_in - P at the chamber end, laminar and turbulent (Eqs. 33, 35)."""
+    """m (Z_c + R(m)/2) = W_in - P at the chamber end, laminar and turbulent (Eqs. 33, 35),
+    with R from ``line_resistance`` (the flow is solved with the cached coefficients)."""
     from pneumatic_env.physics.tube import line_chamber_flow, line_resistance, sound_speed
 
     c = _constants(tube_length_m=2.0, tube_waves=1)
@@ -772,10 +773,9 @@ def test_line_chamber_flow_solves_its_end_equation():
             p + drive,
             p,
             c.line_impedance,
-            c.line_friction,
-            c.tube_diameter,
-            c.viscosity,
-            c.reynolds_turbulent,
+            c.line_laminar_friction,
+            c.line_turbulent_friction,
+            c.line_transition_flow,
         )
         resistance = line_resistance(
             m, p, c.line_friction, c.tube_diameter, c.viscosity, c.reynolds_turbulent

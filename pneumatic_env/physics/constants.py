@@ -18,7 +18,7 @@ from .derived import circle_area_m2, linear_flow_slope, piston_areas_m2, tube_de
 from .effects import coil_decay, coil_time_constants, dead_volume_with_tube, spool_play_band
 from .flow import FLOW_LAW_ISO, FLOW_LAW_PAPER, flow_constants
 from .piston import MODE_FIXED
-from .tube import reynolds_per_mass_flow, sound_speed, viscous_scale
+from .tube import line_flow_coefficients, reynolds_per_mass_flow, sound_speed, viscous_scale
 
 CHUNK_ENVS = 64  # environments advanced together by the batch path (their arrays stay in L1/L2)
 
@@ -109,6 +109,10 @@ Constants = namedtuple(
         "half_rt_delay",
         "reynolds_per_flow",
         "viscous_scale",
+        # the transmission line's ``tube.line_flow_coefficients``
+        "line_laminar_friction",
+        "line_turbulent_friction",
+        "line_transition_flow",
     ),
 )
 
@@ -165,6 +169,12 @@ def env_constants(params, env, substep_s):
     waves_flag = 1.0 if p[L.P_TUBE_WAVES] == 1.0 else 0.0
     tube_area = circle_area_m2(tube_diameter)
     line_impedance = sound_speed(k, gas, temperature) / tube_area
+    line_friction = tube_length * gas * temperature / tube_area
+    line_coefficients = (0.0, 0.0, 0.0)  # used with the lines only: no pow per period else
+    if waves_flag:
+        line_coefficients = line_flow_coefficients(
+            line_friction, tube_diameter, p[L.P_AIR_VISCOSITY_PA_S], p[L.P_REYNOLDS_TURBULENT]
+        )
     return Constants(
         gas_rt=gas * temperature,
         inv_sqrt_t=1.0 / math.sqrt(temperature),
@@ -238,7 +248,7 @@ def env_constants(params, env, substep_s):
         lugre_damping=p[L.P_LUGRE_DAMPING_N_S_PER_M],
         waves=waves_flag,
         line_impedance=line_impedance,
-        line_friction=tube_length * gas * temperature / tube_area,
+        line_friction=line_friction,
         tube_air=tube_air,
         pressure_floor=PRESSURE_FLOOR_FRACTION * p[L.P_AMBIENT_PRESSURE_PA],
         temperature_floor=TEMPERATURE_FLOOR_FRACTION * temperature,
@@ -263,6 +273,9 @@ def env_constants(params, env, substep_s):
         half_rt_delay=0.5 * gas * temperature * delay_s,
         reynolds_per_flow=reynolds_per_mass_flow(tube_diameter, p[L.P_AIR_VISCOSITY_PA_S]),
         viscous_scale=viscous_scale(tube_diameter, p[L.P_AIR_VISCOSITY_PA_S]),
+        line_laminar_friction=line_coefficients[0],
+        line_turbulent_friction=line_coefficients[1],
+        line_transition_flow=line_coefficients[2],
     )
 
 
@@ -429,6 +442,9 @@ def load_constants(constants, lane):
         constants[75 * k + lane],
         constants[76 * k + lane],
         constants[77 * k + lane],
+        constants[78 * k + lane],
+        constants[79 * k + lane],
+        constants[80 * k + lane],
     )
 
 

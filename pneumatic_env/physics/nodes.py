@@ -11,7 +11,7 @@ from numba import njit
 
 from .effects import drooped_supply_pressure
 from .flow import orifice_mass_flow_inv_k
-from .tube import line_chamber_flow, line_end_wave, line_resistance, tube_attenuation_scaled
+from .tube import line_chamber_flow, line_end_wave, line_resistance_scaled, tube_attenuation_scaled
 from .valve import orifice_area_inv_radius
 
 
@@ -334,8 +334,8 @@ def _port_flow_into_line(c, supply_area, exhaust_area, port_pa):
 def _line_valve_end_residual(c, supply_area, exhaust_area, wave_in_pa, port_pa):
     """f(P) = P - W_in - (Z_c + R(q, P)/2) q(P) at a valve-end pressure, and q, the exhaust flow."""
     q, exhaust = _port_flow_into_line(c, supply_area, exhaust_area, port_pa)
-    resistance = line_resistance(
-        q, port_pa, c.line_friction, c.tube_diameter, c.viscosity, c.reynolds_turbulent
+    resistance = line_resistance_scaled(
+        q, port_pa, c.line_friction, c.reynolds_per_flow, c.viscous_scale, c.reynolds_turbulent
     )
     return port_pa - wave_in_pa - (c.line_impedance + 0.5 * resistance) * q, q, exhaust
 
@@ -406,19 +406,17 @@ def line_chamber_flows(c, arriving, p1_pa, p2_pa):
         arriving[2],
         p1_pa,
         c.line_impedance,
-        c.line_friction,
-        c.tube_diameter,
-        c.viscosity,
-        c.reynolds_turbulent,
+        c.line_laminar_friction,
+        c.line_turbulent_friction,
+        c.line_transition_flow,
     )
     flow_2 = line_chamber_flow(
         arriving[3],
         p2_pa,
         c.line_impedance,
-        c.line_friction,
-        c.tube_diameter,
-        c.viscosity,
-        c.reynolds_turbulent,
+        c.line_laminar_friction,
+        c.line_turbulent_friction,
+        c.line_transition_flow,
     )
     return flow_1, flow_2
 
@@ -430,12 +428,12 @@ def sent_wave(c, pressure_pa, mass_flow_into_line):
         pressure_pa,
         mass_flow_into_line,
         c.line_impedance,
-        line_resistance(
+        line_resistance_scaled(
             mass_flow_into_line,
             pressure_pa,
             c.line_friction,
-            c.tube_diameter,
-            c.viscosity,
+            c.reynolds_per_flow,
+            c.viscous_scale,
             c.reynolds_turbulent,
         ),
     )

@@ -123,12 +123,30 @@ def line_resistance(
     ``line_friction = L_t R T / A_t``; R_t laminar (Eq. 33) or turbulent (Eq. 35) by the
     flow's Reynolds number, as in the attenuation of Eq. 30.
     """
-    reynolds = reynolds_number(mass_flow_kg_per_s, tube_inner_diameter_m, air_viscosity_pa_s)
-    return (
-        tube_resistance(reynolds, tube_inner_diameter_m, air_viscosity_pa_s, reynolds_turbulent)
-        * line_friction
-        / pressure_pa
+    return line_resistance_scaled(
+        mass_flow_kg_per_s,
+        pressure_pa,
+        line_friction,
+        reynolds_per_mass_flow(tube_inner_diameter_m, air_viscosity_pa_s),
+        viscous_scale(tube_inner_diameter_m, air_viscosity_pa_s),
+        reynolds_turbulent,
     )
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def line_resistance_scaled(
+    mass_flow_kg_per_s,
+    pressure_pa,
+    line_friction,
+    reynolds_per_flow,
+    viscous_scale_pa_s_per_m2,
+    reynolds_turbulent,
+):
+    """``line_resistance`` given ``reynolds_per_mass_flow`` and ``viscous_scale``, which the
+    kernel caches per environment (two divisions fewer per evaluation)."""
+    reynolds = abs(mass_flow_kg_per_s) * reynolds_per_flow
+    resistance = scaled_tube_resistance(reynolds, viscous_scale_pa_s_per_m2, reynolds_turbulent)
+    return resistance * line_friction / pressure_pa
 
 
 @njit(cache=True)
@@ -138,16 +156,32 @@ def line_end_wave(pressure_pa, mass_flow_into_line_kg_per_s, impedance, resistan
 
 
 @njit(cache=True)
-def line_chamber_flow(
-    wave_in_pa,
-    chamber_pa,
-    impedance,
-    line_friction,
-    tube_inner_diameter_m,
-    air_viscosity_pa_s,
-    reynolds_turbulent,
+def line_flow_coefficients(
+    line_friction, tube_inner_diameter_m, air_viscosity_pa_s, reynolds_turbulent
 ):
-    """Mass flow from the line into a chamber, m, the root of m (Z_c + R(m)/2) = W_in - P.
+    """The constants of ``line_chamber_flow`` for a line: R P at zero flow (laminar, Eq. 33),
+    k P of the turbulent friction R = k |m|^(3/4) (Eq. 35 with Re = 4 |m| / (pi D mu)), and
+    the mass flow at ``reynolds_turbulent``. The kernel caches them per environment."""
+    scale = viscous_scale(tube_inner_diameter_m, air_viscosity_pa_s)
+    laminar = scaled_tube_resistance(0.0, scale, reynolds_turbulent) * line_friction
+    reynolds_per_flow = 4.0 / (math.pi * tube_inner_diameter_m * air_viscosity_pa_s)
+    turbulent = (
+        TURBULENT_RESISTANCE_FACTOR
+        * air_viscosity_pa_s
+        / (tube_inner_diameter_m * tube_inner_diameter_m)
+        * reynolds_per_flow**0.75
+        * line_friction
+    )
+    transition = reynolds_turbulent * math.pi * tube_inner_diameter_m * air_viscosity_pa_s / 4.0
+    return laminar, turbulent, transition
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def line_chamber_flow(
+    wave_in_pa, chamber_pa, impedance, laminar_friction, turbulent_friction, transition_flow
+):
+    """Mass flow from the line into a chamber, m, the root of m (Z_c + R(m)/2) = W_in - P,
+    given the line's ``line_flow_coefficients``.
 
     The left side grows with |m|: linear while laminar, m (Z_c + K |m|^(3/4)) when
     turbulent (Newton from the frictionless flow, which bounds it from above). Where the
@@ -158,32 +192,12 @@ def line_chamber_flow(
         return 0.0
     sign = 1.0 if drive > 0.0 else -1.0
     magnitude = abs(drive)
-    laminar = magnitude / (
-        impedance
-        + 0.5
-        * line_resistance(
-            0.0,
-            chamber_pa,
-            line_friction,
-            tube_inner_diameter_m,
-            air_viscosity_pa_s,
-            reynolds_turbulent,
-        )
-    )
-    transition = reynolds_turbulent * math.pi * tube_inner_diameter_m * air_viscosity_pa_s / 4.0
-    if laminar < transition:
+    laminar = magnitude / (impedance + 0.5 * (laminar_friction / chamber_pa))
+    if laminar < transition_flow:
         return sign * laminar
-    # turbulent: R(u) = k u^(3/4) (Eq. 35 with Re = 4 u / (pi D mu)); Newton on the convex
-    # g(u) = Z_c u + k/2 u^(7/4) - |drive| from above
-    reynolds_per_flow = 4.0 / (math.pi * tube_inner_diameter_m * air_viscosity_pa_s)
-    k = (
-        TURBULENT_RESISTANCE_FACTOR
-        * air_viscosity_pa_s
-        / (tube_inner_diameter_m * tube_inner_diameter_m)
-        * reynolds_per_flow**0.75
-        * line_friction
-        / chamber_pa
-    )
+    # turbulent: R(u) = k u^(3/4); Newton on the convex g(u) = Z_c u + k/2 u^(7/4) - |drive|
+    # from above
+    k = turbulent_friction / chamber_pa
     u = magnitude / impedance
     for _ in range(LINE_MAX_ITERATIONS):
         g = impedance * u + 0.5 * k * u**1.75 - magnitude
@@ -191,4 +205,4 @@ def line_chamber_flow(
         u -= step
         if abs(step) <= LINE_FLOW_RTOL * u:
             break
-    return sign * max(u, transition)
+    return sign * max(u, transition_flow)
