@@ -519,7 +519,8 @@ def test_greedy_rounds_find_both_effects_of_a_two_effect_rig(tmp_path, seed):
     """A rig with a rod-seal leak and a pressure-sensor lag at once (the multi-effect
     rig's plant, studies/rig_multi_effect.py, written apart from the candidates), recorded
     as the small campaign: the greedy rounds select both, and nothing else, among four
-    candidates (two decoys of the same kinds: a cross-piston leak, a channel time skew)."""
+    candidates (two decoys of the same kinds: a cross-piston leak, a channel time skew),
+    and the stand-in check keeps both."""
     paths = make_campaign(
         tmp_path,
         seed=seed,
@@ -533,3 +534,6 @@ def test_greedy_rounds_find_both_effects_of_a_two_effect_rig(tmp_path, seed):
         max_effects=3,
     )
     assert sorted(diag.selected) == ["pressure_sensor_lag", "rod_seal_leak"]
+    # the stand-in check (identification/stand_ins.py) keeps the first: it still earns its
+    # place with the second in the model
+    assert [t["dropped"] for t in diag.stand_ins] == [False]

@@ -22,8 +22,10 @@
    lower the error of every held-out recording it can act on by the threshold, raise
    none, and beat the effects before it refitted per experiment type
    (:mod:`.later_effects`).
-   Select greedily (the accepted best joins the model, the rest are screened again),
-   report the winner, the runner-up, or "none", and each selected effect's margins.
+   Select greedily (the accepted best joins the model, the rest are screened again);
+   then drop an effect a later one made redundant (:mod:`.stand_ins`, backward
+   elimination). Report the winner, the runner-up, or "none", and each selected
+   effect's margins.
 5. Suggest an experiment that separates the winner from a close runner-up.
 
 Nothing here reads how the data were made: only the recordings' samples and the rig
@@ -81,6 +83,7 @@ from .selection import (
     selection_round,
     winner_and_runner_up,
 )
+from .stand_ins import drop_stand_ins
 
 __all__ = [
     "PHASES",
@@ -132,6 +135,7 @@ class Diagnosis:
     status: str = "complete"  # or "running, round N" (a report written during the run)
     still_checking: str | None = None  # what the running round checks
     drift: list = field(default_factory=list)  # .drift.Drift: base parameters implausible
+    stand_ins: list = field(default_factory=list)  # removals tried after the rounds
 
     def ranked(self) -> list[CandidateScore]:
         """Round 1 by score (refitted candidates first), then each later round."""
@@ -163,6 +167,7 @@ class Diagnosis:
             "per_recording": self.per_recording,
             "screening": self.screening,
             "freer_forms": self.freer_forms,
+            "stand_in_check": self.stand_ins,
             "quick": self.quick,
             "timings_s": self.timings,
             "status": self.status,
@@ -327,6 +332,8 @@ def diagnose(
             on_round(_assemble(ctx, state, before, pool, rnd))
         if not selection_round(ctx, state, pool, rnd):
             break
+    if not quick and len(state.selected) >= 2:
+        state.stand_ins = drop_stand_ins(ctx, state)
     diag = _assemble(ctx, state, before, pool)
     progress.finish()
     return diag
@@ -393,6 +400,7 @@ def _assemble(
         screening=list(state.screening),
         confidence=list(state.confidence),
         freer_forms=list(state.freer_forms),
+        stand_ins=list(state.stand_ins),
         per_recording=_per_recording_before_after(base_per, after_per),
         quick=ctx.quick,
         timings=dict(ctx.timings),

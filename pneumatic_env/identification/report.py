@@ -129,7 +129,8 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
     if data["issues"]:
         lines += ["## Data issues", ""] + [f"- {i}" for i in data["issues"]] + [""]
     lines += _result_lines(data) + _drift_lines(data) + _nrmse_lines(data)
-    lines += _confidence_lines(data) + _per_recording_lines(data) + _screening_lines(data)
+    lines += _confidence_lines(data) + _stand_in_lines(data)
+    lines += _per_recording_lines(data) + _screening_lines(data)
     lines += _candidate_lines(data) + _calibration_lines(data) + _residual_lines(data)
     lines += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots]
     lines += [
@@ -381,6 +382,32 @@ def _confidence_lines(data: dict) -> list[str]:
             f"{', '.join(c['supported_by']) or '-'} | "
             f"{_explains(c)} | "
             f"{_holds(c)} |"
+        )
+    return lines
+
+
+def _stand_in_lines(data: dict) -> list[str]:
+    """The backward check after the rounds (.stand_ins): each earlier effect's worth with
+    the later ones in the model, and which were dropped."""
+    tried = data.get("stand_in_check") or []
+    if not tried:
+        return []
+    threshold = _pct(data["thresholds"]["min_relative_improvement"])
+    lines = [
+        "",
+        "## Stand-in check",
+        "",
+        "Each effect selected before the last round, refitted out of the final model: "
+        f"dropped when the model with it is less than {threshold} better on held-out data.",
+        "",
+        "| effect | held-out NRMSE without it | improvement with it | judged by | dropped |",
+        "|---|---|---|---|---|",
+    ]
+    for t in tried:
+        lines.append(
+            f"| {t['name']} | {_fmt(t['heldout_nrmse_mean_without'])} | "
+            f"{_pct(t['improvement_with'])} | {t['judged_by']} | "
+            f"{'**yes**' if t['dropped'] else 'no'} |"
         )
     return lines
 

@@ -115,6 +115,7 @@ class Selection:
     confidence: list = field(default_factory=list)
     freer_forms: list = field(default_factory=list)
     over_freer: dict = field(default_factory=dict)
+    stand_ins: list = field(default_factory=list)  # the removals tried (.stand_ins)
 
 
 def eligible(pool: Sequence[Candidate], selected: Sequence[Candidate]) -> list[Candidate]:
@@ -353,15 +354,15 @@ def winner_and_runner_up(
         others = [s for s in first if s.name != winner]
         if others:
             runner_up = others[0].name
-        if winner and others:
-            w = next(s for s in first if s.name == winner)
+        w = next((s for s in first if s.name == winner), None)
+        if w is not None and others:
             r = others[0]
             if (
                 r.relative_improvement
                 >= cfg.diagnosis("runner_up_close_ratio") * w.relative_improvement
                 and r.relative_improvement > 0
             ):
-                suggestion = separating_experiment(winner, r.name, cfg)
+                suggestion = separating_experiment(w.name, r.name, cfg)
         elif not winner and not quick and first[0].relative_improvement >= min_rel:
             suggestion = (
                 "the best candidate (" + first[0].name + ") improves the held-out "
