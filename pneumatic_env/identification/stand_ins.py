@@ -9,7 +9,8 @@ With heat transfer in the model, the exhaust discharge may explain nothing more.
 
 :func:`drop_stand_ins` is backward elimination, the second half of stepwise selection:
 with two or more effects selected, the model is refitted without each effect selected
-before the last round (base parameters and the other effects free, from the final fit),
+before the last round (base parameters and the other effects free, from the final fit,
+with a candidate refit's budget ``fit.diagnosis_max_nfev``),
 and the effect whose removal costs the least held-out accuracy is dropped when the
 full model is less than ``diagnosis.min_relative_improvement`` better than the model
 without it, judged as a candidate is (:func:`.scoring.heldout_improvement`, on the
@@ -74,6 +75,7 @@ def removal_trial(ctx, state, effect: Candidate) -> Removal:
     fit = run_fit(
         problem,
         start=start,
+        max_nfev=ctx.settings.nfev,  # a candidate refit's budget: it starts converged
         **ctx.settings.fit_stops,
         friction_restarts=any(c.requires_motion for c in rest),
     )
