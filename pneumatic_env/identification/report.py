@@ -392,7 +392,7 @@ def _stand_in_lines(data: dict) -> list[str]:
     tried = data.get("stand_in_check") or []
     if not tried:
         return []
-    threshold = _pct(data["thresholds"]["min_relative_improvement"])
+    threshold = f"{100 * data['thresholds']['min_relative_improvement']:.0f} %"
     lines = [
         "",
         "## Stand-in check",
