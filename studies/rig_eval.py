@@ -24,7 +24,8 @@ Local processes by default, Ray tasks with ``--ray-address`` (Ray imported only 
 
 ``python -m pneumatic_env.studies.rig_eval --out runs/rig-eval [--rigs NAME ...] [--seeds
 1,2,3] [--minutes M] [--processes 2] [--ray-address ADDR]``; ``--quick``: one rig, tiny
-budgets (:meth:`Plan.quick`). Measured on 2 shared cores beside an identify run:
+budgets (:meth:`Plan.quick`); ``--summary``: the table of what is finished, running
+nothing (:func:`finished`). Measured on 2 shared cores beside an identify run:
 ``--quick`` took 156 s (recording 1.4 s, identify --quick 151 s, the baselines 1.2 s; on
 the three-effect rig 398 s: recording 156 s, identify 199 s, baselines 34 s), too long
 for a test; the bookkeeping is tested on stubs.
@@ -34,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import subprocess
 import sys
@@ -50,6 +52,7 @@ __all__ = [
     "LEARNED_BASELINES",
     "EvalRig",
     "Plan",
+    "finished",
     "prepare_rig",
     "run_evaluation",
     "summarise",
@@ -242,6 +245,9 @@ def _run(tasks: list, processes: int, ray_address: str | None):
     yield from _run_all(_checkpointed, tasks, processes, ray_address)
 
 
+_log = functools.partial(print, flush=True)  # a log of a run in the background shows at once
+
+
 def run_evaluation(
     plan: Plan,
     out: Path,
@@ -249,7 +255,7 @@ def run_evaluation(
     ray_address: str | None = None,
     prepare: Callable[[dict], dict] = prepare_rig,
     train: Callable[[dict], dict] = train_and_evaluate,
-    log: Callable[[str], None] = print,
+    log: Callable[[str], None] = _log,
 ) -> dict:
     """Every rig's stages, then every (rig, seed); returns :func:`summarise`'s summary
     (also written to ``out/summary.json``)."""
@@ -310,6 +316,47 @@ def summarise(rigs: dict[str, dict], trained: dict[str, list[dict]]) -> dict:
     }
 
 
+def finished(plan: Plan, out: Path) -> tuple[dict[str, dict], dict[str, list[dict]]]:
+    """The stages of ``plan``'s rigs already written under ``out`` (``prepare_rig``'s and
+    ``train_and_evaluate``'s results, as :func:`summarise` takes them), whatever their
+    plan: a running or stopped evaluation's figures so far."""
+    rigs: dict[str, dict] = {}
+    trained: dict[str, list[dict]] = {}
+    for rig in plan.rigs:
+        path = out / rig.name / "rig.json"
+        if not path.is_file():
+            continue
+        rigs[rig.name] = json.loads(path.read_text(encoding="utf-8"))["result"]
+        seeds = [out / rig.name / f"seed_{s}.json" for s in plan.seeds]
+        trained[rig.name] = [
+            json.loads(p.read_text(encoding="utf-8"))["result"] for p in seeds if p.is_file()
+        ]
+    return rigs, trained
+
+
+def _seed_lines(rigs: dict[str, dict], trained: dict[str, list[dict]]) -> list[str]:
+    """Per (rig, seed): the trained controller's error, its chatter and air against the
+    sliding mode's on the rig's plant (issue 35: within 1.5 x), its base, its time."""
+    lines = ["", "| rig | seed | RMS % | chatter / SM | air / SM | base | train s |"]
+    lines.append("|---|---|---|---|---|---|---|")
+    for name, runs in trained.items():
+        sm = rigs[name]["baselines"].get("sliding_mode", {})
+        for r in sorted(runs, key=lambda r: r["seed"]):
+            if "rms_error_pct" not in r:
+                lines.append(f"| {name} | {r['seed']} | {r.get('failed', 'skipped')} |||||")
+                continue
+            nan = float("nan")
+            chatter = r.get("chatter_rms_a", nan) / sm.get("chatter_rms_a", nan)
+            air = r.get("air_mg", nan) / sm.get("air_mg", nan)
+            base = (r.get("residual_base") or {}).get("kind", "-")
+            seconds = r.get("seconds", {}).get("train", nan)
+            lines.append(
+                f"| {name} | {r['seed']} | {r['rms_error_pct']:.2f} | {chatter:.2f} | "
+                f"{air:.2f} | {base} | {seconds:.0f} |"
+            )
+    return lines
+
+
 def _table(summary: dict) -> str:
     lines = [
         "| rig | PID | sliding mode | trained, IQM [95 % CI] | ratio to best classical |",
@@ -351,6 +398,11 @@ def main(argv: list[str] | None = None) -> int:
         "'distributed' extra); default: local processes",
     )
     p.add_argument("--quick", action="store_true", help="one rig, tiny budgets (a test)")
+    p.add_argument(
+        "--summary",
+        action="store_true",
+        help="run nothing: the table of the stages already finished under --out",
+    )
     args = p.parse_args(argv)
     plan = Plan.quick() if args.quick else Plan()
     if args.rigs:
@@ -359,6 +411,11 @@ def main(argv: list[str] | None = None) -> int:
         plan = dataclasses.replace(plan, seeds=args.seeds)
     if args.minutes is not None:
         plan = dataclasses.replace(plan, minutes=args.minutes)
+    if args.summary:
+        rigs, trained = finished(plan, args.out)
+        print(_table(summarise(rigs, trained)))
+        print("\n".join(_seed_lines(rigs, trained)))
+        return 0
     args.out.mkdir(parents=True, exist_ok=True)
     try:
         summary = run_evaluation(plan, args.out, args.processes, args.ray_address)

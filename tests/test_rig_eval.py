@@ -62,6 +62,26 @@ def test_the_harness_checkpoints_each_result_and_resumes(tmp_path):
     assert sorted(CALLS) == sorted(("train", r.name, 5) for r in EVAL_RIGS[:2])
 
 
+def test_the_summary_of_a_stopped_run_reads_its_checkpoints(tmp_path, capsys):
+    """``--summary`` runs nothing and gives the figures of the stages already written:
+    those of a run stopped after some seeds, as the run itself would summarise them."""
+    plan = Plan(rigs=EVAL_RIGS[:2], seeds=(1, 2, 3))
+    summary = run_evaluation(plan, tmp_path, 1, prepare=_prepare, train=_train, log=print)
+    (tmp_path / EVAL_RIGS[1].name / "seed_3.json").unlink()  # stopped before this seed
+    rigs, trained = rig_eval.finished(plan, tmp_path)
+    assert rigs == {r.name: _prepare({"rig": list(r)}) for r in EVAL_RIGS[:2]}
+    assert [len(trained[r.name]) for r in EVAL_RIGS[:2]] == [3, 2]
+    partial = rig_eval.summarise(rigs, trained)
+    assert partial["rigs"][EVAL_RIGS[0].name] == summary["rigs"][EVAL_RIGS[0].name]
+    assert partial["rigs"][EVAL_RIGS[1].name]["n_seeds"] == 2
+    CALLS.clear()
+    names = [r.name for r in EVAL_RIGS[:2]]
+    assert rig_eval.main(["--out", str(tmp_path), "--summary", "--rigs", *names]) == 0
+    assert CALLS == []  # nothing ran
+    out = capsys.readouterr().out
+    assert all(f"| {n} |" in out for n in names) and "ratio over rigs" in out
+
+
 def test_a_missing_trainer_is_reported_not_scored(tmp_path):
     plan = Plan(rigs=EVAL_RIGS[:1], seeds=(1,))
     summary = run_evaluation(
