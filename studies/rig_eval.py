@@ -359,16 +359,20 @@ def _seed_lines(rigs: dict[str, dict], trained: dict[str, list[dict]]) -> list[s
 
 def _table(summary: dict) -> str:
     lines = [
-        "| rig | PID | sliding mode | trained, IQM [95 % CI] | ratio to best classical |",
-        "|---|---|---|---|---|",
+        "| rig | PID | sliding mode | best shipped learned | trained, IQM [95 % CI] | "
+        "ratio to best classical |",
+        "|---|---|---|---|---|---|",
     ]
     for name, e in summary["rigs"].items():
         base = e["baselines_rms_pct"]
         t = e.get("trained_iqm_rms_pct")
         r = e.get("ratio_to_best_classical")
+        learned = min(((base[k], k) for k in LEARNED_BASELINES if k in base), default=None)
         lines.append(
             f"| {name} | {base.get('pid', float('nan')):.2f} | "
             f"{base.get('sliding_mode', float('nan')):.2f} | "
+            + (f"{learned[0]:.2f} (`{learned[1]}`)" if learned else "-")
+            + " | "
             + (f"{t['value']:.2f} [{t['low']:.2f}, {t['high']:.2f}]" if t else "-")
             + " | "
             + (f"{r['value']:.2f} [{r['low']:.2f}, {r['high']:.2f}]" if r else "-")
