@@ -223,7 +223,7 @@ def _checkpointed(task: tuple[Callable[[dict], dict], dict]) -> dict:
     path = Path(job["result"])
     key = {k: v for k, v in job.items() if k != "result"}
     if path.is_file():
-        saved = json.loads(path.read_text(encoding="utf-8"))
+        saved = _saved(path)
         if saved.get("job") == json.loads(json.dumps(key)):
             return saved["result"]
     result = function(job)
@@ -262,7 +262,7 @@ def run_evaluation(
     plan_dict = {k: v for k, v in dataclasses.asdict(plan).items() if k not in ("rigs", "seeds")}
     common = {"plan": plan_dict}
     rig_jobs = [
-        {"rig": list(r), "dir": str(out / r.name), "result": str(out / r.name / "rig.json")}
+        {"rig": list(r), "dir": str(out / r.name), "result": str(result_file(out, r.name))}
         for r in plan.rigs
     ]
     rigs = {}
@@ -270,7 +270,7 @@ def run_evaluation(
         rigs[result["rig"]] = result
         log(f"rig {result['rig']}: recorded, identified, baselines run")
     seed_jobs = [
-        {**j, **common, "seed": s, "result": str(Path(j["dir"]) / f"seed_{s}.json")}
+        {**j, **common, "seed": s, "result": str(result_file(out, j["rig"][0], s))}
         for j in rig_jobs
         for s in plan.seeds
     ]
@@ -316,6 +316,16 @@ def summarise(rigs: dict[str, dict], trained: dict[str, list[dict]]) -> dict:
     }
 
 
+def result_file(out: Path, rig: str, seed: int | None = None) -> Path:
+    """Where a rig's stages 1-3 (``seed`` None) or one seed's stage 4 are checkpointed."""
+    return out / rig / ("rig.json" if seed is None else f"seed_{seed}.json")
+
+
+def _saved(path: Path) -> dict:
+    """A checkpoint as :func:`_checkpointed` writes it: ``{"job": ..., "result": ...}``."""
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
 def finished(plan: Plan, out: Path) -> tuple[dict[str, dict], dict[str, list[dict]]]:
     """The stages of ``plan``'s rigs already written under ``out`` (``prepare_rig``'s and
     ``train_and_evaluate``'s results, as :func:`summarise` takes them), whatever their
@@ -323,14 +333,12 @@ def finished(plan: Plan, out: Path) -> tuple[dict[str, dict], dict[str, list[dic
     rigs: dict[str, dict] = {}
     trained: dict[str, list[dict]] = {}
     for rig in plan.rigs:
-        path = out / rig.name / "rig.json"
+        path = result_file(out, rig.name)
         if not path.is_file():
             continue
-        rigs[rig.name] = json.loads(path.read_text(encoding="utf-8"))["result"]
-        seeds = [out / rig.name / f"seed_{s}.json" for s in plan.seeds]
-        trained[rig.name] = [
-            json.loads(p.read_text(encoding="utf-8"))["result"] for p in seeds if p.is_file()
-        ]
+        rigs[rig.name] = _saved(path)["result"]
+        seeds = [result_file(out, rig.name, s) for s in plan.seeds]
+        trained[rig.name] = [_saved(p)["result"] for p in seeds if p.is_file()]
     return rigs, trained
 
 

@@ -164,7 +164,7 @@ def line_flow_coefficients(
     the mass flow at ``reynolds_turbulent``. The kernel caches them per environment."""
     scale = viscous_scale(tube_inner_diameter_m, air_viscosity_pa_s)
     laminar = scaled_tube_resistance(0.0, scale, reynolds_turbulent) * line_friction
-    reynolds_per_flow = 4.0 / (math.pi * tube_inner_diameter_m * air_viscosity_pa_s)
+    reynolds_per_flow = reynolds_per_mass_flow(tube_inner_diameter_m, air_viscosity_pa_s)
     turbulent = (
         TURBULENT_RESISTANCE_FACTOR
         * air_viscosity_pa_s
