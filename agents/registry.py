@@ -18,7 +18,7 @@ from .learned import (
     shipped_policy_path,
 )
 from .policy import load_policy_spec
-from .residual import BASE_CLASSES, BASE_CONTROLLERS
+from .residual import BASE_CLASSES, BASE_CONTROLLERS, base_context
 from .suite import suite_preview_steps
 
 __all__ = [
@@ -145,7 +145,8 @@ def learned_spec(path: str | Path, variant: str, name: str | None = None) -> Con
         if residual is None:
             return LearnedController(ctx, actor, None)
         kind, gains = actor.base_controller or (residual.base, residual.gains)
-        return LearnedController(ctx, actor, make_base_controller(kind, ctx, variant, gains))
+        base = make_base_controller(kind, base_context(ctx, residual), variant, gains)
+        return LearnedController(ctx, actor, base)
 
     return ControllerSpec(
         label,

@@ -22,6 +22,7 @@ learned residual controller (``agents.learned``) share, given a built base contr
 from __future__ import annotations
 
 import copy
+import dataclasses
 import inspect
 import math
 import numbers
@@ -34,7 +35,7 @@ import numpy as np
 from pneumatic_env.envs.observation import OBS_F, OBS_REF, observation_dim
 from pneumatic_env.ids import variant_id
 
-from .base import Controller
+from .base import Controller, ControllerContext
 from .pid import PIDController
 from .sliding_mode import SlidingModeController
 
@@ -43,6 +44,7 @@ __all__ = [
     "base_gain_names",
     "ResidualCore",
     "residual_gate",
+    "base_context",
     "env_variant",
     "RESIDUAL_COLUMNS",
     "BASE_CONTROLLERS",
@@ -76,6 +78,8 @@ class ResidualConfig:
     consistent_predictor: bool = True  # tell the base controller the applied current
     variant: str | None = None  # whose gains (default: the env's cylinder and tube)
     gains: Mapping | None = None  # the base's gains (default: the variant's, ``variant``)
+    # the model parameters the base runs on (default: the env's; ``base_context``)
+    base_model_params: Mapping | None = None
 
     def validate(self) -> None:
         if self.base not in BASE_CONTROLLERS:
@@ -83,6 +87,7 @@ class ResidualConfig:
                 f"base = {self.base!r} is not allowed: use one of {list(BASE_CONTROLLERS)}"
             )
         self._check_gains()
+        self._check_base_model()
         for name, low in (("correction_fraction", 0.0), ("gate_floor", 0.0)):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= low):
@@ -125,6 +130,26 @@ class ResidualConfig:
                     f"gains.{name} = {value!r} is not allowed: a finite number or true/false"
                 )
 
+    def _check_base_model(self) -> None:
+        """``base_model_params``: None, or parameter names with finite numbers."""
+        params = self.base_model_params
+        if params is None:
+            return
+        bad = (
+            {"base_model_params": params}
+            if not isinstance(params, Mapping)
+            else {
+                f"base_model_params.{k}": v
+                for k, v in params.items()
+                if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v)
+            }
+        )
+        for name, value in bad.items():
+            raise ValueError(
+                f"{name} = {value!r} is not allowed: a mapping of model parameter names to "
+                "finite numbers (or None: the env's model)"
+            )
+
     def as_dict(self) -> dict:
         return asdict(self)
 
@@ -134,6 +159,16 @@ class ResidualConfig:
         names = {f.name for f in fields(cls)}
         config = cls(**{k: v for k, v in kwargs.items() if k in names})
         return config, {k: v for k, v in kwargs.items() if k not in names}
+
+
+def base_context(context: ControllerContext, config: ResidualConfig) -> ControllerContext:
+    """The context the base controller is built for: ``context`` (the env's model, or the
+    model a self-contained file holds) with ``config.base_model_params`` if given, e.g. the
+    nominal model a sliding mode beats the fitted one with on a rig (``agents.rig_training``)."""
+    if config.base_model_params is None:
+        return context
+    params = {k: float(v) for k, v in config.base_model_params.items()}
+    return dataclasses.replace(context, base_params=params)
 
 
 def residual_gate(

@@ -24,7 +24,13 @@ from pneumatic_env import ids
 
 from .base import Controller, ControllerContext
 from .registry import make_base_controller
-from .residual import RESIDUAL_COLUMNS, ResidualConfig, ResidualCore, env_variant
+from .residual import (
+    RESIDUAL_COLUMNS,
+    ResidualConfig,
+    ResidualCore,
+    base_context,
+    env_variant,
+)
 from .suite import suite_preview_steps
 
 __all__ = [
@@ -38,7 +44,7 @@ __all__ = [
 def residual_core(env, base: str | Controller, config: ResidualConfig) -> ResidualCore:
     """The residual core of ``env``: over ``base`` if a controller, else over the benchmark's
     ``base`` controller with ``config.gains``, else the gains of ``config.variant`` or of
-    the env's variant."""
+    the env's variant; built on ``config.base_model_params`` if given (``base_context``)."""
     ctx = ControllerContext.from_env(env)
     if isinstance(base, Controller):
         controller = base
@@ -46,7 +52,7 @@ def residual_core(env, base: str | Controller, config: ResidualConfig) -> Residu
         config = ResidualConfig(**{**config.as_dict(), "base": base})
         config.validate()
         variant = config.variant or env_variant(env)
-        controller = make_base_controller(base, ctx, variant, config.gains)
+        controller = make_base_controller(base, base_context(ctx, config), variant, config.gains)
     return ResidualCore(controller, config)
 
 

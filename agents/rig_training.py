@@ -4,14 +4,16 @@ identification report describes (``agents.rig``).
 Stages: the PID gains searched on the fitted rig (``agents.tune_pid.grid_search``; the
 sliding mode needs no search, it runs on the fitted model); the suite on the fitted rig
 for the classical controllers, which chooses the residual's base (``base="auto"``: the
-retuned PID or the sliding mode on the fitted model, whichever has the lower mean RMS
-error there; a long tube's waves and heat transfer can leave the sliding mode well behind
-PID); the fast trainer (``agents.ppo``, the variant's
+one of ``BASE_CANDIDATES`` with the lowest mean RMS error there: PID nominal or retuned,
+the sliding mode on the nominal or the fitted model; a long tube's waves and heat transfer
+can leave the sliding mode well behind PID, and a fit that trades one parameter for
+another can leave the sliding mode on the fitted model behind the nominal one); the fast
+trainer (``agents.ppo``, the variant's
 ``configs/agents/ppo_fast-<variant>.yaml`` with that base and its gains) on the fitted rig
 with the report's domain randomisation (``agents.rig.rig_randomization``); the final actor
-written self-contained (``agents.learned.write_self_contained``: the fitted model and the
-base controller's kind and gains inside); the suite on the fitted rig for it. Written to
-``OUT``:
+written self-contained (``agents.learned.write_self_contained``: the fitted model, the
+base controller's kind and gains and the model it runs on inside); the suite on the
+fitted rig for it. Written to ``OUT``:
 
 - ``controller.npz``: runs by file name (``pneumatic-env bench --controller
   OUT/controller.npz``, ``resolve_controller``) with no report or config;
@@ -53,6 +55,7 @@ __all__ = [
     "BASE_CANDIDATES",
     "train_for_rig",
     "choose_base",
+    "candidate_base",
     "rig_controllers",
     "suite_summary",
     "run",
@@ -62,11 +65,15 @@ __all__ = [
 #: training on 2 cores leaves about 10 for the trainer
 DEFAULT_MINUTES = 10.0
 
-#: the residual's base on the fitted rig: kind -> its controller of ``rig_controllers``
-#: (the first wins a tie: the trainer configs' own base)
+#: the residual's possible bases, the classical controllers of ``rig_controllers``: name ->
+#: (kind, the model it runs on). On the "fitted" model PID has the gains searched on the
+#: fitted rig; else every base has the benchmark's gains of the variant. The first wins a
+#: tie (the trainer configs' own base).
 BASE_CANDIDATES = {
-    "sliding_mode": "sliding_mode (fitted model)",
-    "pid": "pid (retuned on the fitted rig)",
+    "sliding_mode (fitted model)": ("sliding_mode", "fitted"),
+    "sliding_mode (nominal model)": ("sliding_mode", "nominal"),
+    "pid (retuned on the fitted rig)": ("pid", "fitted"),
+    "pid (nominal)": ("pid", "nominal"),
 }
 #: ``train_for_rig(base=...)``, ``--base``: a kind, or "auto" (the better on the fitted rig)
 BASE_CHOICES = ("auto", *BASE_CONTROLLERS)
@@ -93,17 +100,22 @@ def _spec(name: str, kind: str, gains: dict, base_params: dict | None, preview: 
     return ControllerSpec(name, {"preview_steps": preview, "normalize_observation": False}, build)
 
 
+def candidate_base(rig: FittedRig, name: str, pid_gains: dict) -> tuple[str, dict, dict | None]:
+    """(kind, gains, model parameters or None for the fitted rig's) of the base ``name``
+    (``BASE_CANDIDATES``)."""
+    kind, model = BASE_CANDIDATES[name]
+    retuned = kind == "pid" and model == "fitted"
+    gains = dict(pid_gains) if retuned else classical_gains(kind, rig.variant)
+    return kind, gains, rig.nominal_parameters() if model == "nominal" else None
+
+
 def rig_controllers(rig: FittedRig, pid_gains: dict, suite: Suite) -> list[ControllerSpec]:
     """PID and the sliding mode at nominal tuning (the benchmark's gains of the variant
     on the package's model of the rig) and retuned for the fitted rig (the searched PID
-    gains; the sliding mode on the fitted model)."""
-    nominal, preview = rig.nominal_parameters(), suite.preview_steps
-    pid, smc = (classical_gains(k, rig.variant) for k in ("pid", "sliding_mode"))
+    gains; the sliding mode on the fitted model): ``BASE_CANDIDATES``."""
     return [
-        _spec("pid (nominal)", "pid", pid, nominal, preview),
-        _spec(BASE_CANDIDATES["pid"], "pid", pid_gains, None, preview),
-        _spec("sliding_mode (nominal model)", "sliding_mode", smc, nominal, preview),
-        _spec(BASE_CANDIDATES["sliding_mode"], "sliding_mode", smc, None, preview),
+        _spec(name, *candidate_base(rig, name, pid_gains), suite.preview_steps)
+        for name in BASE_CANDIDATES
     ]
 
 
@@ -114,19 +126,28 @@ def _check_base(base: str) -> None:
 
 def choose_base(classical: list[dict], base: str = "auto") -> dict:
     """The residual's base from the classical controllers' figures on the fitted rig
-    (``suite_summary`` of ``rig_controllers``): ``base`` if a kind, else (``"auto"``) the
-    candidate (``BASE_CANDIDATES``) with the lower mean RMS error. Returns ``{"kind",
-    "reason", "rms_error_pct": {kind: %}}``."""
+    (``suite_summary`` of ``rig_controllers``): the candidate (``BASE_CANDIDATES``) with
+    the lowest mean RMS error, among all (``"auto"``) or those of the kind ``base``.
+    Returns ``{"controller": name, "kind", "model", "reason", "rms_error_pct": {name: %}}``."""
     _check_base(base)
     by_name = {f["controller"]: f["rms_error_pct"] for f in classical}
-    rms = {kind: by_name[name] for kind, name in BASE_CANDIDATES.items()}
-    both = ", ".join(f"{BASE_CANDIDATES[k]} {v:.2f} %" for k, v in rms.items())
-    if base == "auto":
-        kind = min(rms, key=lambda k: rms[k])
-        reason = f"auto: the lower mean RMS error on the fitted rig ({both})"
-    else:
-        kind, reason = base, f"given (base={base}; on the fitted rig: {both})"
-    return {"kind": kind, "reason": reason, "rms_error_pct": rms}
+    rms = {name: by_name[name] for name in BASE_CANDIDATES}
+    allowed = [n for n in rms if base == "auto" or BASE_CANDIDATES[n][0] == base]
+    name = min(allowed, key=lambda n: rms[n])
+    listed = ", ".join(f"{n} {v:.2f} %" for n, v in rms.items())
+    reason = (
+        f"auto: the lowest mean RMS error on the fitted rig ({listed})"
+        if base == "auto"
+        else f"given (base={base}, the better of its kind; on the fitted rig: {listed})"
+    )
+    kind, model = BASE_CANDIDATES[name]
+    return {
+        "controller": name,
+        "kind": kind,
+        "model": model,
+        "reason": reason,
+        "rms_error_pct": rms,
+    }
 
 
 def suite_summary(rig: FittedRig, controllers: list, suite: Suite | None = None) -> list[dict]:
@@ -174,7 +195,7 @@ def summary_markdown(rig: FittedRig, figures: list[dict], base: dict, command: s
             "",
             markdown_table(header, rows),
             "",
-            f"The residual's base: {base['kind']} ({base['reason']}).",
+            f"The residual's base: {base['controller']} ({base['reason']}).",
             "",
             f"Command: `{command}`" if command else "",
             "",
@@ -186,7 +207,7 @@ def _train_residual(
     rig: FittedRig,
     out: Path,
     randomization: dict,
-    base: tuple[str, dict],
+    base: tuple[str, dict, dict | None],
     *,
     minutes: float | None,
     steps: float | None,
@@ -195,7 +216,8 @@ def _train_residual(
     log: Callable,
 ) -> tuple[str, dict] | None:
     """The fast trainer on the fitted rig with ``randomization``, a residual on ``base``
-    (kind, gains); returns the base the actor was trained on (None for a pure actor)."""
+    (kind, gains, model parameters or None: the env's); returns the base (kind, gains) the
+    actor was trained on (None for a pure actor)."""
     config = agent_config_path(f"ppo_fast-{rig.variant.lower()}")
     env_kwargs = {**rig.env_options, "domain_randomization": randomization}
     merged = {
@@ -204,6 +226,7 @@ def _train_residual(
         "residual.variant": rig.variant,
         "residual.base": base[0],
         "residual.gains": dict(base[1]),
+        "residual.base_model_params": base[2],
         "training.validation_variants": [rig.variant],
         **(overrides or {}),
     }
@@ -246,13 +269,12 @@ def train_for_rig(
     log("[3/5] suite on the fitted rig: PID and sliding mode, nominal and retuned")
     classical = suite_summary(rig, rig_controllers(rig, pid_gains, suite), suite)
     chosen = choose_base(classical, base)
-    gains = {"pid": pid_gains, "sliding_mode": classical_gains("sliding_mode", rig.variant)}
-    log(f"      residual base: {chosen['kind']} ({chosen['reason']})")
+    log(f"      residual base: {chosen['controller']} ({chosen['reason']})")
     held = _train_residual(
         rig,
         out,
         randomization,
-        (chosen["kind"], gains[chosen["kind"]]),
+        candidate_base(rig, chosen["controller"], pid_gains),
         minutes=minutes,
         steps=steps,
         seed=seed,
@@ -309,6 +331,6 @@ def run(args) -> int:
     )
     for f in res["figures"]:
         print(f"  {f['controller']}: mean RMS {f['rms_error_pct']:.2f} %")
-    print(f"  residual base: {res['base']['kind']} ({res['base']['reason']})")
+    print(f"  residual base: {res['base']['controller']} ({res['base']['reason']})")
     print(f"wrote {res['controller']} and {out / 'summary.md'}")
     return 0

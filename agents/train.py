@@ -253,8 +253,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--base",
         choices=("auto", "sliding_mode", "pid"),  # rig_training.BASE_CHOICES (imports torch)
-        help="with --rig: the residual's base controller (default auto: the retuned PID or "
-        "the sliding mode on the fitted model, the lower mean RMS error on the fitted rig)",
+        help="with --rig: the residual's base controller (default auto: of PID nominal and "
+        "retuned and the sliding mode on the nominal and the fitted model, the lowest mean "
+        "RMS error on the fitted rig; a kind: the better of its two)",
     )
     parser.add_argument("--algo", choices=ALGOS + ("ppo_fast",), help="required without --rig")
     parser.add_argument(

@@ -167,7 +167,7 @@ TINY_TRAINING = {
 
 
 def test_train_rig_writes_a_controller_that_runs_by_file_name_alone(tmp_path):
-    from pneumatic_env.agents.rig_training import train_for_rig
+    from pneumatic_env.agents.rig_training import BASE_CANDIDATES, train_for_rig
 
     report = write_report(tmp_path / "report")
     rig = load_rig(report)
@@ -193,10 +193,13 @@ def test_train_rig_writes_a_controller_that_runs_by_file_name_alone(tmp_path):
     shutil.rmtree(tmp_path / "out")
     meta = json.loads(str(np.load(path)["meta"]))
     assert meta["format"] == FORMAT_SELF_CONTAINED
-    # auto: the base with the lower error on the fitted rig (here the sliding mode)
+    # auto: the base with the lowest error on the fitted rig, its model inside the file
     rms = {f["controller"]: f["rms_error_pct"] for f in res["figures"]}
-    assert rms["sliding_mode (fitted model)"] < rms["pid (retuned on the fitted rig)"]
-    assert meta["base_controller"]["kind"] == res["base"]["kind"] == "sliding_mode"
+    best = min(BASE_CANDIDATES, key=lambda n: rms[n])
+    assert res["base"]["controller"] == best
+    assert meta["base_controller"]["kind"] == res["base"]["kind"] == BASE_CANDIDATES[best][0]
+    on_nominal = meta["residual"]["base_model_params"]
+    assert (on_nominal is None) == (BASE_CANDIDATES[best][1] == "fitted")
     assert meta["model"]["base_params"]["tube_length_m"] == 1.6
     # on the fitted rig it gives the summary's figure exactly, from the file alone
     rows, _ = run_suite(str(path), [rig.variant], suite, env_options=rig.env_options)
@@ -251,12 +254,13 @@ def test_bench_rig_runs_the_suite_on_the_fitted_rig(tmp_path, capsys):
     assert fitted[0]["rms_error_pct"] != nominal[0]["rms_error_pct"]  # another plant
 
 
-def _fake_suite_summary(pid_rms: float, smc_rms: float):
-    """``suite_summary`` with the retuned PID at ``pid_rms`` %, the sliding mode on the
-    fitted model at ``smc_rms`` %, any other controller at 9 %."""
-    from pneumatic_env.agents.rig_training import BASE_CANDIDATES
+PID_RETUNED, SMC_FITTED = "pid (retuned on the fitted rig)", "sliding_mode (fitted model)"
+SMC_NOMINAL = "sliding_mode (nominal model)"
 
-    figures = {BASE_CANDIDATES["pid"]: pid_rms, BASE_CANDIDATES["sliding_mode"]: smc_rms}
+
+def _fake_suite_summary(figures: dict):
+    """``suite_summary`` with the controllers named in ``figures`` at their mean RMS error
+    (%), any other at 9 %."""
 
     def summary(rig, controllers, suite=None):
         names = [getattr(c, "name", str(c)) for c in controllers]
@@ -266,28 +270,34 @@ def _fake_suite_summary(pid_rms: float, smc_rms: float):
     return summary
 
 
-def test_train_rig_sits_on_the_retuned_pid_when_it_wins_with_exactly_its_gains(
-    tmp_path, monkeypatch
+@pytest.mark.parametrize("winner", [PID_RETUNED, SMC_NOMINAL])
+def test_train_rig_sits_on_the_winning_base_with_exactly_its_gains_and_model(
+    tmp_path, monkeypatch, winner
 ):
     from pneumatic_env.agents import rig_training
-    from pneumatic_env.agents.pid import PIDController
     from pneumatic_env.agents.registry import classical_gains
+    from pneumatic_env.agents.residual import BASE_CLASSES
 
     custom = {**classical_gains("pid", "Numatics-2m"), "kp_a_per_n": 0.0123, "ki_a_per_n_s": 0.3}
     monkeypatch.setattr(rig_training, "retuned_pid_gains", lambda rig, tuning=None: custom)
-    monkeypatch.setattr(rig_training, "suite_summary", _fake_suite_summary(3.0, 4.0))
+    figures = {PID_RETUNED: 4.0, SMC_FITTED: 5.0, winner: 3.0}
+    monkeypatch.setattr(rig_training, "suite_summary", _fake_suite_summary(figures))
     report = write_report(tmp_path / "report")
     out = tmp_path / "out"
     res = rig_training.train_for_rig(
         report, out, minutes=None, steps=1, overrides=TINY_TRAINING, log=lambda *a, **k: None
     )
-    assert res["base"]["kind"] == "pid"
-    assert "The residual's base: pid (auto:" in (out / "summary.md").read_text()
+    kind, model = rig_training.BASE_CANDIDATES[winner]
+    gains = custom if winner == PID_RETUNED else classical_gains(kind, "Numatics-2m")
+    nominal = load_rig(report).nominal_parameters()
+    assert res["base"]["controller"] == winner and res["base"]["kind"] == kind
+    assert f"The residual's base: {winner} (auto:" in (out / "summary.md").read_text()
     record = json.loads((out / "rig_training.json").read_text())["base"]
-    assert record["kind"] == "pid" and record["gains"] == custom
-    assert record["rms_error_pct"] == {"sliding_mode": 4.0, "pid": 3.0}
+    assert record["kind"] == kind and record["model"] == model and record["gains"] == gains
+    assert record["rms_error_pct"] == {n: figures.get(n, 9.0) for n in rig_training.BASE_CANDIDATES}
     meta = json.loads(str(np.load(res["controller"])["meta"]))
-    assert meta["base_controller"] == {"kind": "pid", "gains": custom}
+    assert meta["base_controller"] == {"kind": kind, "gains": gains}
+    assert meta["residual"]["base_model_params"] == (nominal if model == "nominal" else None)
     # by file name: the self-contained file and the trainer's own (v1, residual.gains)
     env = gym.make_vec(
         "pneumatic_env/ForceTrack-Numatics-2m-v0",
@@ -302,9 +312,10 @@ def test_train_rig_sits_on_the_retuned_pid_when_it_wins_with_exactly_its_gains(
         spec = resolve_controller(str(path), "Numatics-2m")
         ctrl = spec.build(ControllerContext.from_env(env))
         base = ctrl.residual.base
-        assert isinstance(base, PIDController)
-        assert (base.kp, base.ki) == (0.0123, 0.3)
-        twin = PIDController(base.context, **custom)  # the same gains built anew
+        assert type(base) is BASE_CLASSES[kind]
+        if model == "nominal":  # the base on the nominal model, the actor on the fitted one
+            assert base.context.base_params == nominal != ctrl.context.base_params
+        twin = BASE_CLASSES[kind](base.context, **gains)  # the same gains and model anew
         ctrl.reset()
         twin.reset()
         ctrl.act(obs)
@@ -315,10 +326,15 @@ def test_train_rig_sits_on_the_retuned_pid_when_it_wins_with_exactly_its_gains(
 def test_train_rig_sits_on_the_sliding_mode_when_it_wins_or_when_told(tmp_path, monkeypatch):
     from pneumatic_env.agents import rig_training
 
-    figures = _fake_suite_summary(4.0, 3.0)(None, rig_training.BASE_CANDIDATES.values())
-    assert rig_training.choose_base(figures)["kind"] == "sliding_mode"
-    told = rig_training.choose_base(figures, "pid")
+    rms = {PID_RETUNED: 4.0, SMC_FITTED: 3.0, "pid (nominal)": 3.5}
+    figures = _fake_suite_summary(rms)(None, rig_training.BASE_CANDIDATES)
+    assert rig_training.choose_base(figures)["controller"] == SMC_FITTED
+    told = rig_training.choose_base(figures, "pid")  # the better PID: the nominal one here
+    assert told["controller"] == "pid (nominal)" and told["model"] == "nominal"
     assert told["kind"] == "pid" and told["reason"].startswith("given")
+    tie = _fake_suite_summary(dict.fromkeys(rig_training.BASE_CANDIDATES, 2.0))
+    first = rig_training.choose_base(tie(None, rig_training.BASE_CANDIDATES))
+    assert first["controller"] == SMC_FITTED  # a tie: the trainer configs' own base
     with pytest.raises(ValueError, match="base = 'lqr' is not allowed"):
         rig_training.choose_base(figures, "lqr")
     with pytest.raises(ValueError, match="base = 'lqr' is not allowed"):  # before any work
@@ -361,3 +377,19 @@ def test_bad_residual_gains_are_refused_naming_the_field(gains, message):
     # sliding-mode gains on a PID base: refused the same way
     with pytest.raises(ValueError, match="the pid gains are"):
         ResidualConfig(base="pid", gains=classical_gains("sliding_mode", "Numatics-2m")).validate()
+
+
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ([1.0], r"base_model_params = \[1.0\] is not allowed: a mapping of model parameter"),
+        ({"supply_pressure_pa": float("nan")}, r"base_model_params.supply_pressure_pa = nan is"),
+        ({"supply_pressure_pa": True}, r"base_model_params.supply_pressure_pa = True is"),
+    ],
+)
+def test_a_bad_base_model_is_refused_naming_the_field(params, message):
+    from pneumatic_env.agents.residual import ResidualConfig
+
+    ResidualConfig(base_model_params={"supply_pressure_pa": 6e5}).validate()
+    with pytest.raises(ValueError, match=message):
+        ResidualConfig(base_model_params=params).validate()
