@@ -74,6 +74,24 @@ BATCH_EFFECTS = {
             "rod_seal_leak_area_m2": 5e-8,
         },
     ),
+    "supply_droop": (
+        {"supply_resistance_pa_s_per_kg": 1e6},
+        {"supply_resistance_pa_s_per_kg": 3e7},
+    ),
+    "supply_droop_and_nodes": (
+        {
+            "supply_resistance_pa_s_per_kg": 5e6,
+            "exhaust_vent_area_m2": 3e-6,
+            "valve_null_leak_area_m2": 5e-8,
+        },
+        {
+            "supply_resistance_pa_s_per_kg": 2e6,
+            "coil_time_constant_s": 2e-3,
+            "wall_heat_transfer_w_per_k": 0.5,
+            "leakage_area_m2": 5e-8,
+            "flow_law": 1.0,
+        },
+    ),
     "all_batch_effects": (
         {
             "wall_heat_transfer_w_per_k": 0.5,
@@ -107,14 +125,15 @@ ROD_SETUPS = (
 
 def _sets(effect):
     """Every rod setup with the effect's strong and weak setting, then a base-model lane and
-    a general-path lane (supply droop) in the same chunk."""
+    a general-path lane (an exhaust muffler) in the same chunk."""
     sets = [
         load_parameters("numatics", **rod, **setting)
         for setting in BATCH_EFFECTS[effect]
         for rod in ROD_SETUPS
     ]
     sets.append(load_parameters("airpel", **ROD_SETUPS[1]))
-    sets.append(load_parameters("numatics", supply_resistance_pa_s_per_kg=1e6, **ROD_SETUPS[1]))
+    muffler = {"exhaust_vent_area_m2": 5e-6, "exhaust_volume_m3": 1e-5}
+    sets.append(load_parameters("numatics", **muffler, **ROD_SETUPS[1]))
     return sets
 
 

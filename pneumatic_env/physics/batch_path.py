@@ -12,8 +12,8 @@ import numpy as np
 from numba import njit, prange
 
 from . import layout as L
+from .batch_nodes import node_substeps
 from .batch_rhs import rk4_base_substep
-from .batch_vent import vented_substeps
 from .batch_work import (
     W_COIL,
     W_COIL_START,
@@ -127,15 +127,18 @@ def base_substeps_vectorised(constants, work, n_lanes, h):
 
 
 @njit(cache=True, error_model="numpy")
-def chunk_substeps(constants, work, n_lanes, h, leaks, selected, lagged, four_paths, vented):
+def chunk_substeps(
+    constants, work, n_lanes, h, leaks, selected, lagged, four_paths, vented, drooped
+):
     """The chunk's RK4 loop: ``base_substeps_vectorised``, or with the effects its lanes
     have (flags true where any lane has them; on another lane a leak path, or a valve
     path without a null leak, is closed and adds 0.0, an effect selected per lane is not
     selected), the spool then driven by ``W_DRIVE`` (the command, or with ``lagged`` the
-    coil lags' currents, ``lagged_coil_rows``), or stage by stage with an exhaust vent
-    (``batch_vent.vented_substeps``)."""
-    if vented:
-        vented_substeps(constants, work, n_lanes, h, leaks, selected)
+    coil lags' currents, ``lagged_coil_rows``), or stage by stage with a pressure node (an
+    exhaust vent, ``vented``, or a supply resistance, ``drooped``:
+    ``batch_nodes.node_substeps``)."""
+    if vented or drooped:
+        node_substeps(constants, work, n_lanes, h, leaks, selected, vented, drooped)
     elif not (leaks or selected or lagged or four_paths):
         base_substeps_vectorised(constants, work, n_lanes, h)
     elif four_paths:
@@ -353,7 +356,7 @@ def advance_chunk(sim, first, stop, coil_current_a):
     for j in range(n):
         if fast[j] == BATCH_GENERAL:
             advance_env(sim, first + j, coil_current_a[first + j])
-    effects = chunk_effects(chunk_constants, n)  # leaky, selected, lagged, four_paths, vented
+    effects = chunk_effects(chunk_constants, n)  # leaky .. drooped
     # lanes advance_env advanced are computed below too, and ignored
     work = chunk_work(state, first, stop)
     fast_commands(chunk_constants, work, n, coil_current_a[first:stop], state[L.S_PLAY, first:stop])

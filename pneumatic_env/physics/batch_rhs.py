@@ -36,7 +36,16 @@ def base_derivatives(c, coil_current_a, x_s, v_s, p1, p2, x, v, direction, spool
     t = c.temperature
     y = (x_s, v_s, p1, p2, x, v, 0.0, t, t)
     return batch_derivatives(
-        c, coil_current_a, y, direction, spool_delayed, False, False, False, c.ambient_pa
+        c,
+        coil_current_a,
+        y,
+        direction,
+        spool_delayed,
+        False,
+        False,
+        False,
+        c.supply_pa,
+        c.ambient_pa,
     )
 
 
@@ -78,12 +87,15 @@ def _chamber_rates(c, p, t, volume, volume_rate, flow_in, flow_out, enthalpy_in,
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def _valve_flows(c, spool_delayed, p1, p2, inv_sqrt_t1, inv_sqrt_t2, law, four_paths, exhaust_pa):
+def _valve_flows(
+    c, spool_delayed, p1, p2, inv_sqrt_t1, inv_sqrt_t2, law, four_paths, supply_pa, exhaust_pa
+):
     """The valve's flows at the chamber ends of the tubes: (into 1, out of 1, into 2, out of
     2, to the exhaust), kg/s. One path per chamber (``base_derivatives``), or with
     ``four_paths`` the supply and exhaust paths of both chambers, each area plus the null
-    leak, as ``nodes.valve_chamber_flows`` gives them (supply at P_s, exhaust at
-    ``exhaust_pa``: P_a, or the node behind a vent)."""
+    leak, as ``nodes.valve_chamber_flows`` gives them (supply at ``supply_pa``: P_s, or
+    drooped behind a supply resistance; exhaust at ``exhaust_pa``: P_a, or the node behind
+    a vent)."""
     t_node = c.inv_sqrt_t  # the supply's and the atmosphere's air
     if four_paths:
         radius, inv_radius = c.hole_radius, c.inv_hole_radius
@@ -91,7 +103,7 @@ def _valve_flows(c, spool_delayed, p1, p2, inv_sqrt_t1, inv_sqrt_t2, law, four_p
         area_b = orifice_area_inv_radius(-spool_delayed, radius, inv_radius, c.half_width, c.holes)
         area_a = area_a + c.null_leak
         area_b = area_b + c.null_leak
-        supply, d_supply, d_exhaust = c.supply_pa, c.discharge, c.discharge_ex
+        supply, d_supply, d_exhaust = supply_pa, c.discharge, c.discharge_ex
         supply_1 = path_mass_flow(c, d_supply, area_a, supply, p1, t_node, inv_sqrt_t1, law)
         exhaust_1 = path_mass_flow(c, d_exhaust, area_b, p1, exhaust_pa, inv_sqrt_t1, t_node, law)
         supply_2 = path_mass_flow(c, d_supply, area_b, supply, p2, t_node, inv_sqrt_t2, law)
@@ -131,7 +143,16 @@ def _valve_flows(c, spool_delayed, p1, p2, inv_sqrt_t1, inv_sqrt_t2, law, four_p
 
 @njit(cache=True, forceinline=True, error_model="numpy")
 def batch_derivatives(
-    c, coil_current_a, y, direction, spool_delayed, leaks, selected, four_paths, exhaust_pa
+    c,
+    coil_current_a,
+    y,
+    direction,
+    spool_delayed,
+    leaks,
+    selected,
+    four_paths,
+    supply_pa,
+    exhaust_pa,
 ):
     """``base_derivatives`` of the RK4 state ``y``, plus with ``leaks`` the leak orifices
     (cross-piston, rod seal: their flows added to the chambers' in- and outflows in
@@ -139,7 +160,7 @@ def batch_derivatives(
     energy equation: gas temperatures T1, T2, the valve's flows at the upstream air's
     temperature; the tubes' isothermal air; the ISO 6358 flow law) and with
     ``four_paths`` the valve's four paths with its null leak (``_valve_flows``; their
-    exhaust at ``exhaust_pa``)."""
+    supply at ``supply_pa``, their exhaust at ``exhaust_pa``)."""
     x_s, v_s, p1, p2, x, v, t1, t2 = y[0], y[1], y[2], y[3], y[4], y[5], y[7], y[8]
     inv_sqrt_t1 = inv_sqrt_t2 = c.inv_sqrt_t
     law = c.flow_law if selected else FLOW_LAW_PAPER
@@ -147,7 +168,7 @@ def batch_derivatives(
         inv_sqrt_t1 = 1.0 / math.sqrt(t1) if c.energy != 0.0 else c.inv_sqrt_t
         inv_sqrt_t2 = 1.0 / math.sqrt(t2) if c.energy != 0.0 else c.inv_sqrt_t
     in_1, out_1, in_2, out_2, exhaust_rate = _valve_flows(
-        c, spool_delayed, p1, p2, inv_sqrt_t1, inv_sqrt_t2, law, four_paths, exhaust_pa
+        c, spool_delayed, p1, p2, inv_sqrt_t1, inv_sqrt_t2, law, four_paths, supply_pa, exhaust_pa
     )
     t_node = c.inv_sqrt_t
     enthalpy_1 = in_1 * c.temperature
@@ -185,7 +206,7 @@ def rk4_base_substep(c, y, drive_a, direction, spool_delayed, h, leaks, selected
     ``four_paths``: with those effects). ``drive_a`` and ``spool_delayed`` are the currents
     driving the spool (``coil_at``) and the delayed spool positions (``delayed_value``) at
     its start, middle and end."""
-    flags = (leaks, selected, four_paths, c.ambient_pa)
+    flags = (leaks, selected, four_paths, c.supply_pa, c.ambient_pa)
     k1 = batch_derivatives(c, drive_a[0], y, direction, spool_delayed[0], *flags)
     k2 = batch_derivatives(
         c, drive_a[1], _axpy(y, 0.5 * h, k1), direction, spool_delayed[1], *flags

@@ -285,14 +285,13 @@ def _batch_path_effects_only(c):
     orifices (``leakage_area_m2``, ``rod_seal_leak_area_m2``; ``BATCH_LEAKS``), the coil
     lags (``coil_time_constant_s``; the currents at its RK4 stages, ``lagged_coil_rows``),
     the valve's null leak (``valve_null_leak_area_m2``: all four valve paths, in a chunk
-    with one), the exhaust back-pressure (a vent with no volume, ``batch_vent``) and the
-    energy equation, the tubes' isothermal air and the ISO 6358 flow
-    law (``batch_rhs``, selected per lane). A clamped rod takes no friction, so the Stribeck
-    and LuGre laws change nothing there (the bristles hold at v = 0): the batch path
-    takes it."""
+    with one), the pressure nodes (the exhaust back-pressure, a vent with no volume; the
+    supply droop: ``batch_nodes``), the energy equation, the tubes' isothermal air and the
+    ISO 6358 flow law (``batch_rhs``, selected per lane). A clamped rod takes no
+    friction, so the Stribeck and LuGre laws change nothing there (the bristles hold at
+    v = 0): the batch path takes it."""
     return (
-        c.supply_resistance == 0.0
-        and (c.exhaust_vent == 0.0 or c.exhaust_capacity == 0.0)
+        (c.exhaust_vent == 0.0 or c.exhaust_capacity == 0.0)
         and c.literal == 0.0
         and ((c.stribeck == 0.0 and c.lugre == 0.0) or c.mode == MODE_FIXED)
         and c.waves == 0.0
@@ -309,13 +308,15 @@ def base_model_only(c):
     chamber from being open together, and ``base_derivatives`` gives the same result with
     two valve paths instead of four. Three effects are in it (the exhaust discharge ratio,
     the tube volume as a dead volume, the spool friction, whose play acts before the
-    substeps); the leak orifices, the coil lags, the valve's null leak, the energy
-    equation, the tubes' isothermal air and the ISO flow law take the batch path too
+    substeps); the leak orifices, the coil lags, the valve's null leak, the exhaust
+    back-pressure, the supply droop, the energy equation, the tubes' isothermal air and the
+    ISO flow law take the batch path too
     (``batch_lane_kind``); the others send the environment to the general path.
     """
     return (
         _batch_path_effects_only(c)
         and c.exhaust_vent == 0.0
+        and c.supply_resistance == 0.0
         and c.null_leak == 0.0
         and c.leak_area == 0.0
         and c.seal_leak == 0.0
@@ -464,6 +465,7 @@ C_TUBE_AIR = Constants._fields.index("tube_air")  # read per control period
 C_FLOW_LAW = Constants._fields.index("flow_law")  # read per control period
 C_NULL_LEAK = Constants._fields.index("null_leak")  # read per control period
 C_EXHAUST_VENT = Constants._fields.index("exhaust_vent")  # read per control period
+C_SUPPLY_RESISTANCE = Constants._fields.index("supply_resistance")  # read per control period
 N_CACHED_CONSTANTS = N_CONSTANTS + 1
 
 
@@ -471,9 +473,10 @@ N_CACHED_CONSTANTS = N_CONSTANTS + 1
 def chunk_effects(chunk_constants, n_lanes):
     """Whether any lane of a chunk has the leak orifices (``BATCH_LEAKS``), an effect
     ``batch_rhs`` selects per lane (energy equation, tube air, ISO flow law), a coil lag,
-    the valve's null leak (``batch_rhs._valve_flows``' four paths), an exhaust vent."""
+    the valve's null leak (``batch_rhs._valve_flows``' four paths), an exhaust vent, a
+    supply resistance (the pressure nodes of ``batch_nodes``)."""
     k = CHUNK_ENVS
-    leaky = selected = lagged = four_paths = vented = False
+    leaky = selected = lagged = four_paths = vented = drooped = False
     for j in range(n_lanes):
         leaky |= chunk_constants[C_BASE_ONLY * k + j] == BATCH_LEAKS
         selected |= (
@@ -483,10 +486,10 @@ def chunk_effects(chunk_constants, n_lanes):
         )
         lagged |= chunk_constants[C_COIL_LAG * k + j] != 0.0
         four_paths |= chunk_constants[C_NULL_LEAK * k + j] != 0.0
-        vented |= (chunk_constants[C_EXHAUST_VENT * k + j] > 0.0) & (
-            chunk_constants[C_BASE_ONLY * k + j] != BATCH_GENERAL
-        )
-    return leaky, selected, lagged, four_paths, vented
+        batch = chunk_constants[C_BASE_ONLY * k + j] != BATCH_GENERAL
+        vented |= (chunk_constants[C_EXHAUST_VENT * k + j] > 0.0) & batch
+        drooped |= (chunk_constants[C_SUPPLY_RESISTANCE * k + j] > 0.0) & batch
+    return leaky, selected, lagged, four_paths, vented, drooped
 
 
 def constants_cache(n_envs):

@@ -136,7 +136,7 @@ def supply_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sq
     return guess
 
 
-@njit(cache=True, forceinline=True)  # inlined: batch_vent's loops vectorise
+@njit(cache=True, forceinline=True)  # inlined: batch_nodes' loops vectorise
 def _exhaust_node_balance(
     c, exhaust_pa, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2
 ):
