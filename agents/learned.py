@@ -52,6 +52,7 @@ from .policy import NumpyPolicy
 from .residual import RESIDUAL_COLUMNS, ResidualConfig, ResidualCore
 
 __all__ = [
+    "zero_the_residual",
     "FORMAT",
     "FORMAT_SELF_CONTAINED",
     "FORMATS",
@@ -310,6 +311,23 @@ def write_self_contained(
     dst = Path(dst)
     np.savez(dst, meta=np.array(json.dumps(new)), **arrays)
     return dst
+
+
+def zero_the_residual(path: str | Path, reason: str) -> Path:
+    """Rewrite the residual actor file ``path`` with its output layer zeroed: its action is
+    0 for every input, so the controller is its base controller bit for bit
+    (``agents.residual``); ``reason`` goes into its meta (``residual_zeroed``)."""
+    path = Path(path)
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files if k != "meta"}
+        meta = json.loads(str(data["meta"]))
+    if meta.get("residual") is None:
+        raise ValueError(f"{path}: a pure actor has no base to fall back on")
+    last = len(meta["activations"]) - 1
+    arrays[f"w{last}"] = np.zeros_like(arrays[f"w{last}"])
+    arrays[f"b{last}"] = np.zeros_like(arrays[f"b{last}"])
+    np.savez(path, meta=np.array(json.dumps({**meta, "residual_zeroed": reason})), **arrays)
+    return path
 
 
 def _plain_gain(value):

@@ -24,7 +24,10 @@ fitted rig for it. Written to ``OUT``:
 - ``training/``: the trainer's output (``actor.npz``, ``progress.csv``, ``train.json``).
 
 The trainer's validation runs on the registered variant, not the fitted rig, so the final
-actor is used (not ``actor_best.npz``).
+actor is used (not ``actor_best.npz``). If it loses to its base on the fitted rig, its
+residual is zeroed (``agents.learned.zero_the_residual``): the file then runs the base bit
+for bit, and ``summary.md`` and ``rig_training.json`` (``base.residual_zeroed``) say so
+with the trained actor's figures.
 """
 
 from __future__ import annotations
@@ -41,7 +44,7 @@ from .base import ControllerContext, ControllerSpec
 from .bench import run_suite
 from .bench_results import markdown_table
 from .config import agent_config_path, load_agent_config
-from .learned import write_self_contained
+from .learned import write_self_contained, zero_the_residual
 from .ppo import train
 from .registry import classical_gains
 from .residual import BASE_CLASSES, BASE_CONTROLLERS
@@ -196,6 +199,9 @@ def summary_markdown(rig: FittedRig, figures: list[dict], base: dict, command: s
             markdown_table(header, rows),
             "",
             f"The residual's base: {base['controller']} ({base['reason']}).",
+            ""
+            if not base.get("residual_zeroed")
+            else f"The residual was zeroed: {base['residual_zeroed']['reason']}.",
             "",
             f"Command: `{command}`" if command else "",
             "",
@@ -296,8 +302,18 @@ def train_for_rig(
     )
     log(f"[5/5] suite on the fitted rig: {path.name}")
     figures = suite_summary(rig, [str(path)], suite) + classical
+    record = {**chosen, "gains": None if held is None else held[1], "residual_zeroed": None}
+    base_rms = chosen["rms_error_pct"][chosen["controller"]]
+    if held is not None and figures[0]["rms_error_pct"] > base_rms:
+        reason = (
+            f"the trained residual ({figures[0]['rms_error_pct']:.2f} %) lost to its base "
+            f"({base_rms:.2f} %) on the fitted rig: the file runs the base"
+        )
+        log(f"      {reason}")
+        record["residual_zeroed"] = {"reason": reason, "trained": figures[0]}
+        zero_the_residual(path, reason)
+        figures = suite_summary(rig, [str(path)], suite) + classical
     figures[0]["controller"] = "controller.npz (train --rig)"
-    record = {**chosen, "gains": None if held is None else held[1]}
     (out / "summary.md").write_text(
         summary_markdown(rig, figures, record, command), encoding="utf-8"
     )

@@ -393,3 +393,46 @@ def test_a_bad_base_model_is_refused_naming_the_field(params, message):
     ResidualConfig(base_model_params={"supply_pressure_pa": 6e5}).validate()
     with pytest.raises(ValueError, match=message):
         ResidualConfig(base_model_params=params).validate()
+
+
+def test_a_residual_that_loses_to_its_base_on_the_fitted_rig_is_zeroed(tmp_path, monkeypatch):
+    from pneumatic_env.agents import rig_training
+    from pneumatic_env.agents.base import ControllerContext
+    from pneumatic_env.agents.learned import LearnedActor
+    from pneumatic_env.agents.registry import classical_gains
+    from pneumatic_env.agents.residual import BASE_CLASSES
+
+    # the trained controller at 9 % (the fake's default), its base (the winner) at 3 %
+    figures = {PID_RETUNED: 4.0, SMC_FITTED: 5.0, SMC_NOMINAL: 3.0}
+    monkeypatch.setattr(rig_training, "suite_summary", _fake_suite_summary(figures))
+    report = write_report(tmp_path / "report")
+    out = tmp_path / "out"
+    res = rig_training.train_for_rig(
+        report, out, minutes=None, steps=1, overrides=TINY_TRAINING, log=lambda *a, **k: None
+    )
+    zeroed = res["base"]["residual_zeroed"]
+    assert zeroed["trained"]["rms_error_pct"] == 9.0 and "lost to its base" in zeroed["reason"]
+    assert "The residual was zeroed" in (out / "summary.md").read_text()
+    actor = LearnedActor(res["controller"])
+    assert actor.meta["residual_zeroed"] == zeroed["reason"]
+    x = np.random.default_rng(0).normal(size=(5, actor.obs_dim)) * 3.0
+    assert np.array_equal(actor.action(x), np.zeros(5))
+    # by file name: the current is its base's, bit for bit
+    env = gym.make_vec(
+        "pneumatic_env/ForceTrack-Numatics-2m-v0",
+        num_envs=2,
+        preview_steps=20,
+        normalize_observation=False,
+    )
+    spec = resolve_controller(res["controller"], "Numatics-2m")
+    ctrl = spec.build(ControllerContext.from_env(env))
+    gains = classical_gains("sliding_mode", "Numatics-2m")
+    twin = BASE_CLASSES["sliding_mode"](ctrl.residual.base.context, **gains)
+    obs, _ = env.reset(seed=2)
+    ctrl.reset()
+    twin.reset()
+    for _ in range(20):
+        u = ctrl.act(obs)
+        assert np.array_equal(u, twin.act(obs))
+        obs, *_ = env.step(u[:, None])
+    env.close()
