@@ -344,7 +344,8 @@ def finished(plan: Plan, out: Path) -> tuple[dict[str, dict], dict[str, list[dic
 
 def _seed_lines(rigs: dict[str, dict], trained: dict[str, list[dict]]) -> list[str]:
     """Per (rig, seed): the trained controller's error, its chatter and air against the
-    sliding mode's on the rig's plant (issue 35: within 1.5 x), its base, its time."""
+    sliding mode's on the rig's plant (issue 35: within 1.5 x), its base (and whether
+    ``train --rig`` zeroed its residual), its time."""
     lines = ["", "| rig | seed | RMS % | chatter / SM | air / SM | base | train s |"]
     lines.append("|---|---|---|---|---|---|---|")
     for name, runs in trained.items():
@@ -356,7 +357,9 @@ def _seed_lines(rigs: dict[str, dict], trained: dict[str, list[dict]]) -> list[s
             nan = float("nan")
             chatter = r.get("chatter_rms_a", nan) / sm.get("chatter_rms_a", nan)
             air = r.get("air_mg", nan) / sm.get("air_mg", nan)
-            base = (r.get("residual_base") or {}).get("kind", "-")
+            record = r.get("residual_base") or {}
+            base = record.get("controller", record.get("kind", "-"))  # a name since 2026-11-28
+            base += " (residual zeroed)" if record.get("residual_zeroed") else ""
             seconds = r.get("seconds", {}).get("train", nan)
             lines.append(
                 f"| {name} | {r['seed']} | {r['rms_error_pct']:.2f} | {chatter:.2f} | "
