@@ -254,6 +254,27 @@ def test_bench_rig_runs_the_suite_on_the_fitted_rig(tmp_path, capsys):
     assert fitted[0]["rms_error_pct"] != nominal[0]["rms_error_pct"]  # another plant
 
 
+def _train_with_figures(monkeypatch, figures: dict, report, out) -> dict:
+    """``train_for_rig`` on a tiny budget with the suite's figures faked
+    (``_fake_suite_summary``)."""
+    from pneumatic_env.agents import rig_training
+
+    monkeypatch.setattr(rig_training, "suite_summary", _fake_suite_summary(figures))
+    return rig_training.train_for_rig(
+        report, out, minutes=None, steps=1, overrides=TINY_TRAINING, log=lambda *a, **k: None
+    )
+
+
+def _two_envs_of_the_2m_variant():
+    """Two envs of the variant the report's rig maps to, as a controller file runs there."""
+    return gym.make_vec(
+        "pneumatic_env/ForceTrack-Numatics-2m-v0",
+        num_envs=2,
+        preview_steps=20,
+        normalize_observation=False,
+    )
+
+
 PID_RETUNED, SMC_FITTED = "pid (retuned on the fitted rig)", "sliding_mode (fitted model)"
 SMC_NOMINAL = "sliding_mode (nominal model)"
 
@@ -281,12 +302,8 @@ def test_train_rig_sits_on_the_winning_base_with_exactly_its_gains_and_model(
     custom = {**classical_gains("pid", "Numatics-2m"), "kp_a_per_n": 0.0123, "ki_a_per_n_s": 0.3}
     monkeypatch.setattr(rig_training, "retuned_pid_gains", lambda rig, tuning=None: custom)
     figures = {PID_RETUNED: 4.0, SMC_FITTED: 5.0, winner: 3.0}
-    monkeypatch.setattr(rig_training, "suite_summary", _fake_suite_summary(figures))
-    report = write_report(tmp_path / "report")
-    out = tmp_path / "out"
-    res = rig_training.train_for_rig(
-        report, out, minutes=None, steps=1, overrides=TINY_TRAINING, log=lambda *a, **k: None
-    )
+    report, out = write_report(tmp_path / "report"), tmp_path / "out"
+    res = _train_with_figures(monkeypatch, figures, report, out)
     kind, model = rig_training.BASE_CANDIDATES[winner]
     gains = custom if winner == PID_RETUNED else classical_gains(kind, "Numatics-2m")
     nominal = load_rig(report).nominal_parameters()
@@ -299,12 +316,7 @@ def test_train_rig_sits_on_the_winning_base_with_exactly_its_gains_and_model(
     assert meta["base_controller"] == {"kind": kind, "gains": gains}
     assert meta["residual"]["base_model_params"] == (nominal if model == "nominal" else None)
     # by file name: the self-contained file and the trainer's own (v1, residual.gains)
-    env = gym.make_vec(
-        "pneumatic_env/ForceTrack-Numatics-2m-v0",
-        num_envs=2,
-        preview_steps=20,
-        normalize_observation=False,
-    )
+    env = _two_envs_of_the_2m_variant()
     from pneumatic_env.agents.base import ControllerContext
 
     obs, _ = env.reset(seed=1)
@@ -396,20 +408,15 @@ def test_a_bad_base_model_is_refused_naming_the_field(params, message):
 
 
 def test_a_residual_that_loses_to_its_base_on_the_fitted_rig_is_zeroed(tmp_path, monkeypatch):
-    from pneumatic_env.agents import rig_training
     from pneumatic_env.agents.base import ControllerContext
     from pneumatic_env.agents.learned import LearnedActor
     from pneumatic_env.agents.registry import classical_gains
     from pneumatic_env.agents.residual import BASE_CLASSES
 
     # the trained controller at 9 % (the fake's default), its base (the winner) at 3 %
-    figures = {PID_RETUNED: 4.0, SMC_FITTED: 5.0, SMC_NOMINAL: 3.0}
-    monkeypatch.setattr(rig_training, "suite_summary", _fake_suite_summary(figures))
-    report = write_report(tmp_path / "report")
     out = tmp_path / "out"
-    res = rig_training.train_for_rig(
-        report, out, minutes=None, steps=1, overrides=TINY_TRAINING, log=lambda *a, **k: None
-    )
+    figures = {PID_RETUNED: 4.0, SMC_FITTED: 5.0, SMC_NOMINAL: 3.0}
+    res = _train_with_figures(monkeypatch, figures, write_report(tmp_path / "report"), out)
     zeroed = res["base"]["residual_zeroed"]
     assert zeroed["trained"]["rms_error_pct"] == 9.0 and "lost to its base" in zeroed["reason"]
     assert "The residual was zeroed" in (out / "summary.md").read_text()
@@ -418,12 +425,7 @@ def test_a_residual_that_loses_to_its_base_on_the_fitted_rig_is_zeroed(tmp_path,
     x = np.random.default_rng(0).normal(size=(5, actor.obs_dim)) * 3.0
     assert np.array_equal(actor.action(x), np.zeros(5))
     # by file name: the current is its base's, bit for bit
-    env = gym.make_vec(
-        "pneumatic_env/ForceTrack-Numatics-2m-v0",
-        num_envs=2,
-        preview_steps=20,
-        normalize_observation=False,
-    )
+    env = _two_envs_of_the_2m_variant()
     spec = resolve_controller(res["controller"], "Numatics-2m")
     ctrl = spec.build(ControllerContext.from_env(env))
     gains = classical_gains("sliding_mode", "Numatics-2m")

@@ -37,7 +37,7 @@ from .vecmath import float_to_bits
 
 # rows of a chunk's stage array: the stage's state, the four stages' slopes, the valve's
 # two areas, and each solver's bracket, guess and whether the lane has returned (the
-# exhaust node's rows, then the supply's at the same offsets from S_LO)
+# exhaust node's rows, then the supply's in the same order: ``_illinois_rows``)
 V_STATE = 0
 V_SLOPES = N_RK  # 4 * N_RK rows
 V_AREAS = 5 * N_RK  # 2 rows
@@ -139,38 +139,54 @@ def _stage_bracket(constants, work, rows, n_lanes, h, stage, vented, drooped):
         rows[V_SIDE * k + j] = 0.0
 
 
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _lane_and_temperatures(constants, rows, j):
+    """Lane ``j``'s constants and 1/sqrt(T) of its chambers at the stage's state."""
+    c = load_constants(constants, j)
+    y7, y8 = rows[(V_STATE + 7) * CHUNK_ENVS + j], rows[(V_STATE + 8) * CHUNK_ENVS + j]
+    inv_sqrt_t1, inv_sqrt_t2 = inv_sqrt_temperatures(c, y7, y8)
+    return c, inv_sqrt_t1, inv_sqrt_t2
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _illinois_rows(rows, j, lo_row, guess, f_guess, kept):
+    """One Illinois step (``nodes._illinois_update``) of lane ``j`` on a solver's rows
+    (``lo_row`` .. ``lo_row + 5``: lo, f(lo), hi, f(hi), the side replaced last, the
+    guess), with f(guess) ``f_guess``; where ``kept`` the rows stay. Every row is loaded up
+    front and selected below: no conditional load or store. Returns the next guess."""
+    k = CHUNK_ENVS
+    bracket = (
+        rows[lo_row * k + j],
+        rows[(lo_row + 1) * k + j],
+        rows[(lo_row + 2) * k + j],
+        rows[(lo_row + 3) * k + j],
+        rows[(lo_row + 4) * k + j],  # 0.0, 1.0 or -1.0
+    )
+    lo, lo_f, hi, hi_f, side = _illinois_update(
+        bracket[0], bracket[1], bracket[2], bracket[3], guess, f_guess, bracket[4]
+    )
+    new_guess = (lo * hi_f - hi * lo_f) / (hi_f - lo_f)
+    rows[lo_row * k + j] = bracket[0] if kept else lo
+    rows[(lo_row + 1) * k + j] = bracket[1] if kept else lo_f
+    rows[(lo_row + 2) * k + j] = bracket[2] if kept else hi
+    rows[(lo_row + 3) * k + j] = bracket[3] if kept else hi_f
+    rows[(lo_row + 4) * k + j] = bracket[4] if kept else float(side)
+    rows[(lo_row + 5) * k + j] = guess if kept else new_guess
+    return new_guess
+
+
 @njit(cache=True, error_model="numpy")
 def _stage_iteration(constants, rows, n_lanes):
     """One Illinois step of ``exhaust_pressure_at_valve`` on every lane not done (the
     others keep their rows)."""
     k = CHUNK_ENVS
     for j in range(n_lanes):
-        c = load_constants(constants, j)
-        y7, y8 = rows[(V_STATE + 7) * k + j], rows[(V_STATE + 8) * k + j]
-        inv_sqrt_t1, inv_sqrt_t2 = inv_sqrt_temperatures(c, y7, y8)
-        # every row loaded up front and selected below: no conditional load or store
+        c, inv_sqrt_t1, inv_sqrt_t2 = _lane_and_temperatures(constants, rows, j)
         guess = rows[V_GUESS * k + j]
-        bracket = (
-            rows[V_LO * k + j],
-            rows[V_LO_F * k + j],
-            rows[V_HI * k + j],
-            rows[V_HI_F * k + j],
-            rows[V_SIDE * k + j],  # 0.0, 1.0 or -1.0
-        )
         f_guess = _balance(c, guess, rows, j, inv_sqrt_t1, inv_sqrt_t2)
-        lo, lo_f, hi, hi_f, side = _illinois_update(
-            bracket[0], bracket[1], bracket[2], bracket[3], guess, f_guess, bracket[4]
-        )
-        new_guess = (lo * hi_f - hi * lo_f) / (hi_f - lo_f)
-        tolerance = SUPPLY_DROOP_RTOL * c.supply_pa
         kept = (rows[V_DONE * k + j] != 0.0) | (f_guess == 0.0)
-        done = kept | (abs(new_guess - guess) <= tolerance)
-        rows[V_GUESS * k + j] = guess if kept else new_guess
-        rows[V_LO * k + j] = bracket[0] if kept else lo
-        rows[V_LO_F * k + j] = bracket[1] if kept else lo_f
-        rows[V_HI * k + j] = bracket[2] if kept else hi
-        rows[V_HI_F * k + j] = bracket[3] if kept else hi_f
-        rows[V_SIDE * k + j] = bracket[4] if kept else float(side)
+        new_guess = _illinois_rows(rows, j, V_LO, guess, f_guess, kept)
+        done = kept | (abs(new_guess - guess) <= SUPPLY_DROOP_RTOL * c.supply_pa)
         rows[V_DONE * k + j] = 1.0 if done else 0.0
 
 
@@ -181,30 +197,11 @@ def _supply_iteration(constants, rows, n_lanes):
     tolerance there."""
     k = CHUNK_ENVS
     for j in range(n_lanes):
-        c = load_constants(constants, j)
-        y7, y8 = rows[(V_STATE + 7) * k + j], rows[(V_STATE + 8) * k + j]
-        inv_sqrt_t1, inv_sqrt_t2 = inv_sqrt_temperatures(c, y7, y8)
+        c, inv_sqrt_t1, inv_sqrt_t2 = _lane_and_temperatures(constants, rows, j)
         guess = rows[S_GUESS * k + j]
-        bracket = (
-            rows[S_LO * k + j],
-            rows[S_LO_F * k + j],
-            rows[S_HI * k + j],
-            rows[S_HI_F * k + j],
-            rows[S_SIDE * k + j],  # 0.0, 1.0 or -1.0
-        )
         f_guess = _supply_balance(c, guess, rows, j, inv_sqrt_t1, inv_sqrt_t2)
-        lo, lo_f, hi, hi_f, side = _illinois_update(
-            bracket[0], bracket[1], bracket[2], bracket[3], guess, f_guess, bracket[4]
-        )
-        new_guess = (lo * hi_f - hi * lo_f) / (hi_f - lo_f)
-        tolerance = SUPPLY_DROOP_RTOL * c.supply_pa
-        kept = (rows[S_DONE * k + j] != 0.0) | (abs(f_guess) <= tolerance)
-        rows[S_GUESS * k + j] = guess if kept else new_guess
-        rows[S_LO * k + j] = bracket[0] if kept else lo
-        rows[S_LO_F * k + j] = bracket[1] if kept else lo_f
-        rows[S_HI * k + j] = bracket[2] if kept else hi
-        rows[S_HI_F * k + j] = bracket[3] if kept else hi_f
-        rows[S_SIDE * k + j] = bracket[4] if kept else float(side)
+        kept = (rows[S_DONE * k + j] != 0.0) | (abs(f_guess) <= SUPPLY_DROOP_RTOL * c.supply_pa)
+        _illinois_rows(rows, j, S_LO, guess, f_guess, kept)
         rows[S_DONE * k + j] = 1.0 if kept else 0.0
 
 
