@@ -78,7 +78,7 @@ BASE_CANDIDATES = {
     "pid (retuned on the fitted rig)": ("pid", "fitted"),
     "pid (nominal)": ("pid", "nominal"),
 }
-#: ``train_for_rig(base=...)``, ``--base``: a kind, or "auto" (the better on the fitted rig)
+#: ``train_for_rig(base=...)``, ``--base``: a kind (its better candidate) or "auto" (the best)
 BASE_CHOICES = ("auto", *BASE_CONTROLLERS)
 
 
