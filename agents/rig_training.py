@@ -247,6 +247,24 @@ def _train_residual(
     return kind, dict(trained.get("gains") or classical_gains(kind, rig.variant))
 
 
+def _zero_if_it_loses(rig, path, figures, record, suite, log) -> list[dict]:
+    """Zero the residual of ``path`` (``zero_the_residual``) if its figures on the fitted rig
+    (``figures[0]``) lose to its base's (``record``, from ``choose_base``); then the file's
+    figures anew and ``record["residual_zeroed"]`` with the trained ones. Returns the
+    figures."""
+    base_rms = record["rms_error_pct"][record["controller"]]
+    if figures[0]["rms_error_pct"] <= base_rms:
+        return figures
+    reason = (
+        f"the trained residual ({figures[0]['rms_error_pct']:.2f} %) lost to its base "
+        f"({base_rms:.2f} %) on the fitted rig: the file runs the base"
+    )
+    log(f"      {reason}")
+    record["residual_zeroed"] = {"reason": reason, "trained": figures[0]}
+    zero_the_residual(path, reason)
+    return suite_summary(rig, [str(path)], suite) + figures[1:]
+
+
 def train_for_rig(
     report_dir: str | Path,
     out: str | Path,
@@ -303,16 +321,8 @@ def train_for_rig(
     log(f"[5/5] suite on the fitted rig: {path.name}")
     figures = suite_summary(rig, [str(path)], suite) + classical
     record = {**chosen, "gains": None if held is None else held[1], "residual_zeroed": None}
-    base_rms = chosen["rms_error_pct"][chosen["controller"]]
-    if held is not None and figures[0]["rms_error_pct"] > base_rms:
-        reason = (
-            f"the trained residual ({figures[0]['rms_error_pct']:.2f} %) lost to its base "
-            f"({base_rms:.2f} %) on the fitted rig: the file runs the base"
-        )
-        log(f"      {reason}")
-        record["residual_zeroed"] = {"reason": reason, "trained": figures[0]}
-        zero_the_residual(path, reason)
-        figures = suite_summary(rig, [str(path)], suite) + classical
+    if held is not None:
+        figures = _zero_if_it_loses(rig, path, figures, record, suite, log)
     figures[0]["controller"] = "controller.npz (train --rig)"
     (out / "summary.md").write_text(
         summary_markdown(rig, figures, record, command), encoding="utf-8"

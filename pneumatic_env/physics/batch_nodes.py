@@ -30,6 +30,7 @@ from .nodes import (
     _exhaust_node_balance,
     _illinois_update,
     _supply_flow,
+    supply_node_balance,
 )
 from .right_hand_side import N_RK, _axpy, _rk4_combine, inv_sqrt_temperatures
 from .valve import orifice_area_inv_radius
@@ -66,8 +67,7 @@ def _supply_balance(c, pressure_pa, rows, j, inv_sqrt_t1, inv_sqrt_t2):
     k = CHUNK_ENVS
     p1, p2 = rows[(V_STATE + 2) * k + j], rows[(V_STATE + 3) * k + j]
     area_a, area_b = rows[V_AREAS * k + j], rows[(V_AREAS + 1) * k + j]
-    flow = _supply_flow(c, pressure_pa, area_a, area_b, p1, p2, inv_sqrt_t1, inv_sqrt_t2)
-    return pressure_pa - c.supply_pa + c.supply_resistance * flow
+    return supply_node_balance(c, pressure_pa, area_a, area_b, p1, p2, inv_sqrt_t1, inv_sqrt_t2)
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")

@@ -89,6 +89,13 @@ def _supply_flow(c, supply_pa, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqr
     )
 
 
+@njit(cache=True, forceinline=True)  # inlined: batch_nodes' loops vectorise
+def supply_node_balance(c, supply_pa, area_a, area_b, p1_pa, p2_pa, inv_sqrt_t1, inv_sqrt_t2):
+    """f(P) = P - P_s + R_sup mdot_s(P) of ``supply_pressure_at_valve`` at P = ``supply_pa``."""
+    flow = _supply_flow(c, supply_pa, area_a, area_b, p1_pa, p2_pa, inv_sqrt_t1, inv_sqrt_t2)
+    return supply_pa - c.supply_pa + c.supply_resistance * flow
+
+
 @njit(cache=True, forceinline=True)
 def supply_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2):
     """Supply pressure the valve sees through the supply resistance (effect, docs/effects.md).
@@ -110,24 +117,16 @@ def supply_pressure_at_valve(c, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sq
     hi = supply_pa
     f_hi = resistance * flow_at_supply
     lo = max(supply_pa - f_hi, min(valve_p1_pa, valve_p2_pa))
-    f_lo = (
-        lo
-        - supply_pa
-        + resistance
-        * _supply_flow(c, lo, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2)
+    f_lo = supply_node_balance(
+        c, lo, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2
     )
     if f_lo >= 0.0:
         return lo
     guess = drooped_supply_pressure(supply_pa, flow_at_supply, resistance)
     side = 0
     for _ in range(SUPPLY_DROOP_MAX_ITERATIONS):
-        f_guess = (
-            guess
-            - supply_pa
-            + resistance
-            * _supply_flow(
-                c, guess, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2
-            )
+        f_guess = supply_node_balance(
+            c, guess, area_a, area_b, valve_p1_pa, valve_p2_pa, inv_sqrt_t1, inv_sqrt_t2
         )
         if abs(f_guess) <= tolerance:
             return guess
