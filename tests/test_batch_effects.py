@@ -92,6 +92,25 @@ BATCH_EFFECTS = {
             "flow_law": 1.0,
         },
     ),
+    "tube_waves": (
+        {"tube_waves": 1.0},
+        {"tube_waves": 1.0, "tube_inner_diameter_m": 0.004},
+    ),
+    "tube_waves_and_effects": (
+        {
+            "tube_waves": 1.0,
+            "wall_heat_transfer_w_per_k": 0.5,
+            "leakage_area_m2": 5e-8,
+            "spool_coulomb_friction_n": 0.05,
+        },
+        {
+            "tube_waves": 1.0,
+            "coil_time_constant_s": 2e-3,
+            "valve_null_leak_area_m2": 2e-8,
+            "rod_seal_leak_area_m2": 5e-8,
+            "flow_law": 1.0,
+        },
+    ),
     "all_batch_effects": (
         {
             "wall_heat_transfer_w_per_k": 0.5,

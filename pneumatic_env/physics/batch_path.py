@@ -13,7 +13,7 @@ from numba import njit, prange
 
 from . import layout as L
 from .batch_nodes import node_substeps
-from .batch_rhs import rk4_base_substep
+from .batch_rhs import rk4_base_substep, rk4_line_substep
 from .batch_work import (
     W_COIL,
     W_COIL_START,
@@ -33,6 +33,7 @@ from .constants import (
     C_BASE_ONLY,
     C_DELAY_SUBSTEPS,
     C_SPOOL_PLAY_BAND,
+    C_WAVES,
     CHUNK_ENVS,
     chunk_effects,
     load_constants,
@@ -43,6 +44,7 @@ from .general_path import (
     OUTPUT_STATE_ROWS,
     STIFFNESS_LIMIT,
     advance_env,
+    close_line_ends,
     close_substep,
     refinement,
     split_substep,
@@ -58,7 +60,7 @@ from .piston import (
     output_force,
     pneumatic_force,
 )
-from .right_hand_side import N_RK, ring_slot
+from .right_hand_side import N_RK, arriving_waves, ring_slot
 from .vecmath import float_to_bits
 
 # The parallel steps run inside BatchSimulator.call_step_kernel, which has the threads
@@ -159,6 +161,63 @@ def _driven_substeps(constants, work, n_lanes, h, leaks, selected, four_paths):
         _substeps_vectorised(constants, work, n_lanes, h, False, True, four_paths, True)
     else:
         _substeps_vectorised(constants, work, n_lanes, h, False, False, four_paths, True)
+
+
+@njit(cache=True, error_model="numpy")
+def lines_in_chunk(constants, n_lanes):
+    """(any, every) batch-path lane of a chunk with the tubes as transmission lines."""
+    k = CHUNK_ENVS
+    any_line = False
+    every_line = True
+    for j in range(n_lanes):
+        if constants[C_BASE_ONLY * k + j] == BATCH_GENERAL:
+            continue
+        line = constants[C_WAVES * k + j] != 0.0
+        any_line = any_line or line
+        every_line = every_line and line
+    return any_line, every_line
+
+
+@njit(cache=True, error_model="numpy")
+def line_substeps(constants, work, history, first, n_lanes, head_sub, h, leaks, selected):
+    """RK4 substep of the chunk's batch-path lanes with the tubes as transmission lines
+    (``batch_rhs.rk4_line_substep``), from the substep's start (``W_START``), driven by
+    ``W_DRIVE``; the waves arriving at their ends read from the history ring lane by lane
+    (``arriving_waves``). A scalar loop: the lines' flows take a Newton solve."""
+    k = CHUNK_ENVS
+    for j in range(n_lanes):
+        if constants[C_BASE_ONLY * k + j] == BATCH_GENERAL or constants[C_WAVES * k + j] == 0.0:
+            continue
+        c = load_constants(constants, j)
+        env = first + j
+        drive = (work[W_DRIVE * k + j], work[(W_DRIVE + 1) * k + j], work[(W_DRIVE + 2) * k + j])
+        arriving = (
+            arriving_waves(c, history, env, head_sub, 0.0),
+            arriving_waves(c, history, env, head_sub, 0.5),
+            arriving_waves(c, history, env, head_sub, 1.0),
+        )
+        y = work_rows(work, W_START, j)
+        direction = work[W_DIRECTION * k + j]
+        y = rk4_line_substep(c, y, drive, direction, arriving, h, leaks, selected)
+        set_work_rows(work, 0, j, y)
+
+
+@njit(cache=True)
+def close_lines(constants, work, history, first, n_lanes, slot, h):
+    """``general_path.close_line_ends`` for the chunk's batch-path lanes with transmission
+    lines that the general path does not redo: the waves their ends send at boundary
+    ``slot`` and their exhaust mass (work row ``S_EXHAUST``)."""
+    k = CHUNK_ENVS
+    for j in range(n_lanes):
+        if (
+            constants[C_BASE_ONLY * k + j] == BATCH_GENERAL
+            or constants[C_WAVES * k + j] == 0.0
+            or work[W_REDO * k + j] != 0.0
+        ):
+            continue
+        c = load_constants(constants, j)
+        y = work_rows(work, 0, j)
+        work[L.S_EXHAUST * k + j] = close_line_ends(c, history, first + j, slot, y, h)
 
 
 @njit(cache=True, error_model="numpy")
@@ -361,16 +420,22 @@ def advance_chunk(sim, first, stop, coil_current_a):
     work = chunk_work(state, first, stop)
     fast_commands(chunk_constants, work, n, coil_current_a[first:stop], state[L.S_PLAY, first:stop])
     same_delay = lanes_share_delay(chunk_constants, n)
+    any_line, every_line = lines_in_chunk(chunk_constants, n)
     for sub in range(n_substeps):
         head_sub = ring_slot(sim.head[0] + sub, n_slots)
         prepare_substep(chunk_constants, work, history, first, n, head_sub, same_delay, h)
         if effects[2]:
             lagged_coil_rows(chunk_constants, work, n)
-        chunk_substeps(chunk_constants, work, n, h, *effects)
+        if not every_line:
+            chunk_substeps(chunk_constants, work, n, h, *effects)
+        if any_line:  # their lanes again, from the substep's start
+            line_substeps(chunk_constants, work, history, first, n, head_sub, h, *effects[:2])
         end_substeps(chunk_constants, work, n)
         slot = ring_slot(head_sub + 1, n_slots)
         for row, channel in ((L.S_X_S, L.H_X_S), (L.S_P1, L.H_P1), (L.S_P2, L.H_P2)):
             copy_fast_lanes(chunk_constants, work, n, row, history[slot, channel, first:stop], True)
+        if any_line:
+            close_lines(chunk_constants, work, history, first, n, slot, h)
         if _any_lane_set(work, W_REDO, n):
             _redo_lanes(chunk_constants, work, history, first, n, head_sub, slot, h, effects[2])
     _store_fast_lanes(chunk_constants, work, state, sim.outputs, first, stop, effects[2])

@@ -18,7 +18,7 @@ from numba import njit
 from .chamber import pressure_rate
 from .effects import chamber_energy_rates, rate_with_isothermal_tube_air
 from .flow import FLOW_LAW_PAPER
-from .nodes import chamber_end_flow, path_mass_flow
+from .nodes import chamber_end_flow, line_chamber_flows, path_mass_flow
 from .right_hand_side import _axpy, _motion_and_spool, _rk4_combine, _volumes
 from .valve import orifice_area_inv_radius
 
@@ -153,6 +153,7 @@ def batch_derivatives(
     four_paths,
     supply_pa,
     exhaust_pa,
+    arriving=None,
 ):
     """``base_derivatives`` of the RK4 state ``y``, plus with ``leaks`` the leak orifices
     (cross-piston, rod seal: their flows added to the chambers' in- and outflows in
@@ -160,16 +161,34 @@ def batch_derivatives(
     energy equation: gas temperatures T1, T2, the valve's flows at the upstream air's
     temperature; the tubes' isothermal air; the ISO 6358 flow law) and with
     ``four_paths`` the valve's four paths with its null leak (``_valve_flows``; their
-    supply at ``supply_pa``, their exhaust at ``exhaust_pa``)."""
+    supply at ``supply_pa``, their exhaust at ``exhaust_pa``). Given the waves
+    ``arriving`` at the line ends (``right_hand_side.arriving_waves``), the tubes are
+    transmission lines (``tube_waves``): each chamber's flow comes from its line
+    (``nodes.line_chamber_flows``), the valve acting at the lines' other ends."""
     x_s, v_s, p1, p2, x, v, t1, t2 = y[0], y[1], y[2], y[3], y[4], y[5], y[7], y[8]
     inv_sqrt_t1 = inv_sqrt_t2 = c.inv_sqrt_t
     law = c.flow_law if selected else FLOW_LAW_PAPER
     if selected:  # right_hand_side.inv_sqrt_temperatures, lane by lane
         inv_sqrt_t1 = 1.0 / math.sqrt(t1) if c.energy != 0.0 else c.inv_sqrt_t
         inv_sqrt_t2 = 1.0 / math.sqrt(t2) if c.energy != 0.0 else c.inv_sqrt_t
-    in_1, out_1, in_2, out_2, exhaust_rate = _valve_flows(
-        c, spool_delayed, p1, p2, inv_sqrt_t1, inv_sqrt_t2, law, four_paths, supply_pa, exhaust_pa
-    )
+    if arriving is None:
+        in_1, out_1, in_2, out_2, exhaust_rate = _valve_flows(
+            c,
+            spool_delayed,
+            p1,
+            p2,
+            inv_sqrt_t1,
+            inv_sqrt_t2,
+            law,
+            four_paths,
+            supply_pa,
+            exhaust_pa,
+        )
+    else:  # the lines' signed flows; their valve exhaust is counted at the boundaries
+        flow_1, flow_2 = line_chamber_flows(c, arriving, p1, p2)
+        in_1, out_1 = max(flow_1, 0.0), max(-flow_1, 0.0)
+        in_2, out_2 = max(flow_2, 0.0), max(-flow_2, 0.0)
+        exhaust_rate = 0.0
     t_node = c.inv_sqrt_t
     enthalpy_1 = in_1 * c.temperature
     enthalpy_2 = in_2 * c.temperature
@@ -215,4 +234,21 @@ def rk4_base_substep(c, y, drive_a, direction, spool_delayed, h, leaks, selected
         c, drive_a[1], _axpy(y, 0.5 * h, k2), direction, spool_delayed[1], *flags
     )
     k4 = batch_derivatives(c, drive_a[2], _axpy(y, h, k3), direction, spool_delayed[2], *flags)
+    return _rk4_combine(c, y, k1, k2, k3, k4, h, direction)
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def rk4_line_substep(c, y, drive_a, direction, arriving, h, leaks, selected):
+    """``rk4_base_substep`` with the tubes as transmission lines: ``arriving`` holds the
+    waves at the line ends (``right_hand_side.arriving_waves``) at the substep's start,
+    middle and end."""
+    flags = (leaks, selected, False, c.supply_pa, c.ambient_pa)
+    k1 = batch_derivatives(c, drive_a[0], y, direction, 0.0, *flags, arriving[0])
+    k2 = batch_derivatives(
+        c, drive_a[1], _axpy(y, 0.5 * h, k1), direction, 0.0, *flags, arriving[1]
+    )
+    k3 = batch_derivatives(
+        c, drive_a[1], _axpy(y, 0.5 * h, k2), direction, 0.0, *flags, arriving[1]
+    )
+    k4 = batch_derivatives(c, drive_a[2], _axpy(y, h, k3), direction, 0.0, *flags, arriving[2])
     return _rk4_combine(c, y, k1, k2, k3, k4, h, direction)

@@ -287,14 +287,15 @@ def _batch_path_effects_only(c):
     the valve's null leak (``valve_null_leak_area_m2``: all four valve paths, in a chunk
     with one), the pressure nodes (the exhaust back-pressure, a vent with no volume; the
     supply droop: ``batch_nodes``), the energy equation, the tubes' isothermal air and the
-    ISO 6358 flow law (``batch_rhs``, selected per lane). A clamped rod takes no
-    friction, so the Stribeck and LuGre laws change nothing there (the bristles hold at
-    v = 0): the batch path takes it."""
+    ISO 6358 flow law (``batch_rhs``, selected per lane), and the tubes as transmission
+    lines (``tube_waves``, without the pressure nodes: ``batch_path.line_substeps``). A
+    clamped rod takes no friction, so the Stribeck and LuGre laws change nothing there
+    (the bristles hold at v = 0): the batch path takes it."""
     return (
         (c.exhaust_vent == 0.0 or c.exhaust_capacity == 0.0)
         and c.literal == 0.0
         and ((c.stribeck == 0.0 and c.lugre == 0.0) or c.mode == MODE_FIXED)
-        and c.waves == 0.0
+        and (c.waves == 0.0 or (c.exhaust_vent == 0.0 and c.supply_resistance == 0.0))
         and c.half_width >= c.hole_radius
         and c.delay_substeps >= 1.0
     )
@@ -309,12 +310,13 @@ def base_model_only(c):
     two valve paths instead of four. Three effects are in it (the exhaust discharge ratio,
     the tube volume as a dead volume, the spool friction, whose play acts before the
     substeps); the leak orifices, the coil lags, the valve's null leak, the exhaust
-    back-pressure, the supply droop, the energy equation, the tubes' isothermal air and the
-    ISO flow law take the batch path too
+    back-pressure, the supply droop, the energy equation, the tubes' isothermal air, the
+    ISO flow law and the transmission lines take the batch path too
     (``batch_lane_kind``); the others send the environment to the general path.
     """
     return (
         _batch_path_effects_only(c)
+        and c.waves == 0.0
         and c.exhaust_vent == 0.0
         and c.supply_resistance == 0.0
         and c.null_leak == 0.0
@@ -466,6 +468,7 @@ C_FLOW_LAW = Constants._fields.index("flow_law")  # read per control period
 C_NULL_LEAK = Constants._fields.index("null_leak")  # read per control period
 C_EXHAUST_VENT = Constants._fields.index("exhaust_vent")  # read per control period
 C_SUPPLY_RESISTANCE = Constants._fields.index("supply_resistance")  # read per control period
+C_WAVES = Constants._fields.index("waves")  # read per control period
 N_CACHED_CONSTANTS = N_CONSTANTS + 1
 
 

@@ -193,18 +193,27 @@ def close_substep(c, history, env, slot, y, h):
     x, v = end_of_substep(y[4], y[5], c.half_stroke)
     exhaust_kg = y[6]
     if c.waves:  # the waves the line ends send at this boundary
-        flow_1, flow_2, vented, port_1, q_1, port_2, q_2 = line_flows(
-            c, y[0], arriving_waves(c, history, env, slot, 0.0), y[2], y[3]
-        )
-        start = history[ring_slot(slot - 1, history.shape[0]), L.H_LINE_EXHAUST, env]
-        exhaust_kg += 0.5 * h * (start + vented)
-        history[slot, L.H_LINE_EXHAUST, env] = vented
-        history[slot, L.H_WAVE_VALVE_1, env] = sent_wave(c, port_1, q_1)
-        history[slot, L.H_WAVE_VALVE_2, env] = sent_wave(c, port_2, q_2)
-        history[slot, L.H_WAVE_CHAMBER_1, env] = sent_wave(c, y[2], -flow_1)
-        history[slot, L.H_WAVE_CHAMBER_2, env] = sent_wave(c, y[3], -flow_2)
+        exhaust_kg = close_line_ends(c, history, env, slot, y, h)
     _record_history(history, env, slot, y[0], y[2], y[3])
     return (y[0], y[1], y[2], y[3], x, v, exhaust_kg, y[7], y[8])
+
+
+@njit(cache=True)
+def close_line_ends(c, history, env, slot, y, h):
+    """The transmission lines at the substep boundary ``slot`` (state ``y``): the waves
+    their four ends send and their valve exhaust, written to the history, and the
+    exhaust mass (``y[6]``) with the exhaust added by the trapezoid rule over the substep
+    of ``h`` s."""
+    flow_1, flow_2, vented, port_1, q_1, port_2, q_2 = line_flows(
+        c, y[0], arriving_waves(c, history, env, slot, 0.0), y[2], y[3]
+    )
+    start = history[ring_slot(slot - 1, history.shape[0]), L.H_LINE_EXHAUST, env]
+    history[slot, L.H_LINE_EXHAUST, env] = vented
+    history[slot, L.H_WAVE_VALVE_1, env] = sent_wave(c, port_1, q_1)
+    history[slot, L.H_WAVE_VALVE_2, env] = sent_wave(c, port_2, q_2)
+    history[slot, L.H_WAVE_CHAMBER_1, env] = sent_wave(c, y[2], -flow_1)
+    history[slot, L.H_WAVE_CHAMBER_2, env] = sent_wave(c, y[3], -flow_2)
+    return y[6] + 0.5 * h * (start + vented)
 
 
 @njit(cache=True)
