@@ -181,6 +181,20 @@ def test_batch_effects_reproduce_the_general_path_bit_for_bit(effect, seed):
     assert moved  # the free and spring rods really moved (events, stops, sticking)
 
 
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_chunk_of_transmission_lines_alone_reproduces_the_general_path(seed):
+    """Every lane of the chunk with the tubes as transmission lines (the batch path then
+    skips the valve's vectorised loop, ``batch_path.lines_in_chunk``), bit for bit."""
+    sets = [
+        load_parameters("numatics", **rod, **setting)
+        for effect in ("tube_waves", "tube_waves_and_effects")
+        for setting in BATCH_EFFECTS[effect]
+        for rod in ROD_SETUPS
+    ]
+    currents = random_currents(np.random.default_rng(seed), 300, len(sets))
+    assert assert_batch_matches_general_path(sets, currents)
+
+
 # friction laws that act only on a moving rod: clamped, the batch path takes them
 FRICTION_LAWS = (
     {"stribeck_velocity_m_per_s": 0.02, "static_friction_n": 8.0},

@@ -761,28 +761,60 @@ def test_transmission_line_follows_an_independent_segmented_line(
     assert errors["paper tube (Eqs. 30, 31)"] > 3.0 * errors["transmission line"]
 
 
+def _chamber_end_flow(c, chamber_pa, drive_pa):
+    """The line's flow into a chamber at ``chamber_pa`` with the wave W_in = P + drive."""
+    from pneumatic_env.physics.tube import line_chamber_flow
+
+    return line_chamber_flow(
+        chamber_pa + drive_pa,
+        chamber_pa,
+        c.line_impedance,
+        c.line_laminar_friction,
+        c.line_turbulent_friction,
+        c.line_transition_flow,
+    )
+
+
 def test_line_chamber_flow_solves_its_end_equation():
     """m (Z_c + R(m)/2) = W_in - P at the chamber end, laminar and turbulent (Eqs. 33, 35),
     with R from ``line_resistance`` (the flow is solved with the cached coefficients)."""
-    from pneumatic_env.physics.tube import line_chamber_flow, line_resistance, sound_speed
+    from pneumatic_env.physics.tube import line_resistance, sound_speed
 
     c = _constants(tube_length_m=2.0, tube_waves=1)
     p = 5e5
     for drive in (-3e5, -2e4, -50.0, 50.0, 1e3, 2e4, 3e5):
-        m = line_chamber_flow(
-            p + drive,
-            p,
-            c.line_impedance,
-            c.line_laminar_friction,
-            c.line_turbulent_friction,
-            c.line_transition_flow,
-        )
+        m = _chamber_end_flow(c, p, drive)
         resistance = line_resistance(
             m, p, c.line_friction, c.tube_diameter, c.viscosity, c.reynolds_turbulent
         )
         assert m * (c.line_impedance + 0.5 * resistance) == pytest.approx(drive, rel=1e-9)
     area = math.pi / 4 * load_parameters()["tube_inner_diameter_m"] ** 2
     assert c.line_impedance == pytest.approx(sound_speed(1.4, 287.0, T_S) / area, rel=1e-3)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_line_chamber_flow_meets_its_end_equation_to_the_solver_tolerance(seed):
+    """Over random chamber pressures and drives W_in - P (10 Pa to 5 bar, both signs) on
+    three tube diameters, the flow meets m (Z_c + R(m)/2) = W_in - P within 1e-11 of the
+    drive (the solver's tolerance is 1e-12 on the flow), or sits at the transition flow
+    where the jump of R at ``reynolds_turbulent`` leaves no root."""
+    from pneumatic_env.physics.tube import line_resistance
+
+    rng = np.random.default_rng(seed)
+    for diameter in (2e-3, 4e-3, 6e-3):
+        c = _constants(tube_length_m=2.0, tube_waves=1, tube_inner_diameter_m=diameter)
+        for _ in range(300):
+            p = rng.uniform(3e4, 8e5)
+            drive = rng.choice([-1.0, 1.0]) * 10.0 ** rng.uniform(1.0, 5.7)
+            m = _chamber_end_flow(c, p, drive)
+            assert m * drive > 0.0
+            if abs(m) == c.line_transition_flow:
+                continue
+            resistance = line_resistance(
+                m, p, c.line_friction, c.tube_diameter, c.viscosity, c.reynolds_turbulent
+            )
+            balance = m * (c.line_impedance + 0.5 * resistance)
+            assert balance == pytest.approx(drive, rel=1e-11)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
