@@ -259,14 +259,20 @@ def env_constants(params, env, substep_s):
             * p[L.P_DISCHARGE_COEFFICIENT]
             * max(1.0, p[L.P_EXHAUST_DISCHARGE_RATIO])
             * (
-                p[L.P_HOLES_PER_PATH] * math.pi * p[L.P_HOLE_RADIUS_M] ** 2
-                + p[L.P_VALVE_NULL_LEAK_AREA_M2]
+                # the valve's paths reach a chamber directly only without the lines
+                (1.0 - waves_flag)
+                * (
+                    p[L.P_HOLES_PER_PATH] * math.pi * p[L.P_HOLE_RADIUS_M] ** 2
+                    + p[L.P_VALVE_NULL_LEAK_AREA_M2]
+                )
                 + p[L.P_LEAKAGE_AREA_M2]
                 + p[L.P_ROD_SEAL_LEAK_AREA_M2]
             )
             * (linear_slope + c1)
             / math.sqrt(temperature)
-            + waves_flag * gas * temperature * max(p[L.P_ALPHA_IN], k) / line_impedance
+            # a line's chamber end: |dm/dP| <= 2 / Z_c (``tube.line_chamber_flow``: 1 / Z_c,
+            # up to twice that where the friction's fall with the pressure adds to it)
+            + waves_flag * 2.0 * gas * temperature * max(p[L.P_ALPHA_IN], k) / line_impedance
         ),
         inv_k=1.0 / k,
         inv_hole_radius=1.0 / p[L.P_HOLE_RADIUS_M],
