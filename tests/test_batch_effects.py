@@ -184,7 +184,7 @@ def test_batch_effects_reproduce_the_general_path_bit_for_bit(effect, seed):
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_a_chunk_of_transmission_lines_alone_reproduces_the_general_path(seed):
     """Every lane of the chunk with the tubes as transmission lines (the batch path then
-    skips the valve's vectorised loop, ``batch_path.lines_in_chunk``), bit for bit."""
+    skips the valve's vectorised loop, ``constants.chunk_effects``), bit for bit."""
     sets = [
         load_parameters("numatics", **rod, **setting)
         for effect in ("tube_waves", "tube_waves_and_effects")

@@ -586,7 +586,7 @@ def test_stribeck_friction_falls_from_static_to_dynamic_with_speed():
     f_sf, f_df = p["static_friction_n"], p["dynamic_friction_n"]
     for v in (1e-4, 0.01, 0.02, 0.2):
         y = (0.0, 0.0, p1, p2, 0.0, v, 0.0, T_S, T_S)
-        accel = kernel.derivatives(c, 0.0, y, 1.0, (0.0, p1, p2), (p1, p2, p1, p2), c.ambient_pa)[5]
+        accel = kernel.derivatives(c, 0.0, y, 1.0, (0.0, p1, p2), (p1, p2), c.ambient_pa)[5]
         friction = f_df + (f_sf - f_df) * math.exp(-((v / v_s) ** 2))
         expected = (applied - p["viscous_friction_n_s_per_m"] * v - friction) / mass
         assert accel == pytest.approx(expected, rel=1e-12), v

@@ -647,9 +647,7 @@ def test_base_model_rhs_equals_the_general_rhs():
             )
             y = (x_s, v_s, p1, p2, x, v, 0.0, c.temperature, c.temperature)
             valve = (spool_delayed, p1, p2)
-            general = kernel.derivatives(
-                c, coil, y, direction, valve, (p1, p2, p1, p2), c.ambient_pa
-            )
+            general = kernel.derivatives(c, coil, y, direction, valve, (p1, p2), c.ambient_pa)
             assert base == general
 
 

@@ -60,7 +60,7 @@ from .piston import (
     output_force,
     pneumatic_force,
 )
-from .right_hand_side import N_RK, arriving_waves, ring_slot
+from .right_hand_side import N_RK, chamber_end_waves, ring_slot
 from .vecmath import float_to_bits
 
 # The parallel steps run inside BatchSimulator.call_step_kernel, which has the threads
@@ -164,26 +164,11 @@ def _driven_substeps(constants, work, n_lanes, h, leaks, selected, four_paths):
 
 
 @njit(cache=True, error_model="numpy")
-def lines_in_chunk(constants, n_lanes):
-    """(any, every) batch-path lane of a chunk with the tubes as transmission lines."""
-    k = CHUNK_ENVS
-    any_line = False
-    every_line = True
-    for j in range(n_lanes):
-        if constants[C_BASE_ONLY * k + j] == BATCH_GENERAL:
-            continue
-        line = constants[C_WAVES * k + j] != 0.0
-        any_line = any_line or line
-        every_line = every_line and line
-    return any_line, every_line
-
-
-@njit(cache=True, error_model="numpy")
 def line_substeps(constants, work, history, first, n_lanes, head_sub, h, leaks, selected):
     """RK4 substep of the chunk's batch-path lanes with the tubes as transmission lines
     (``batch_rhs.rk4_line_substep``), from the substep's start (``W_START``), driven by
-    ``W_DRIVE``; the waves arriving at their ends read from the history ring lane by lane
-    (``arriving_waves``). A scalar loop: the lines' flows take a Newton solve."""
+    ``W_DRIVE``; the waves arriving at their chamber ends read from the history ring lane by
+    lane (``chamber_end_waves``). A scalar loop: the lines' flows take a Newton solve."""
     k = CHUNK_ENVS
     for j in range(n_lanes):
         if constants[C_BASE_ONLY * k + j] == BATCH_GENERAL or constants[C_WAVES * k + j] == 0.0:
@@ -192,9 +177,9 @@ def line_substeps(constants, work, history, first, n_lanes, head_sub, h, leaks, 
         env = first + j
         drive = (work[W_DRIVE * k + j], work[(W_DRIVE + 1) * k + j], work[(W_DRIVE + 2) * k + j])
         arriving = (
-            arriving_waves(c, history, env, head_sub, 0.0),
-            arriving_waves(c, history, env, head_sub, 0.5),
-            arriving_waves(c, history, env, head_sub, 1.0),
+            chamber_end_waves(c, history, env, head_sub, 0.0),
+            chamber_end_waves(c, history, env, head_sub, 0.5),
+            chamber_end_waves(c, history, env, head_sub, 1.0),
         )
         y = work_rows(work, W_START, j)
         direction = work[W_DIRECTION * k + j]
@@ -415,26 +400,25 @@ def advance_chunk(sim, first, stop, coil_current_a):
     for j in range(n):
         if fast[j] == BATCH_GENERAL:
             advance_env(sim, first + j, coil_current_a[first + j])
-    effects = chunk_effects(chunk_constants, n)  # leaky .. drooped
+    effects = chunk_effects(chunk_constants, n)  # leaky .. drooped, lines, only lines
     # lanes advance_env advanced are computed below too, and ignored
     work = chunk_work(state, first, stop)
     fast_commands(chunk_constants, work, n, coil_current_a[first:stop], state[L.S_PLAY, first:stop])
     same_delay = lanes_share_delay(chunk_constants, n)
-    any_line, every_line = lines_in_chunk(chunk_constants, n)
     for sub in range(n_substeps):
         head_sub = ring_slot(sim.head[0] + sub, n_slots)
         prepare_substep(chunk_constants, work, history, first, n, head_sub, same_delay, h)
         if effects[2]:
             lagged_coil_rows(chunk_constants, work, n)
-        if not every_line:
-            chunk_substeps(chunk_constants, work, n, h, *effects)
-        if any_line:  # their lanes again, from the substep's start
+        if not effects[7]:
+            chunk_substeps(chunk_constants, work, n, h, *effects[:6])
+        if effects[6]:  # the line lanes again, from the substep's start
             line_substeps(chunk_constants, work, history, first, n, head_sub, h, *effects[:2])
         end_substeps(chunk_constants, work, n)
         slot = ring_slot(head_sub + 1, n_slots)
         for row, channel in ((L.S_X_S, L.H_X_S), (L.S_P1, L.H_P1), (L.S_P2, L.H_P2)):
             copy_fast_lanes(chunk_constants, work, n, row, history[slot, channel, first:stop], True)
-        if any_line:
+        if effects[6]:
             close_lines(chunk_constants, work, history, first, n, slot, h)
         if _any_lane_set(work, W_REDO, n):
             _redo_lanes(chunk_constants, work, history, first, n, head_sub, slot, h, effects[2])

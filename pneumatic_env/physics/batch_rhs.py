@@ -162,8 +162,8 @@ def batch_derivatives(
     temperature; the tubes' isothermal air; the ISO 6358 flow law) and with
     ``four_paths`` the valve's four paths with its null leak (``_valve_flows``; their
     supply at ``supply_pa``, their exhaust at ``exhaust_pa``). Given the waves
-    ``arriving`` at the line ends (``right_hand_side.arriving_waves``), the tubes are
-    transmission lines (``tube_waves``): each chamber's flow comes from its line
+    ``arriving`` at the lines' chamber ends (``right_hand_side.chamber_end_waves``), the
+    tubes are transmission lines (``tube_waves``): each chamber's flow comes from its line
     (``nodes.line_chamber_flows``), the valve acting at the lines' other ends."""
     x_s, v_s, p1, p2, x, v, t1, t2 = y[0], y[1], y[2], y[3], y[4], y[5], y[7], y[8]
     inv_sqrt_t1 = inv_sqrt_t2 = c.inv_sqrt_t
@@ -240,8 +240,8 @@ def rk4_base_substep(c, y, drive_a, direction, spool_delayed, h, leaks, selected
 @njit(cache=True, forceinline=True, error_model="numpy")
 def rk4_line_substep(c, y, drive_a, direction, arriving, h, leaks, selected):
     """``rk4_base_substep`` with the tubes as transmission lines: ``arriving`` holds the
-    waves at the line ends (``right_hand_side.arriving_waves``) at the substep's start,
-    middle and end."""
+    waves at the lines' chamber ends (``right_hand_side.chamber_end_waves``) at the
+    substep's start, middle and end."""
     flags = (leaks, selected, False, c.supply_pa, c.ambient_pa)
     k1 = batch_derivatives(c, drive_a[0], y, direction, 0.0, *flags, arriving[0])
     k2 = batch_derivatives(

@@ -483,9 +483,12 @@ def chunk_effects(chunk_constants, n_lanes):
     """Whether any lane of a chunk has the leak orifices (``BATCH_LEAKS``), an effect
     ``batch_rhs`` selects per lane (energy equation, tube air, ISO flow law), a coil lag,
     the valve's null leak (``batch_rhs._valve_flows``' four paths), an exhaust vent, a
-    supply resistance (the pressure nodes of ``batch_nodes``)."""
+    supply resistance (the pressure nodes of ``batch_nodes``); then whether any and
+    whether every batch-path lane has the tubes as transmission lines
+    (``batch_path.line_substeps``)."""
     k = CHUNK_ENVS
-    leaky = selected = lagged = four_paths = vented = drooped = False
+    leaky = selected = lagged = four_paths = vented = drooped = lines = False
+    only_lines = True
     for j in range(n_lanes):
         leaky |= chunk_constants[C_BASE_ONLY * k + j] == BATCH_LEAKS
         selected |= (
@@ -498,7 +501,10 @@ def chunk_effects(chunk_constants, n_lanes):
         batch = chunk_constants[C_BASE_ONLY * k + j] != BATCH_GENERAL
         vented |= (chunk_constants[C_EXHAUST_VENT * k + j] > 0.0) & batch
         drooped |= (chunk_constants[C_SUPPLY_RESISTANCE * k + j] > 0.0) & batch
-    return leaky, selected, lagged, four_paths, vented, drooped
+        line = chunk_constants[C_WAVES * k + j] != 0.0
+        lines |= line & batch
+        only_lines &= line | (not batch)
+    return leaky, selected, lagged, four_paths, vented, drooped, lines, only_lines
 
 
 def constants_cache(n_envs):

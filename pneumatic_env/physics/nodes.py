@@ -392,17 +392,18 @@ def line_flows(c, spool_m, arriving, p1_pa, p2_pa):
     area_b = scalar_area(c, -spool_m) + c.null_leak
     port_1, q_1, exhaust_1 = _line_valve_end(c, area_a, area_b, arriving[0])
     port_2, q_2, exhaust_2 = _line_valve_end(c, area_b, area_a, arriving[1])
-    flow_1, flow_2 = line_chamber_flows(c, arriving, p1_pa, p2_pa)
+    flow_1, flow_2 = line_chamber_flows(c, (arriving[2], arriving[3]), p1_pa, p2_pa)
     return flow_1, flow_2, exhaust_1 + exhaust_2, port_1, q_1, port_2, q_2
 
 
 @njit(cache=True, forceinline=True)
-def line_chamber_flows(c, arriving, p1_pa, p2_pa):
+def line_chamber_flows(c, chamber_waves, p1_pa, p2_pa):
     """The flows from the lines into chambers 1 and 2 (``line_flows``' first two), which
-    need only the waves arriving at the chamber ends: the chamber pressures' right-hand
-    side takes these, the valve end is solved once per substep boundary."""
+    need only the waves arriving at the chamber ends, ``chamber_waves``: the chamber
+    pressures' right-hand side takes these, the valve end is solved once per substep
+    boundary."""
     flow_1 = line_chamber_flow(
-        arriving[2],
+        chamber_waves[0],
         p1_pa,
         c.line_impedance,
         c.line_laminar_friction,
@@ -410,7 +411,7 @@ def line_chamber_flows(c, arriving, p1_pa, p2_pa):
         c.line_transition_flow,
     )
     flow_2 = line_chamber_flow(
-        arriving[3],
+        chamber_waves[1],
         p2_pa,
         c.line_impedance,
         c.line_laminar_friction,

@@ -84,9 +84,10 @@ def derivatives(
     ``coil_current_a`` is the current driving the spool (lagged if the coil lag is on).
     T1, T2 change only with the energy model on (``wall_heat_transfer_w_per_k > 0``).
     ``valve``: the ``ValveInputs``. With the tubes as transmission lines (``tube_waves``)
-    the chamber flows come from the waves ``arriving`` at the line ends
-    (``line_chamber_flows``) and ``valve`` is unused; the lines' valve exhaust is added to
-    the exhaust mass at the substep boundaries (``general_path.close_substep``). With LuGre
+    the chamber flows come from the waves ``arriving`` at the lines' chamber ends
+    (``chamber_end_waves``, ``line_chamber_flows``) and ``valve`` is unused; the lines'
+    valve exhaust is added to the exhaust mass at the substep boundaries
+    (``general_path.close_substep``). With LuGre
     friction on, ``lugre_friction_n`` (held over the substep, ``lugre_bristle_step``)
     replaces the sliding friction.
     """
@@ -278,9 +279,9 @@ class SubstepDrive(NamedTuple):
 @njit(cache=True, inline="always")  # inlined: a call would pass every constant as an argument
 def _stage(c, drive, frac, coil_current_a, y, y0, direction):
     valve = valve_inputs(c, drive.history, drive.env, drive.head, frac, y, y0)
-    arriving = (0.0, 0.0, 0.0, 0.0)
+    arriving = (0.0, 0.0)
     if c.waves:
-        arriving = arriving_waves(c, drive.history, drive.env, drive.head, frac)
+        arriving = chamber_end_waves(c, drive.history, drive.env, drive.head, frac)
     return derivatives(
         c,
         coil_current_a,
@@ -296,11 +297,24 @@ def _stage(c, drive, frac, coil_current_a, y, y0, direction):
 @njit(cache=True, forceinline=True)
 def arriving_waves(c, history, env, head, frac):
     """The waves at the four line ends ``frac`` of a substep after boundary ``head``: each
-    sent by the other end one delay earlier (the delay is at least one substep)."""
+    sent by the other end one delay earlier (the delay is at least one substep). (At
+    valve end 1, at valve end 2, then ``chamber_end_waves``.)"""
     d = c.delay_substeps
+    at_chambers = chamber_end_waves(c, history, env, head, frac)
     return (
         delayed_value(history, env, L.H_WAVE_CHAMBER_1, head, frac, d, 0.0, 0.0),
         delayed_value(history, env, L.H_WAVE_CHAMBER_2, head, frac, d, 0.0, 0.0),
+        at_chambers[0],
+        at_chambers[1],
+    )
+
+
+@njit(cache=True, forceinline=True)
+def chamber_end_waves(c, history, env, head, frac):
+    """The waves arriving at the two chamber ends (``arriving_waves``' last two), all the
+    RK4 stages need: the valve ends are solved at the substep boundaries only."""
+    d = c.delay_substeps
+    return (
         delayed_value(history, env, L.H_WAVE_VALVE_1, head, frac, d, 0.0, 0.0),
         delayed_value(history, env, L.H_WAVE_VALVE_2, head, frac, d, 0.0, 0.0),
     )
