@@ -2,6 +2,8 @@
 
     python -m pneumatic_env.agents.robustness [--variants Numatics-2m ...]
         [--controllers pid sliding_mode ppo_residual] [--config robustness] [--out FILE.md]
+    python -m pneumatic_env.agents.robustness --variants Numatics-2m \
+        --seed-runs runs/a-s1 runs/a-s2 runs/a-s3 [--actor actor_best.npz] [--baseline pid]
 
 Each perturbation of ``configs/agents/robustness.yaml`` changes the simulated plant only
 (the env option ``plant``): the task, its force scale and what a controller knows
@@ -10,6 +12,11 @@ benchmark suite's mean RMS error (% of the nominal force scale, ``agents.bench.r
 and, in brackets, its ratio to the same controller on the nominal plant; the last column
 is each controller's worst ratio. A controller without an actor for a variant (a shipped
 policy trained on another variant) is left out of that variant's table.
+
+With ``--seed-runs`` (one training run or actor file per seed) each cell is instead the
+interquartile mean over the seeds with its 95 % bootstrap interval (``agents.stats``) and
+the number of seeds below the baseline there; the last row is the worst ratio, per seed,
+against the baseline's.
 """
 
 from __future__ import annotations
@@ -27,10 +34,19 @@ from pneumatic_env.params import DEFAULT_CYLINDER, load_parameters
 from .bench import run_suite
 from .bench_results import markdown_table
 from .config import load_agent_config
+from .evaluate_seeds import actor_paths
 from .registry import resolve_controller
+from .stats import iqm_estimate
 from .suite import load_suite, parse_variant
 
-__all__ = ["perturbed_plants", "robustness_rows", "robustness_markdown", "main"]
+__all__ = [
+    "perturbed_plants",
+    "robustness_rows",
+    "robustness_markdown",
+    "seed_markdown",
+    "worst_ratio",
+    "main",
+]
 
 NOMINAL = "nominal"
 
@@ -103,19 +119,67 @@ def robustness_markdown(variant: str, table: dict[str, dict[str, float]]) -> str
     )
 
 
+def worst_ratio(cells: dict[str, float]) -> float:
+    """The largest ratio of a row's cells to its nominal one."""
+    return max(v / cells[NOMINAL] for v in cells.values())
+
+
+def seed_markdown(variant: str, baseline: str, table: dict[str, dict[str, float]]) -> str:
+    """Per perturbation: the baseline's error, the seeds' IQM [95 % interval] and how many
+    seeds are below the baseline; last, the worst ratios. ``table`` is
+    ``robustness_rows`` of the baseline and one controller per seed."""
+    base = table[baseline]
+    seeds = [cells for name, cells in table.items() if name != baseline]
+    lines = []
+    for name, value in base.items():
+        est = iqm_estimate([cells[name] for cells in seeds])
+        below = sum(cells[name] < value for cells in seeds)
+        lines.append(
+            [
+                name,
+                f"{value:.2f}",
+                f"{est.value:.2f} [{est.low:.2f}, {est.high:.2f}]",
+                f"{below} of {len(seeds)}",
+            ]
+        )
+    worst = [worst_ratio(cells) for cells in seeds]
+    est = iqm_estimate(worst)
+    lines.append(
+        [
+            "worst ratio",
+            f"{worst_ratio(base):.2f}",
+            f"{est.value:.2f} [{est.low:.2f}, {est.high:.2f}]",
+            f"{sum(w <= worst_ratio(base) for w in worst)} of {len(seeds)} at most",
+        ]
+    )
+    header = ["plant", baseline, f"IQM over {len(seeds)} seeds [95 % CI]", f"below {baseline}"]
+    return f"**{variant}** (mean RMS % of the nominal force scale)\n\n" + markdown_table(
+        header, lines
+    )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m pneumatic_env.agents.robustness")
     p.add_argument("--variants", nargs="+", default=["Numatics-2m"])
     p.add_argument("--controllers", nargs="+", help="default: the config's")
     p.add_argument("--config", default="robustness", help="configs/agents/<name>.yaml")
     p.add_argument("--out", type=Path, help="write the tables to this Markdown file")
+    p.add_argument("--seed-runs", nargs="+", help="training runs (or actors), one per seed")
+    p.add_argument("--actor", default="actor.npz", help="with --seed-runs: each run's file")
+    p.add_argument("--baseline", default="pid", help="with --seed-runs: the compared controller")
     args = p.parse_args(argv)
     config = load_agent_config(args.config)
     controllers = args.controllers or config["controllers"]
+    if args.seed_runs and args.controllers:
+        p.error("--controllers and --seed-runs exclude each other: the seeds are the rows")
+    if args.seed_runs:
+        controllers = [args.baseline, *map(str, actor_paths(args.seed_runs, args.actor))]
     blocks = []
     for variant in args.variants:
         table = robustness_rows(variant, controllers, perturbed_plants(config, variant))
-        if table:
+        if table and args.seed_runs:
+            blocks.append(seed_markdown(variant, args.baseline, table))
+        elif table:
             blocks.append(robustness_markdown(variant, table))
     command = "python -m pneumatic_env.agents.robustness " + " ".join(sys.argv[1:])
     text = f"Generated by `{command.strip()}`.\n\n" + "\n\n".join(blocks) + "\n"

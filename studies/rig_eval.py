@@ -9,7 +9,7 @@ three, base parameters drawn off nominal by the rig's seed):
 2. ``pneumatic-env identify CAMPAIGN/*.csv --report REPORT``;
 3. the baselines in closed loop on the rig's own plant (:func:`.rig_closed_loop.rig_suite`
    with the recording's effects, strengths and seed): PID and the sliding mode at nominal
-   tuning, the shipped nominal-trained learned controllers;
+   tuning, the shipped learned controllers (``LEARNED_BASELINES``);
 4. per training seed: ``pneumatic-env train --rig REPORT --out OUT --seed S [--minutes M]``
    (``agents/rig_training.py``), then
    ``OUT/controller.npz`` in the same closed loop.
@@ -60,9 +60,16 @@ __all__ = [
     "main",
 ]
 
-#: Classical controllers at nominal tuning, and the shipped nominal-trained learned ones.
+#: Classical controllers at nominal tuning, and the shipped learned ones (trained on the
+#: nominal model, ppo_residual_dr and ppo_adaptive over randomised plants around it).
 CLASSICAL = ("pid", "sliding_mode")
-LEARNED_BASELINES = ("ppo_residual", "ppo_pure", "ppo_generalist", "ppo_residual_dr")
+LEARNED_BASELINES = (
+    "ppo_residual",
+    "ppo_pure",
+    "ppo_generalist",
+    "ppo_residual_dr",
+    "ppo_adaptive",
+)
 
 
 class EvalRig(NamedTuple):

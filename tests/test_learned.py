@@ -547,24 +547,35 @@ def test_shipped_taught_pure_policy_is_within_10_percent_of_the_sliding_mode(var
     assert np.mean(learned) <= 1.1 * np.mean(base)
 
 
-DELAY_PERTURBATIONS = ("tube air volume", "tube waves", "coil lag")
+EFFECT_PERTURBATIONS = (
+    "tube air volume",
+    "tube waves",
+    "heat transfer",
+    "coil lag",
+    "spool friction",
+)
 
 
-def test_shipped_adaptive_policy_degrades_no_more_than_the_pid_where_the_delay_changes():
-    """The shipped adaptive residual (a residual on the PID, trained over plants and effect
-    strengths, configs/agents/ppo_fast-adaptive*-numatics-2m.yaml) on the robustness
-    table's perturbations that change the plant's delay: its mean RMS error relative to its
-    own nominal one is at most the PID's (issue 35's target 3; the threshold is the
-    issue's)."""
+@pytest.mark.parametrize("variant", ["Numatics-2m", "Airpel-2m", "Numatics-0.5m"])
+def test_shipped_adaptive_policy_degrades_no_more_than_the_pid(variant):
+    """The shipped adaptive residual (``ppo_adaptive``: a residual on the PID trained over a
+    mixture of plants, configs/agents/ppo_fast-adaptive-mixture-*.yaml) on the robustness
+    table: its worst ratio to its own nominal error is at most the PID's on each variant it
+    is shipped for (issue 35's target 3, the issue's threshold), and on the 2 m variants its
+    error is below the PID's under each opt-in effect of the table. (The target also asks
+    for the cells of a 20 % lower discharge coefficient or supply, where the PID does better
+    than on the nominal plant, and for Airpel-0.5m, where training failed: missed there,
+    docs/benchmark.md.)"""
     from pneumatic_env.agents.config import load_agent_config
-    from pneumatic_env.agents.robustness import NOMINAL, perturbed_plants, robustness_rows
+    from pneumatic_env.agents.robustness import perturbed_plants, robustness_rows, worst_ratio
 
-    plants = perturbed_plants(load_agent_config("robustness"), "Numatics-2m")
-    chosen = {n: plants[n] for n in (NOMINAL, *DELAY_PERTURBATIONS)}
-    table = robustness_rows("Numatics-2m", ["pid", "ppo_adaptive"], chosen, progress=print)
-    for name in DELAY_PERTURBATIONS:
-        ratios = {c: cells[name] / cells[NOMINAL] for c, cells in table.items()}
-        assert ratios["ppo_adaptive"] <= ratios["pid"], (name, ratios)
+    plants = perturbed_plants(load_agent_config("robustness"), variant)
+    table = robustness_rows(variant, ["pid", "ppo_adaptive"], plants, progress=print)
+    worst = {c: worst_ratio(cells) for c, cells in table.items()}
+    assert worst["ppo_adaptive"] <= worst["pid"], worst
+    if variant.endswith("-2m"):
+        for name in EFFECT_PERTURBATIONS:
+            assert table["ppo_adaptive"][name] < table["pid"][name], (name, table)
 
 
 def test_a_variant_without_a_shipped_actor_is_named():

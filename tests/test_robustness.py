@@ -104,3 +104,22 @@ def test_robustness_rows_keep_the_nominal_tuning():
     assert table["pid"]["cd -20 %"] != table["pid"]["nominal"]
     text = robustness_markdown("Numatics-0.5m", table)
     assert "| pid |" in text and "worst ratio" in text
+
+
+def test_seed_statistics_count_the_seeds_below_the_baseline():
+    """``--seed-runs``: per plant the seeds' IQM and how many are below the baseline, and
+    the worst ratios against the baseline's (a table written by hand)."""
+    from pneumatic_env.agents.robustness import seed_markdown, worst_ratio
+
+    table = {
+        "pid": {"nominal": 5.0, "a": 6.0, "b": 9.0},
+        "s1": {"nominal": 4.0, "a": 5.0, "b": 8.0},  # worst 2.0 > pid's 1.8
+        "s2": {"nominal": 4.5, "a": 6.5, "b": 7.0},  # worst 1.56 <= 1.8
+    }
+    assert worst_ratio(table["pid"]) == pytest.approx(1.8)
+    text = seed_markdown("V", "pid", table)
+    lines = {r.split("|")[1].strip(): r for r in text.splitlines() if r.startswith("|")}
+    assert lines["a"].split("|")[4].strip() == "1 of 2"
+    assert lines["b"].split("|")[4].strip() == "2 of 2"
+    assert lines["worst ratio"].split("|")[2].strip() == "1.80"
+    assert lines["worst ratio"].split("|")[4].strip() == "1 of 2 at most"
