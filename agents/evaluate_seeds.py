@@ -136,7 +136,8 @@ def evaluate_seeds(
     return result
 
 
-def _ci(e: dict, digits: int = 2) -> str:
+def estimate_text(e: dict, digits: int = 2) -> str:
+    """``value [low, high]`` of an estimate (``Estimate.as_dict()``)."""
     return f"{e['value']:.{digits}f} [{e['low']:.{digits}f}, {e['high']:.{digits}f}]"
 
 
@@ -161,11 +162,14 @@ def seeds_markdown(result: dict) -> str:
             [
                 variant,
                 str(s["n_seeds"]),
-                _ci(s["mean_rms_pct"]),
+                estimate_text(s["mean_rms_pct"]),
                 f"{s['baseline_mean_rms_pct']:.2f}",
-                _ci(s["paired_ratio"], 3),
-                _ci(s["probability_of_improvement"], 2),
-                *[_ci(s["task_ratios"][t], 3) if t in s["task_ratios"] else "" for t in FAST_TASKS],
+                estimate_text(s["paired_ratio"], 3),
+                estimate_text(s["probability_of_improvement"], 2),
+                *[
+                    estimate_text(s["task_ratios"][t], 3) if t in s["task_ratios"] else ""
+                    for t in FAST_TASKS
+                ],
                 f"{s['worst_chatter_ratio']['ratio']:.2f} ({s['worst_chatter_ratio']['task']})",
                 f"{s['worst_air_ratio']['ratio']:.2f} ({s['worst_air_ratio']['task']})",
                 {True: "yes", False: "no", None: f"- (< {MIN_SEEDS_FOR_A_CLAIM} seeds)"}[

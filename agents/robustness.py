@@ -34,7 +34,7 @@ from pneumatic_env.params import DEFAULT_CYLINDER, load_parameters
 from .bench import run_suite
 from .bench_results import markdown_table
 from .config import load_agent_config
-from .evaluate_seeds import actor_paths
+from .evaluate_seeds import actor_paths, estimate_text
 from .registry import resolve_controller
 from .stats import iqm_estimate
 from .suite import load_suite, parse_variant
@@ -132,24 +132,16 @@ def seed_markdown(variant: str, baseline: str, table: dict[str, dict[str, float]
     seeds = [cells for name, cells in table.items() if name != baseline]
     lines = []
     for name, value in base.items():
-        est = iqm_estimate([cells[name] for cells in seeds])
+        est = iqm_estimate([cells[name] for cells in seeds]).as_dict()
         below = sum(cells[name] < value for cells in seeds)
-        lines.append(
-            [
-                name,
-                f"{value:.2f}",
-                f"{est.value:.2f} [{est.low:.2f}, {est.high:.2f}]",
-                f"{below} of {len(seeds)}",
-            ]
-        )
-    worst = [worst_ratio(cells) for cells in seeds]
-    est = iqm_estimate(worst)
+        lines.append([name, f"{value:.2f}", estimate_text(est), f"{below} of {len(seeds)}"])
+    worst, base_worst = [worst_ratio(cells) for cells in seeds], worst_ratio(base)
     lines.append(
         [
             "worst ratio",
-            f"{worst_ratio(base):.2f}",
-            f"{est.value:.2f} [{est.low:.2f}, {est.high:.2f}]",
-            f"{sum(w <= worst_ratio(base) for w in worst)} of {len(seeds)} at most",
+            f"{base_worst:.2f}",
+            estimate_text(iqm_estimate(worst).as_dict()),
+            f"{sum(w <= base_worst for w in worst)} of {len(seeds)} at most",
         ]
     )
     header = ["plant", baseline, f"IQM over {len(seeds)} seeds [95 % CI]", f"below {baseline}"]
