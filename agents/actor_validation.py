@@ -17,12 +17,20 @@ from .registry import learned_spec
 __all__ = ["validate_actor"]
 
 
-def validate_actor(actor_path: str | Path, variant: str, validation: list, n_steps: int) -> dict:
+def validate_actor(
+    actor_path: str | Path,
+    variant: str,
+    validation: list,
+    n_steps: int,
+    env_options: dict | None = None,
+) -> dict:
     """Mean RMS error (% of the scale) and chatter of an actor on ``validation`` references
     (``[{"seed": s, "reference": spec in scale units}, ...]``) over ``n_steps``, through the
-    benchmark's closed loop (``agents.bench.closed_loop``); model selection in training."""
+    benchmark's closed loop (``agents.bench.closed_loop``); model selection in training.
+    ``env_options``: more env keyword arguments (e.g. ``domain_randomization``: each
+    episode's plant drawn from the env's generator, seeded by the reference's seed)."""
     spec = learned_spec(actor_path, variant)
-    env = make_env(variant, len(validation), n_steps, **spec.env_options)
+    env = make_env(variant, len(validation), n_steps, **{**spec.env_options, **(env_options or {})})
     ctrl = spec.build(ControllerContext.from_env(env))
     tr = closed_loop(
         env, ctrl, [v["reference"] for v in validation], [v["seed"] for v in validation], n_steps

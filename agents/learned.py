@@ -53,6 +53,7 @@ from .residual import RESIDUAL_COLUMNS, ResidualConfig, ResidualCore
 
 __all__ = [
     "zero_the_residual",
+    "scale_the_residual",
     "FORMAT",
     "FORMAT_SELF_CONTAINED",
     "FORMATS",
@@ -328,6 +329,34 @@ def zero_the_residual(path: str | Path, reason: str) -> Path:
     arrays[f"b{last}"] = np.zeros_like(arrays[f"b{last}"])
     np.savez(path, meta=np.array(json.dumps({**meta, "residual_zeroed": reason})), **arrays)
     return path
+
+
+def scale_the_residual(src: str | Path, dst: str | Path, gain: float, source: str) -> Path:
+    """Write the residual actor ``src`` to ``dst`` with the bound of its correction (the
+    residual's ``correction_fraction``) at ``gain`` times the trained one: 1 runs it as
+    trained, 0 runs its base controller alone. The trained bound, the gain and ``source``
+    go into its meta (``residual_gain``); a file already scaled is scaled from its trained
+    bound, not compounded."""
+    if not (np.isfinite(gain) and gain >= 0):
+        raise ValueError(f"gain = {gain!r} is not allowed: must be a finite number >= 0")
+    with np.load(src, allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files if k != "meta"}
+        meta = json.loads(str(data["meta"]))
+    residual = meta.get("residual")
+    if residual is None:
+        raise ValueError(f"{src}: a pure actor has no residual to scale")
+    trained = float(
+        meta.get("residual_gain", {}).get("trained_correction_fraction")
+        or residual["correction_fraction"]
+    )
+    meta["residual"] = {**residual, "correction_fraction": trained * float(gain)}
+    meta["residual_gain"] = {
+        "gain": float(gain),
+        "trained_correction_fraction": trained,
+        "source": source,
+    }
+    np.savez(dst, meta=np.array(json.dumps(meta)), **arrays)
+    return Path(dst)
 
 
 def _plain_gain(value):

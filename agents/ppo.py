@@ -23,7 +23,10 @@ actors for ``agents.learned`` (``pneumatic-env bench --controller DIR/actor.npz`
 ``progress.csv`` (one row per update: wall time, env steps, steps/s, shares of time,
 training RMS, validation RMS at evaluations), ``learning_curve.png``, ``train.json``
 (config, throughput next to the env-only rate, curve) and ``checkpoint.pt`` every
-``checkpoint_every`` updates (``--resume`` continues from it).
+``checkpoint_every`` updates (``--resume`` continues from it). A residual config that
+lists ``training.residual_gains`` has its best actor's correction bound chosen at the end
+(``agents.residual_gain``): ``actor_best.npz`` is then the chosen gain's and
+``actor_best_unscaled.npz`` the actor as trained.
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ from .ppo_networks import Agent, RunningMeanStd
 from .ppo_rollout import RolloutBuffer, Rollouts, advantages, imitation_loss, ppo_update
 from .ppo_setup import make_training_env, references, select_columns
 from .residual import RESIDUAL_COLUMNS, env_variant
+from .residual_gain import apply_residual_gain
 
 __all__ = [
     "export_actor",
@@ -340,8 +344,9 @@ class TrainingRun:
         self.checkpoint.save(self.state, self.state["wall_s"])
         (self.out / "actor_tmp.npz").unlink(missing_ok=True)
 
-    def summary(self, command: str) -> dict:
-        """The final actor, ``train.json`` and the learning curve; the summary."""
+    def summary(self, command: str, log=print) -> dict:
+        """The final actor, the best actor's residual gain if the config lists gains
+        (``agents.residual_gain``), ``train.json`` and the learning curve; the summary."""
         self.export(self.out / "actor.npz")
         w, state = self.state["wall_s"], self.state
         env_share, base_share, update_share = self.shares(w)
@@ -363,6 +368,8 @@ class TrainingRun:
             "curve": state["curve"],
             "best": state["best"],
         }
+        if self.cfg.training.residual_gains and state["best"] is not None:
+            summary["residual_gain"] = apply_residual_gain(self.out, self.cfg, log)
         text = json.dumps(summary, indent=2, default=_plain)
         (self.out / "train.json").write_text(text, encoding="utf-8")
         _learning_curve(self.out, f"ppo_fast on {self.env_id} (seed {self.seed})")
@@ -414,7 +421,7 @@ def train(
                 run.checkpoint.save(state, w)
     finally:
         run.close()
-    return run.summary(command)
+    return run.summary(command, log)
 
 
 def _plain(x):

@@ -135,6 +135,8 @@ class TrainingSettings(_Section):
     eval_every_steps: float = 0.0  # env steps between validations; 0: by wall time only
     total_steps: float | None = None  # env-step budget; None: wall time only
     validation_variants: tuple[str, ...] | None = None  # default: the trained variants
+    residual_gains: tuple[float, ...] | None = None  # after training (agents.residual_gain)
+    residual_gain_draws: int = 0  # drawn plants per validation reference in that choice
 
 
 @dataclass(frozen=True)

@@ -165,3 +165,15 @@ def suite_rms_pct(controller: str, variant: str) -> dict[str, float]:
     from pneumatic_env.agents.bench import run_suite
 
     return {r["task"]: r["rms_error_pct"] for r in run_suite(controller, [variant])[0]}
+
+
+# a fast trainer's run in seconds (agents.ppo.train overrides): tests of the trainer's files
+SMALL = {
+    "hyperparameters.num_envs": 32,
+    "hyperparameters.rollout_steps": 8,
+    "hyperparameters.minibatches": 2,
+    "training.eval_every_s": 1.0,
+    "training.validation_steps": 60,
+    "training.checkpoint_every": 2,
+    "training.episode_steps": 50,
+}

@@ -8,11 +8,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from conftest import assert_error_names, suite_rms_pct
+from conftest import SMALL, assert_error_names, suite_rms_pct
 from pneumatic_env.agents.base import ControllerContext
 from pneumatic_env.agents.generalist import MixtureVectorEnv, param_values
 from pneumatic_env.envs.observation import observation_dim
-from test_learned import SMALL
 
 IDS = ["pneumatic_env/ForceTrack-Numatics-0.5m-v0", "pneumatic_env/ForceTrack-Airpel-3m-v0"]
 OPTIONS = dict(preview_steps=20, action_history=3, measurement_history=2, tracking_error=True)
