@@ -89,6 +89,11 @@ def _settings(cfg: PPOFastConfig) -> tuple[tuple[float, ...], int, dict | None]:
             f"training.residual_gains = {tr.residual_gains!r} in a {cfg.mode} config: the gain "
             "is chosen for a residual config that lists gains (e.g. [1.0, 0.8, 0.6])"
         )
+    if cfg.variants:
+        raise ConfigError(
+            f"training.residual_gains with variants = {list(cfg.variants)!r}: the gain is "
+            "chosen for a residual of one variant"
+        )
     if any(not (math.isfinite(g) and g >= 0) for g in tr.residual_gains):
         raise ConfigError(
             f"training.residual_gains = {list(tr.residual_gains)!r} is not allowed: "
@@ -145,7 +150,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.config is None and not summary_path.is_file():
         p.error(f"run = {str(args.run)!r} has no train.json: pass --config")
     summary = json.loads(summary_path.read_text()) if summary_path.is_file() else None
-    cfg = load_config(args.config if args.config else summary["config"])
+    cfg = load_config(args.config if args.config or summary is None else summary["config"])
     chosen = apply_residual_gain(args.run, cfg)
     if summary is not None:
         summary["residual_gain"] = chosen
