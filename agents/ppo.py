@@ -317,6 +317,8 @@ class TrainingRun:
         if state["best"] is None or val["val_rms_pct"] < state["best"]["val_rms_pct"]:
             state["best"] = record
             path.replace(out / "actor_best.npz")
+            # a finished run resumed: the gain step (agents.residual_gain) starts afresh
+            (out / "actor_best_unscaled.npz").unlink(missing_ok=True)
         self.wall.eval_s += time.perf_counter() - te
         self.last_eval_s, self.last_eval_steps = self.wall(), state["steps"]
 
