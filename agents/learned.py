@@ -54,6 +54,7 @@ from .residual import RESIDUAL_COLUMNS, ResidualConfig, ResidualCore
 __all__ = [
     "zero_the_residual",
     "scale_the_residual",
+    "trained_correction_fraction",
     "FORMAT",
     "FORMAT_SELF_CONTAINED",
     "FORMATS",
@@ -331,6 +332,13 @@ def zero_the_residual(path: str | Path, reason: str) -> Path:
     return path
 
 
+def trained_correction_fraction(meta: dict) -> float:
+    """The correction bound a residual actor's ``meta`` was trained with (before any
+    ``scale_the_residual``)."""
+    scaled = meta.get("residual_gain", {}).get("trained_correction_fraction")
+    return float(scaled if scaled is not None else meta["residual"]["correction_fraction"])
+
+
 def scale_the_residual(src: str | Path, dst: str | Path, gain: float, source: str) -> Path:
     """Write the residual actor ``src`` to ``dst`` with the bound of its correction (the
     residual's ``correction_fraction``) at ``gain`` times the trained one: 1 runs it as
@@ -345,10 +353,7 @@ def scale_the_residual(src: str | Path, dst: str | Path, gain: float, source: st
     residual = meta.get("residual")
     if residual is None:
         raise ValueError(f"{src}: a pure actor has no residual to scale")
-    trained = float(
-        meta.get("residual_gain", {}).get("trained_correction_fraction")
-        or residual["correction_fraction"]
-    )
+    trained = trained_correction_fraction(meta)
     meta["residual"] = {**residual, "correction_fraction": trained * float(gain)}
     meta["residual_gain"] = {
         "gain": float(gain),

@@ -11,7 +11,12 @@ from pneumatic_env.agents import residual_gain as RG
 from pneumatic_env.agents.base import ControllerContext
 from pneumatic_env.agents.bench import make_env
 from pneumatic_env.agents.config import ConfigError
-from pneumatic_env.agents.learned import LearnedActor, scale_the_residual, shipped_policy_path
+from pneumatic_env.agents.learned import (
+    LearnedActor,
+    scale_the_residual,
+    shipped_policy_path,
+    trained_correction_fraction,
+)
 from pneumatic_env.agents.ppo_config import load_config
 from pneumatic_env.agents.registry import classical_gains, resolve_controller
 
@@ -55,9 +60,7 @@ def test_a_scaled_file_is_scaled_from_its_trained_bound(tmp_path):
     src = tmp_path / "actor.npz"
     shutil.copyfile(shipped_policy_path("ppo_adaptive", VARIANT), src)
     trained = LearnedActor(src).meta
-    trained_bound = trained.get("residual_gain", {}).get(
-        "trained_correction_fraction", trained["residual"]["correction_fraction"]
-    )
+    trained_bound = trained_correction_fraction(trained)
     once = scale_the_residual(src, tmp_path / "a.npz", 0.5, "test")
     twice = scale_the_residual(once, tmp_path / "b.npz", 0.5, "test again")
     meta = LearnedActor(twice).meta
@@ -85,9 +88,7 @@ def test_the_lowest_validation_score_is_chosen_from_the_unscaled_actor(tmp_path,
     run.mkdir()
     shutil.copyfile(shipped_policy_path("ppo_adaptive", VARIANT), run / "actor_best.npz")
     trained = LearnedActor(run / "actor_best.npz").meta
-    bound = trained.get("residual_gain", {}).get(
-        "trained_correction_fraction", trained["residual"]["correction_fraction"]
-    )
+    bound = trained_correction_fraction(trained)
     calls = []
 
     def scripted(path, variant, validation, n_steps, env_options=None):
