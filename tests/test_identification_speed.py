@@ -82,6 +82,47 @@ def test_simulate_jobs_splits_columns_and_keeps_their_order(clamped_and_spring, 
                 assert np.array_equal(sims[c][:, j], alone[c][:, 0])
 
 
+def test_unlike_columns_run_in_pieces_of_their_own_and_alone_bit_for_bit(
+    clamped_and_spring, monkeypatch
+):
+    """A job mixing columns that run different kernel loops (the paper's model, a leak, an
+    exhaust node, a supply node, the tube's air) runs each kind in pieces of its own, so a
+    costly node column never sets the loop of a cheap one, and every column's result is
+    the one it has simulated alone."""
+    datasets, _, _ = clamped_and_spring
+    kinds = [
+        {},
+        {"rod_seal_leak_area_m2": 2e-8},
+        {"exhaust_vent_area_m2": 5e-6},
+        {"supply_resistance_pa_s_per_kg": 2e7},
+        {"tube_volume_fraction": 0.5},
+    ]
+    columns = [{**kind, "supply_pressure_pa": p} for p in (5.5e5, 6.0e5) for kind in kinds]
+    pieces: list[np.ndarray] = []
+
+    def recorded(ds, params, *args):
+        pieces.append(params.copy())
+        return ROLLOUT_PIECE(ds, params, *args)
+
+    monkeypatch.setattr(fit_problem, "_threads", lambda: 2)
+    monkeypatch.setattr(fit_problem, "_rollout_piece", recorded)
+    for ds in datasets:
+        pieces.clear()
+        mixed = fit_problem.simulate_jobs([(ds, columns, 200, None, None)])[0]
+        names = [next(iter(kind), "none") for kind in kinds]
+        row = {n: fit_problem._ROW[n] for n in names if n != "none"}
+        for params in pieces:  # one kind per piece: the kind's row set on all or none
+            set_on = {n for n, r in row.items() if np.any(params[r] != params[r, 0])}
+            assert not set_on, f"{ds.name}: a piece mixes columns with and without {set_on}"
+        assert len(pieces) >= len(kinds)
+        monkeypatch.setattr(fit_problem, "_rollout_piece", ROLLOUT_PIECE)
+        for j, column in enumerate(columns):
+            alone = fit_problem.simulate_jobs([(ds, [column], 200, None, None)])[0]
+            for c in ds.channels:
+                assert np.array_equal(mixed[c][:, j], alone[c][:, 0]), (ds.name, column, c)
+        monkeypatch.setattr(fit_problem, "_rollout_piece", recorded)
+
+
 def test_early_screening_ranks_the_true_effect_first(tmp_path):
     """The base fit stops for the screening once its cost has stopped falling fast
     (``screening.early_relative_decrease``), and the screening from that point still

@@ -22,6 +22,7 @@ import numpy as np
 
 from pneumatic_env.ids import MODE_FIXED
 from pneumatic_env.params import ConfigError, parameter_array
+from pneumatic_env.physics.constants import lane_classes
 from pneumatic_env.physics.layout import PARAMETER_INDEX as _ROW  # name -> row
 from pneumatic_env.replay import PREDICTED_CHANNELS
 from pneumatic_env.simulator import BatchSimulator
@@ -119,18 +120,25 @@ def _rollout_piece(ds: Dataset, params: np.ndarray, n_samples: int, substeps: in
 
 def _pieces(ds: Dataset, arr: np.ndarray, n_threads: int) -> list[tuple[np.ndarray, int]]:
     """The column groups of one job, each as (column indices, substeps): columns whose rod
-    moves and columns whose rod is clamped apart, each at its own substep, each dealt out
-    into up to ``n_threads`` parts (every ``n_threads``-th column: a candidate's columns,
-    which cost alike and sit side by side, are shared by every part)."""
+    moves and columns whose rod is clamped apart, each at its own substep; within each,
+    columns that run the kernel's same loops apart (``lane_classes``: a batch chunk runs
+    the costliest loop of any of its lanes for all of them, so one exhaust-node column
+    among the screening's would make every column in its chunk cost as much); each
+    group dealt out into up to ``n_threads`` parts (every ``n_threads``-th column: a
+    candidate's columns, which cost alike and sit side by side, are shared by every
+    part)."""
     moving = arr[_ROW["piston_mode"]] != MODE_FIXED
     pieces = []
     for group in (np.flatnonzero(~moving), np.flatnonzero(moving)):
         if group.size == 0:
             continue
         substeps = ds.substeps_moving if moving[group[0]] and ds.substeps_moving else ds.substeps
-        n_parts = min(n_threads, group.size)
-        for first in range(n_parts):
-            pieces.append((group[first::n_parts], substeps))
+        classes = lane_classes(np.ascontiguousarray(arr[:, group]), ds.dt_s / substeps)
+        for code in np.unique(classes):
+            members = group[classes == code]
+            n_parts = min(n_threads, members.size)
+            for first in range(n_parts):
+                pieces.append((members[first::n_parts], substeps))
     return pieces
 
 

@@ -168,7 +168,8 @@ def _refit_round(ctx: RoundContext, state: Selection, screens: Sequence, rnd: in
     top = [] if ctx.quick else [*screens[:top_k], *drift_picks(ctx, state, screens[top_k:])]
     if not ctx.quick:
         top += form_picks(ctx.cfg, screens[top_k:], top)
-    progress.stage(f"refitting {len(top)} candidates (round {rnd})", len(top) * ctx.plan.refit)
+    if top:  # --quick refits none: no stage to show
+        progress.stage(f"refitting {len(top)} candidates (round {rnd})", len(top) * ctx.plan.refit)
     t_refit = time.monotonic()
     # a refit starts from the config's warm start (starting from the screening's step
     # alone was tried: it left a heat-transfer refit at its bound, 10 W/K, and a coil

@@ -507,6 +507,35 @@ def chunk_effects(chunk_constants, n_lanes):
     return leaky, selected, lagged, four_paths, vented, drooped, lines, only_lines
 
 
+LANE_KIND_BITS = 2  # lane_classes: the batch lane kind, then one bit per chunk_effects flag
+
+
+@njit(cache=True)
+def lane_classes(params, substep_s):
+    """Per environment of ``params``: an integer naming the loops a chunk of it alone
+    would run (its ``batch_lane_kind``, then its ``chunk_effects`` flags as bits). A
+    chunk runs the costliest loop any of its lanes needs for every lane (a pressure node
+    costs about 12 x the paper's model per substep), so a caller that batches unlike
+    columns (the identification's screening) keeps like ones together; an
+    environment's result never depends on the rest of its batch."""
+    n = params.shape[1]
+    out = np.empty(n, np.int64)
+    lane = np.zeros(N_CACHED_CONSTANTS * CHUNK_ENVS)
+    for env in range(n):
+        c = env_constants(params, env, substep_s)
+        store_constants(c, lane, 0)
+        kind = batch_lane_kind(c)
+        lane[C_BASE_ONLY * CHUNK_ENVS] = kind
+        code = int(kind)
+        bit = 1 << LANE_KIND_BITS
+        for flag in chunk_effects(lane, 1)[:7]:
+            if flag:
+                code |= bit
+            bit <<= 1
+        out[env] = code
+    return out
+
+
 def constants_cache(n_envs):
     """An empty cache of the batch path's constants for ``n_envs`` environments, every
     entry stale: (key (n_envs,), constants (chunks, N_CACHED_CONSTANTS * CHUNK_ENVS))."""
