@@ -16,6 +16,7 @@ from pneumatic_env.identification.drift import base_drifts, suggested_effects
 from pneumatic_env.identification.report import _drift_lines, write_report
 from pneumatic_env.identification.results import FitResult
 from pneumatic_env.identification.scoring import acceptance
+from pneumatic_env.identification.selection import WorkPlan, work_after_refits
 from pneumatic_env.studies.virtual_rig import make_recording
 
 
@@ -64,6 +65,36 @@ def test_progress_matches_the_plan_when_the_plan_holds():
     bar.advance(20.0)
     assert bar.fraction == pytest.approx(0.5)
     assert bar.work_left() == pytest.approx(50.0)
+
+
+def test_a_round_that_may_accept_an_effect_keeps_the_next_round_in_the_plan():
+    """Round 1 plans what accepting an effect would start (re-converging, round 2's
+    screening and refits): at the end of its refits the display shows the share of that
+    plan done, not 99 %; the last round and ``--quick`` plan nothing after their refits."""
+    plan = WorkPlan(base=0.0, round=0.0, refit=100.0, column=1.0)
+    settings = SimpleNamespace(max_effects=3, top_k=3)
+    pool = [SimpleNamespace(kind="plant", parameters=[1, 2]) for _ in range(10)]
+    after = work_after_refits(plan, settings, 4, pool, 1, False)
+    # re-converging 1 refit, round 2: 3 refits + its freer form, 9 candidates x 3 columns
+    assert after == pytest.approx(100.0 * 5 + (4 + 1 + 9 * 3))
+    assert work_after_refits(plan, settings, 4, pool, 3, False) == 0.0  # the last round
+    assert work_after_refits(plan, settings, 4, pool, 1, True) == 0.0  # --quick
+    assert work_after_refits(plan, settings, 4, pool[:1], 1, False) == 0.0  # none left
+    bar = progress.Progress(bar=False, interval_s=1e9, clock=_Clock())
+    screening = plan.screening(pool, 4)
+    bar.stage("screening", screening, later=3 * plan.refit + after)
+    bar.advance(screening)
+    bar.stage("refits", 3 * plan.refit, later=after)
+    bar.advance(3 * plan.refit)  # round 1 done as planned
+    done = screening + 3 * plan.refit
+    assert 0.3 < bar.fraction <= done / (done + after)
+    # without the next round in the plan the same work would read nearly done
+    unplanned = progress.Progress(bar=False, interval_s=1e9, clock=_Clock())
+    unplanned.stage("screening", screening, later=3 * plan.refit)
+    unplanned.advance(screening)
+    unplanned.stage("refits", 3 * plan.refit)
+    unplanned.advance(3 * plan.refit)
+    assert unplanned.fraction > 0.75
 
 
 def test_a_worker_process_reports_its_work_through_the_shared_counter():

@@ -34,6 +34,7 @@ facts of their sidecars (never the notes).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Callable, Sequence
@@ -82,6 +83,7 @@ from .selection import (
     screening_columns,
     selection_round,
     winner_and_runner_up,
+    work_after_refits,
 )
 from .stand_ins import drop_stand_ins
 
@@ -282,7 +284,9 @@ def _plan_work(
         issues.append(issue)
         log.warning("%s", issue.message)
     progress.restart_clock()  # the first simulation may have compiled the kernel
-    return WorkPlan(plan_base, plan_round, refit_work, w_all)
+    plan = WorkPlan(plan_base, plan_round, refit_work, w_all)
+    after = work_after_refits(plan, settings, len(refit), pool, 1, quick)
+    return dataclasses.replace(plan, after_first=after)
 
 
 def diagnose(
@@ -426,8 +430,10 @@ def _fit_base(
     plan: WorkPlan,
     early: bool = False,
     start: FitResult | None = None,
+    later: float | None = None,
 ) -> FitResult:
-    """Calibrate the base model on the training data (from ``start``'s values if given).
+    """Calibrate the base model on the training data (from ``start``'s values if given;
+    ``later``: the work planned after it, default round 1's).
 
     ``early``: at the screening's coarser substep of a moving rod
     (:func:`.screening.coarse_dataset`), and stop where the cost has stopped falling fast
@@ -435,7 +441,9 @@ def _fit_base(
     the screening; the fit's ``message`` then starts with "stopped early"
     (:func:`_finish_base` fits on at the fine substep)."""
     progress.stage(
-        "base fit" if start is None else "finishing the base fit", plan.base, later=plan.round
+        "base fit" if start is None else "finishing the base fit",
+        plan.base,
+        later=plan.round + plan.after_first if later is None else later,
     )
     log.info(
         "diagnosis: %s the base model (%s) on the training data",
@@ -484,7 +492,15 @@ def _finish_base(ctx: RoundContext, state: Selection, screens: Sequence) -> None
         return
     t0 = time.monotonic()
     early = ctx.base
-    base = _fit_base(ctx.split, ctx.base_params, ctx.cfg, ctx.settings, ctx.plan, start=early)
+    base = _fit_base(
+        ctx.split,
+        ctx.base_params,
+        ctx.cfg,
+        ctx.settings,
+        ctx.plan,
+        start=early,
+        later=ctx.work_after_screening,
+    )
     for s in screens:
         s.predicted_train = 1.0 - (1.0 - s.predicted_train) * early.rss / base.rss
     ctx.base = base

@@ -37,6 +37,7 @@ __all__ = [
     "screening_columns",
     "selection_round",
     "winner_and_runner_up",
+    "work_after_refits",
 ]
 
 log = logging.getLogger("pneumatic_env.identification")
@@ -66,6 +67,7 @@ class WorkPlan:
     round: float  # round 1: its screening and its refits
     refit: float  # one refit
     column: float = 0.0  # one simulation of all the data (a screening column)
+    after_first: float = 0.0  # what round 1 would start by accepting an effect
 
     def screening(self, pool: Sequence[Candidate], n_refit: int) -> float:
         """The work of screening ``pool`` (:func:`screening_columns`)."""
@@ -95,6 +97,9 @@ class RoundContext:
     # called after each screening, before its refits (diagnose: finish a base fit that
     # was stopped early for the first screening)
     after_screening: Callable[[RoundContext, Selection, Sequence], None] | None = None
+    # the work planned after the current round's screening (its refits, and what an
+    # accepted effect would start: :func:`work_after_refits`), for the progress display
+    work_after_screening: float = 0.0
 
     @property
     def moving(self) -> bool:
@@ -123,6 +128,26 @@ def eligible(pool: Sequence[Candidate], selected: Sequence[Candidate]) -> list[C
     return [c for c in pool if c not in selected and not conflicts(c, selected)]
 
 
+def work_after_refits(
+    plan: WorkPlan,
+    settings: Settings,
+    n_refit: int,
+    candidates: Sequence[Candidate],
+    rnd: int,
+    quick: bool,
+) -> float:
+    """The work round ``rnd``'s refits would start by accepting an effect: re-converging
+    the model with it, then the next round's screening (of one candidate fewer, with
+    ``n_refit`` base columns) and refits. Counted before it is known whether it will run,
+    so the display never nears 100 % while another round may follow; a round that
+    accepts nothing ends the run sooner than shown."""
+    rest = candidates[1:]
+    if quick or rnd >= settings.max_effects or not rest:
+        return 0.0
+    next_refits = min(settings.top_k, len(rest)) + 1  # + its freer-form refit
+    return plan.refit * (1 + next_refits) + plan.screening(rest, n_refit)
+
+
 def selection_round(
     ctx: RoundContext, state: Selection, pool: Sequence[Candidate], rnd: int
 ) -> bool:
@@ -132,10 +157,12 @@ def selection_round(
         return False
     t_round = time.monotonic()
     n_refits = 0 if ctx.quick else min(ctx.settings.top_k, len(candidates))
+    after = work_after_refits(ctx.plan, ctx.settings, len(ctx.refit), candidates, rnd, ctx.quick)
+    ctx.work_after_screening = n_refits * ctx.plan.refit + after
     progress.stage(
         f"screening {len(candidates)} candidates (round {rnd})",
         ctx.plan.screening(candidates, len(ctx.refit)),
-        later=n_refits * ctx.plan.refit,
+        later=ctx.work_after_screening,
     )
     screens = screen_candidates(
         candidates,
@@ -153,23 +180,27 @@ def selection_round(
     ctx.timings[f"screening_round_{rnd}"] = time.monotonic() - t_round
     if ctx.after_screening is not None:
         ctx.after_screening(ctx, state, screens)
-    round_scores = _refit_round(ctx, state, screens, rnd)
+    round_scores = _refit_round(ctx, state, screens, rnd, after)
     state.scores.extend(round_scores)
-    accepted = _accepted(ctx, state, round_scores, rnd)
+    accepted = _accepted(ctx, state, round_scores, rnd, after)
     if not accepted:
         return False
-    _adopt(ctx, state, accepted[0], round_scores)
+    _adopt(ctx, state, accepted[0], round_scores, after - ctx.plan.refit)
     return True
 
 
-def _refit_round(ctx: RoundContext, state: Selection, screens: Sequence, rnd: int) -> list:
+def _refit_round(
+    ctx: RoundContext, state: Selection, screens: Sequence, rnd: int, later: float
+) -> list:
     """Refit the screening's best few (in parallel); the rest keep the screening's score."""
     top_k = ctx.settings.top_k
     top = [] if ctx.quick else [*screens[:top_k], *drift_picks(ctx, state, screens[top_k:])]
     if not ctx.quick:
         top += form_picks(ctx.cfg, screens[top_k:], top)
     if top:  # --quick refits none: no stage to show
-        progress.stage(f"refitting {len(top)} candidates (round {rnd})", len(top) * ctx.plan.refit)
+        progress.stage(
+            f"refitting {len(top)} candidates (round {rnd})", len(top) * ctx.plan.refit, later
+        )
     t_refit = time.monotonic()
     # a refit starts from the config's warm start (starting from the screening's step
     # alone was tried: it left a heat-transfer refit at its bound, 10 W/K, and a coil
@@ -265,8 +296,11 @@ def _screened_only(s, rnd: int, quick: bool, top_k: int) -> CandidateScore:
     )
 
 
-def _accepted(ctx: RoundContext, state: Selection, round_scores: Sequence, rnd: int) -> list:
-    """The round's accepted scores, best first, after the basin and later-effect checks."""
+def _accepted(
+    ctx: RoundContext, state: Selection, round_scores: Sequence, rnd: int, later: float
+) -> list:
+    """The round's accepted scores, best first, after the basin and later-effect checks
+    (``later``: the work planned after them, for the progress display)."""
     min_rel, split = ctx.settings.min_rel, ctx.split
     accepted = sorted(
         (s for s in round_scores if s.accepted), key=lambda s: -s.relative_improvement
@@ -283,7 +317,7 @@ def _accepted(ctx: RoundContext, state: Selection, round_scores: Sequence, rnd: 
         if accepted:  # ... and not the effects before in a freer form (.later_effects)
             t_freer = time.monotonic()
             what = f"refitting the selected effects per experiment (round {rnd})"
-            progress.stage(what, ctx.plan.refit)
+            progress.stage(what, ctx.plan.refit, later)
             freer = fit_freer_form(
                 state.selected, state.current, ctx.refit, split, ctx.settings.nfev, ctx.cfg
             )
@@ -299,7 +333,11 @@ def _accepted(ctx: RoundContext, state: Selection, round_scores: Sequence, rnd: 
 
 
 def _adopt(
-    ctx: RoundContext, state: Selection, best: CandidateScore, round_scores: Sequence
+    ctx: RoundContext,
+    state: Selection,
+    best: CandidateScore,
+    round_scores: Sequence,
+    later: float,
 ) -> None:
     """Add ``best`` to the model and re-converge base + selected effects with the full
     budget, so the next round compares against a converged model (not against a refit
@@ -314,7 +352,7 @@ def _adopt(
     state.confidence[-1]["explains_channels"] = channel_drops(before, best.heldout_nrmse)
     selected = state.selected
     assert best.fit is not None  # an accepted candidate was refitted
-    progress.stage(f"re-converging the model with {best.name}", ctx.plan.refit)
+    progress.stage(f"re-converging the model with {best.name}", ctx.plan.refit, later)
     free = unique(
         list(ctx.base_params) + [p for c in selected for p in (*c.refit_base, *c.parameters)]
     )
