@@ -10,12 +10,17 @@ import pytest
 from pneumatic_env.studies.identification_eval import (
     _rig_jobs,
     multi_effect_markdown,
+    refitted_in_round_1,
+    screening_markdown,
     summarise_multi_effect,
+    summarise_screening,
 )
 
 
 def _args(**kw):
-    base = dict(campaign="user13", seeds=[1, 2], rigs=None, tube_length=0.5, jobs=2, out=".")
+    base = dict(
+        campaign="user13", seeds=[1, 2], rigs=None, tube_length=0.5, jobs=2, out=".", quick=False
+    )
     return argparse.Namespace(**{**base, **kw})
 
 
@@ -56,3 +61,52 @@ def test_multi_effect_scoring_counts_recall_and_false_effects():
     assert (summary["seconds_median"], summary["seconds_max"]) == (200.0, 300.0)
     block = multi_effect_markdown(summary, _args(rigs=["leakage+coil_lag"]))
     assert "Every effect found: 2 of 4" in block and "| stribeck |" in block
+
+
+def test_screening_recall_reads_round_1_refits_from_quick_and_full_records():
+    """``--quick``: round 1's refits are the screening's top ``refit_top`` and
+    ``always_refit`` (config); a full record lists its refits. The summary counts rigs
+    whose every catalog effect is among them, and first places of single-effect rigs."""
+    from pneumatic_env.identification.config import load_config
+
+    cfg = load_config()
+    top = int(cfg.number("screening", "refit_top"))
+    always = cfg.names("screening", "always_refit")
+    ranking = ["leakage", "coil_lag", "iso_flow_law", "tube_volume", "stribeck", *always]
+    quick = {"quick": True, "screening": [{"ranking": [{"name": n} for n in ranking]}]}
+    assert refitted_in_round_1(quick) == ranking[:top] + list(always)
+    full = {
+        "quick": False,
+        "candidates": [
+            {"name": "leakage", "round": 1, "refitted": True},
+            {"name": "coil_lag", "round": 1, "refitted": False},
+            {"name": "stribeck", "round": 2, "refitted": True},
+        ],
+    }
+    assert refitted_in_round_1(full) == ["leakage"]
+
+    def result(effect, effects, first, refitted, seconds):
+        return {
+            "label": effect,
+            "effect": effect,
+            "effects": effects,
+            "seed": 1,
+            "screening_first": first,
+            "refitted_round_1": refitted,
+            "seconds": seconds,
+        }
+
+    results = [
+        result("leakage", None, ["leakage", "coil_lag"], ["leakage", "coil_lag"], 10.0),
+        result("coil_lag", None, ["leakage", "coil_lag"], ["leakage", "coil_lag"], 12.0),
+        result("heat_transfer", None, ["iso_flow_law"], ["iso_flow_law"], 14.0),  # missed
+        result("none", None, ["leakage"], ["leakage"], 9.0),  # no catalog effect: not counted
+        result("a+b", {"leakage": 1.0, "supply_ripple": 1.0}, ["x"], ["leakage"], 20.0),
+    ]
+    summary = summarise_screening(results)
+    assert (summary["n_rigs"], summary["all_refitted"]) == (4, 3)
+    assert (summary["n_single"], summary["first"]) == (3, 1)
+    assert summary["missed"] == ["heat_transfer seed 1: heat_transfer"]
+    assert (summary["seconds_median"], summary["seconds_max"]) == (12.0, 20.0)
+    block = screening_markdown(summary, results, _args(quick=True, effects=None))
+    assert "among round 1's refits: 3 of 4 rigs" in block

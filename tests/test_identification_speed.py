@@ -85,17 +85,17 @@ def test_simulate_jobs_splits_columns_and_keeps_their_order(clamped_and_spring, 
 def test_unlike_columns_run_in_pieces_of_their_own_and_alone_bit_for_bit(
     clamped_and_spring, monkeypatch
 ):
-    """A job mixing columns that run different kernel loops (the paper's model, a leak, an
-    exhaust node, a supply node, the tube's air) runs each kind in pieces of its own, so a
-    costly node column never sets the loop of a cheap one, and every column's result is
-    the one it has simulated alone."""
+    """A job mixing columns that run different kernel loops (the paper's model, a leak,
+    an exhaust node, a supply node, the energy equation) runs each kind in pieces of its
+    own, so a costly node column never sets the loop of a cheap one, and every column's
+    result is the one it has simulated alone."""
     datasets, _, _ = clamped_and_spring
     kinds = [
         {},
         {"rod_seal_leak_area_m2": 2e-8},
         {"exhaust_vent_area_m2": 5e-6},
         {"supply_resistance_pa_s_per_kg": 2e7},
-        {"tube_volume_fraction": 0.5},
+        {"wall_heat_transfer_w_per_k": 0.05},
     ]
     columns = [{**kind, "supply_pressure_pa": p} for p in (5.5e5, 6.0e5) for kind in kinds]
     pieces: list[np.ndarray] = []
@@ -121,6 +121,25 @@ def test_unlike_columns_run_in_pieces_of_their_own_and_alone_bit_for_bit(
             for c in ds.channels:
                 assert np.array_equal(mixed[c][:, j], alone[c][:, 0]), (ds.name, column, c)
         monkeypatch.setattr(fit_problem, "_rollout_piece", recorded)
+
+
+def test_pieces_stay_whole_when_the_threads_balance_and_split_when_they_do_not():
+    """Whole pieces keep more lanes per chunk: five recordings' Jacobians whose costs
+    balance on two threads run as they are; a lone piece is shared by both threads, and
+    every column is run exactly once."""
+
+    def task(cost, n_cols, k):
+        return (cost, cost, k, np.arange(n_cols), 8)
+
+    recordings = [task(c, 11, k) for k, c in enumerate((3.0, 2.0, 3.0, 4.0, 6.0))]
+    assert fit_problem._balanced(recordings, 2) == recordings
+    lone = fit_problem._balanced([task(10.0, 11, 0)], 2)
+    assert sorted(t[3].size for t in lone) == [5, 6]
+    assert sorted(np.concatenate([t[3] for t in lone])) == list(range(11))
+    assert sum(t[0] for t in lone) == pytest.approx(10.0)
+    uneven = fit_problem._balanced([task(9.0, 4, 0), task(1.0, 3, 1)], 2)
+    assert fit_problem._makespan([t[0] for t in uneven], 2) <= 1.1 * 10.0 / 2 + 1e-9
+    assert fit_problem._balanced(recordings, 1) == recordings
 
 
 def test_early_screening_ranks_the_true_effect_first(tmp_path):

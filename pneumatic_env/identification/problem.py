@@ -22,7 +22,7 @@ import numpy as np
 
 from pneumatic_env.ids import MODE_FIXED
 from pneumatic_env.params import ConfigError, parameter_array
-from pneumatic_env.physics.constants import lane_classes
+from pneumatic_env.physics.constants import lane_class_cost, lane_classes
 from pneumatic_env.physics.layout import PARAMETER_INDEX as _ROW  # name -> row
 from pneumatic_env.replay import PREDICTED_CHANNELS
 from pneumatic_env.simulator import BatchSimulator
@@ -118,15 +118,13 @@ def _rollout_piece(ds: Dataset, params: np.ndarray, n_samples: int, substeps: in
     return np.concatenate([first[None], sim.rollout(currents)], axis=0)
 
 
-def _pieces(ds: Dataset, arr: np.ndarray, n_threads: int) -> list[tuple[np.ndarray, int]]:
-    """The column groups of one job, each as (column indices, substeps): columns whose rod
-    moves and columns whose rod is clamped apart, each at its own substep; within each,
-    columns that run the kernel's same loops apart (``lane_classes``: a batch chunk runs
-    the costliest loop of any of its lanes for all of them, so one exhaust-node column
-    among the screening's would make every column in its chunk cost as much); each
-    group dealt out into up to ``n_threads`` parts (every ``n_threads``-th column: a
-    candidate's columns, which cost alike and sit side by side, are shared by every
-    part)."""
+def _pieces(ds: Dataset, arr: np.ndarray) -> list[tuple[np.ndarray, int, float]]:
+    """The column groups of one job, each as (column indices, substeps, relative cost per
+    substep and column, ``lane_class_cost``): columns whose rod moves and columns whose
+    rod is clamped apart, each at its own substep; within each, columns that run the
+    kernel's same loops apart (``lane_classes``: a batch chunk runs the costliest loop of
+    any of its lanes for all of them, so one exhaust-node column among the screening's
+    would make every column in its chunk cost as much)."""
     moving = arr[_ROW["piston_mode"]] != MODE_FIXED
     pieces = []
     for group in (np.flatnonzero(~moving), np.flatnonzero(moving)):
@@ -136,10 +134,39 @@ def _pieces(ds: Dataset, arr: np.ndarray, n_threads: int) -> list[tuple[np.ndarr
         classes = lane_classes(np.ascontiguousarray(arr[:, group]), ds.dt_s / substeps)
         for code in np.unique(classes):
             members = group[classes == code]
-            n_parts = min(n_threads, members.size)
-            for first in range(n_parts):
-                pieces.append((members[first::n_parts], substeps))
+            pieces.append((members, substeps, lane_class_cost(int(code))))
     return pieces
+
+
+BALANCE_TOLERANCE = 1.1  # a split is worth its smaller batches above this load imbalance
+
+
+def _makespan(costs: Sequence[float], n_threads: int) -> float:
+    """The busiest thread's cost when pieces go, costliest first, to the least busy."""
+    loads = [0.0] * n_threads
+    for cost in sorted(costs, reverse=True):
+        loads[loads.index(min(loads))] += cost
+    return max(loads)
+
+
+def _balanced(tasks: list[tuple], n_threads: int) -> list[tuple]:
+    """``tasks`` (cost, work, job, columns, substeps), the costliest cut in two (every
+    second column) until the threads' loads are within ``BALANCE_TOLERANCE`` of even:
+    whole pieces keep more lanes per batch chunk (a base Jacobian's recordings balance
+    as they are), a lone piece is shared by every thread."""
+    tasks = list(tasks)
+    while n_threads > 1:
+        total = sum(t[0] for t in tasks)
+        if _makespan([t[0] for t in tasks], n_threads) <= BALANCE_TOLERANCE * total / n_threads:
+            break
+        splittable = [i for i, t in enumerate(tasks) if t[3].size > 1]
+        if not splittable:
+            break
+        cost, work, k, cols, substeps = tasks.pop(max(splittable, key=lambda i: tasks[i][0]))
+        for half in (cols[0::2], cols[1::2]):
+            share = half.size / cols.size
+            tasks.append((cost * share, work * share, k, half, substeps))
+    return tasks
 
 
 def _run_pieces(calls: Sequence[tuple], n_threads: int) -> Iterator[np.ndarray]:
@@ -155,7 +182,8 @@ def _run_pieces(calls: Sequence[tuple], n_threads: int) -> Iterator[np.ndarray]:
 
 def simulate_jobs(jobs: Sequence[SimulationJob]) -> list[dict[str, np.ndarray]]:
     """:func:`_simulate` of every job, all of them at once: their batch rollouts are cut
-    into column pieces and shared out over :func:`_threads` threads, the largest first.
+    into column pieces (:func:`_pieces`, :func:`_balanced`) and shared out over
+    :func:`_threads` threads, the costliest first.
     The results are bit-identical to one rollout per job. The work done is reported to
     :mod:`.progress`."""
     n_threads = _threads()
@@ -164,14 +192,15 @@ def simulate_jobs(jobs: Sequence[SimulationJob]) -> list[dict[str, np.ndarray]]:
         arr = _plant_array(ds, columns, scopes, column_scopes)
         arrays.append(arr)
         outs.append(np.empty((n_samples, len(PREDICTED_CHANNELS_ORDER), len(columns))))
-        for part, substeps in _pieces(ds, arr, n_threads):
-            tasks.append((n_samples * substeps * part.size, k, part, substeps))
-    tasks.sort(key=lambda task: -task[0])
+        for part, substeps, cost in _pieces(ds, arr):
+            work = n_samples * substeps * part.size
+            tasks.append((work * cost, work, k, part, substeps))
+    tasks = sorted(_balanced(tasks, n_threads), key=lambda task: -task[0])
     rows = [PREDICTED_CHANNELS[c] for c in PREDICTED_CHANNELS_ORDER]
     calls = [
-        (jobs[k][0], arrays[k][:, part], jobs[k][2], substeps) for _, k, part, substeps in tasks
+        (jobs[k][0], arrays[k][:, part], jobs[k][2], substeps) for _, _, k, part, substeps in tasks
     ]
-    for (work, k, part, _), piece in zip(tasks, _run_pieces(calls, n_threads)):
+    for (_, work, k, part, _), piece in zip(tasks, _run_pieces(calls, n_threads)):
         outs[k][:, :, part] = piece[:, rows, :]
         progress.advance(work)
     return [
@@ -205,19 +234,31 @@ def simulate_unique(
     """:func:`_simulate` of ``columns``, each plant that reaches ``ds`` simulated once: a
     value scoped away from its rod mode, or the piston's friction on a clamped rod, does
     not make a column differ."""
-    keys: list = []
-    unique: dict = {}
-    for plant, scopes in zip(columns, column_scopes):
-        resolved = dataset_overrides(ds, plant, scopes)
-        if ds.rod_mode == "fixed" and resolved.get("piston_mode", MODE_FIXED) == MODE_FIXED:
-            resolved = {k: v for k, v in resolved.items() if k not in FRICTION_NAMES}
-        key = tuple(sorted(resolved.items()))
-        unique.setdefault(key, resolved)
-        keys.append(key)
-    order = list(unique)
-    sims = _simulate(ds, [unique[k] for k in order], n_samples)
-    idx = [order.index(k) for k in keys]
-    return {c: y[:, idx] for c, y in sims.items()}
+    return simulate_unique_jobs([(ds, columns, n_samples, column_scopes)])[0]
+
+
+def simulate_unique_jobs(jobs: Sequence[tuple]) -> list[dict[str, np.ndarray]]:
+    """:func:`simulate_unique` of every ``(ds, columns, n_samples, column_scopes)``, all
+    in one :func:`simulate_jobs` call (the threads stay busy across the datasets)."""
+    indices, sim_jobs = [], []
+    for ds, columns, n_samples, column_scopes in jobs:
+        unique: dict = {}  # plant key -> its position among the simulated columns
+        plants, idx = [], []
+        for plant, scopes in zip(columns, column_scopes):
+            resolved = dataset_overrides(ds, plant, scopes)
+            if ds.rod_mode == "fixed" and resolved.get("piston_mode", MODE_FIXED) == MODE_FIXED:
+                resolved = {k: v for k, v in resolved.items() if k not in FRICTION_NAMES}
+            key = tuple(sorted(resolved.items()))
+            if key not in unique:
+                unique[key] = len(plants)
+                plants.append(resolved)
+            idx.append(unique[key])
+        indices.append(idx)
+        sim_jobs.append((ds, plants, n_samples, None, None))
+    return [
+        {c: y[:, idx] for c, y in sims.items()}
+        for idx, sims in zip(indices, simulate_jobs(sim_jobs))
+    ]
 
 
 class FitProblem:

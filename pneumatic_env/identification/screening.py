@@ -47,7 +47,7 @@ from .calibrate import Dataset, FitResult
 from .candidates import Candidate, apply_sensor_model
 from .config import FitParameter, IdentificationConfig
 from .holdout import index_of
-from .problem import FRICTION_NAMES, FitProblem, simulate_unique
+from .problem import FRICTION_NAMES, FitProblem, simulate_unique_jobs
 
 __all__ = ["Screen", "screen_candidates"]
 
@@ -238,17 +238,17 @@ def _starts(cand: Candidate, params: Sequence[FitParameter], values: dict, ds0, 
 
 
 def _simulate_columns(
-    ds: Dataset,
-    n_samples: int,
+    datasets: Sequence[Dataset],
+    n_samples: Sequence[int],
     specs: Sequence[tuple],
-    base_sim: dict,
+    base_sims: Sequence[dict],
     plant_now: dict,
     sensor_now: dict,
     scopes,
-) -> dict:
-    """Predictions on the first ``n_samples`` of ``ds`` of every spec's start and perturbed
-    columns (one batch simulation of the plant columns; a sensor candidate reuses
-    ``base_sim``)."""
+) -> list[dict]:
+    """Per dataset k, predictions on its first ``n_samples[k]`` of every spec's start and
+    perturbed columns (the plant columns of every dataset in one batch simulation; a
+    sensor candidate reuses ``base_sims[k]``)."""
     plant_cols, plant_scopes, sensor_cols, owner = [], [], [], []
     sensor_parts = []
     for cand, params, start, _, perturbed in specs:
@@ -262,13 +262,17 @@ def _simulate_columns(
             else:
                 sensor_parts.append({**sensor_now, **var})
                 owner.append(("sensor", len(sensor_parts) - 1))
-    sims = simulate_unique(ds, plant_cols, n_samples, plant_scopes) if plant_cols else {}
-    merged = {}
-    for c in ds.channels:
-        cols = [sims[c][:, j] if kind == "plant" else base_sim[c][:, 0] for kind, j in owner]
-        merged[c] = np.stack(cols, axis=1)
+    jobs = [(ds, plant_cols, n, plant_scopes) for ds, n in zip(datasets, n_samples)]
+    all_sims = simulate_unique_jobs(jobs) if plant_cols else [{} for _ in datasets]
     sensors = [sensor_cols[j] if kind == "plant" else sensor_parts[j] for kind, j in owner]
-    return apply_sensor_model(merged, sensors, ds.dt_s)
+    preds = []
+    for ds, sims, base_sim in zip(datasets, all_sims, base_sims):
+        merged = {}
+        for c in ds.channels:
+            cols = [sims[c][:, j] if kind == "plant" else base_sim[c][:, 0] for kind, j in owner]
+            merged[c] = np.stack(cols, axis=1)
+        preds.append(apply_sensor_model(merged, sensors, ds.dt_s))
+    return preds
 
 
 def screen_candidates(
@@ -328,12 +332,9 @@ def screen_candidates(
         for start in _starts(cand, params, values, datasets[0], log_starts):
             specs.append(_spec(cand, params, start, fd))
     base_sims = problem._plant(u0)
-    preds = [
-        _simulate_columns(
-            ds, problem.n_samples[k], specs, base_sims[k], plant_now, sensor_now, current.scopes
-        )
-        for k, ds in enumerate(datasets)
-    ]
+    preds = _simulate_columns(
+        datasets, problem.n_samples, specs, base_sims, plant_now, sensor_now, current.scopes
+    )
     R = problem._residual_of(preds)
 
     lo, hi = problem.bounds()

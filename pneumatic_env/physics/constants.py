@@ -536,6 +536,21 @@ def lane_classes(params, substep_s):
     return out
 
 
+def lane_class_cost(code: int) -> float:
+    """Rough cost per substep of a ``lane_classes`` class against the paper's model, to
+    schedule the costliest batches first (measured, docs/identification.md: a pressure
+    node 11-16 x, a transmission line 14-17 x, the general path's effects 1-9 x)."""
+    flag = {name: bool(code >> (LANE_KIND_BITS + i) & 1) for i, name in enumerate(_FLAGS)}
+    if flag["vented"] or flag["drooped"]:
+        return 12.0
+    if flag["lines"]:
+        return 15.0
+    return 4.0 if code & ((1 << LANE_KIND_BITS) - 1) == int(BATCH_GENERAL) else 1.0
+
+
+_FLAGS = ("leaky", "selected", "lagged", "four_paths", "vented", "drooped", "lines")
+
+
 def constants_cache(n_envs):
     """An empty cache of the batch path's constants for ``n_envs`` environments, every
     entry stale: (key (n_envs,), constants (chunks, N_CACHED_CONSTANTS * CHUNK_ENVS))."""
