@@ -219,3 +219,20 @@ def test_the_report_is_written_before_each_round_with_what_was_found_so_far(tmp_
     assert {c["name"] for c in after_round_1["candidates"]} == {"leakage", "pressure_sensor_offset"}
     assert "beyond leakage" in after_round_1["still_checking"]
     assert diag.status == "complete" and diag.to_json()["still_checking"] is None
+    # what each stage cost beside the kernel: every simulating stage is in the ledger, the
+    # lane-substeps add up to the work the stages reported, and none beat the kernel by
+    # much (the kernel alone on every core is the floor; timing noise aside)
+    costs = diag.to_json()["stage_costs"]
+    names = [r["stage"] for r in costs]
+    assert names[0] == "timing a simulation of the data" and "base fit" in names
+    assert any(n.startswith("screening") for n in names)
+    assert any(n.startswith("refitting") for n in names)
+    simulating = [r for r in costs if r["lane_substeps"] > 0]
+    assert len(simulating) >= 4
+    assert all(r["ratio_to_kernel"] > 0.5 for r in simulating), costs
+    assert diag.to_json()["kernel_lane_substeps_per_s"] > 1e5
+    total = sum(r["seconds"] for r in costs)
+    assert total <= diag.timings["total"] + 1e-6
+    write_report(diag, out, plots=False)
+    report = (out / "report.md").read_text()
+    assert "## Time" in report and "| base fit |" in report

@@ -63,7 +63,7 @@ from .checks import dead_band_current
 from .config import IdentificationConfig, load_config
 from .drift import base_drifts, suggested_effects
 from .holdout import Holdout
-from .problem import FitProblem
+from .problem import FitProblem, simulation_threads
 from .residuals import PHASES, phase_masks, residual_analysis
 from .scoring import (
     CandidateScore,
@@ -85,6 +85,7 @@ from .selection import (
     winner_and_runner_up,
     work_after_refits,
 )
+from .stage_costs import kernel_substeps_per_s, stage_costs
 from .stand_ins import drop_stand_ins
 
 __all__ = [
@@ -134,6 +135,8 @@ class Diagnosis:
     quick: bool = False  # screening only, nothing refitted
     freer_forms: list = field(default_factory=list)  # per later round (.later_effects)
     timings: dict = field(default_factory=dict)  # seconds per stage
+    stage_costs: list = field(default_factory=list)  # .stage_costs: each stage vs the kernel
+    kernel_substeps_per_s: float = 0.0  # the kernel's lane-substeps per second, one core
     status: str = "complete"  # or "running, round N" (a report written during the run)
     still_checking: str | None = None  # what the running round checks
     drift: list = field(default_factory=list)  # .drift.Drift: base parameters implausible
@@ -172,6 +175,9 @@ class Diagnosis:
             "stand_in_check": self.stand_ins,
             "quick": self.quick,
             "timings_s": self.timings,
+            "stage_costs": self.stage_costs,
+            "kernel_lane_substeps_per_s": self.kernel_substeps_per_s,
+            "simulation_threads": simulation_threads(),
             "status": self.status,
             "still_checking": self.still_checking,
             "base_drift": [d.to_dict() for d in self.drift],
@@ -312,6 +318,7 @@ def diagnose(
     it found.
     """
     t0 = time.monotonic()
+    progress.ledger(start=True)
     cfg = config or load_config()
     datasets, issues = prepare_datasets(recordings, params, cfg)
     split = Holdout(datasets, holdout, cfg)
@@ -323,11 +330,14 @@ def diagnose(
     settings = _settings(cfg, max_effects, jobs)
     pool, skipped = _candidate_pool(datasets, candidates, cfg)
     plan = _plan_work(datasets, split, base_params, refit, pool, cfg, settings, quick, issues)
+    clamped = [ds for ds in split.train if not ds.moving] or list(split.train)
+    kernel_rate = kernel_substeps_per_s(clamped[0])  # after the plan's probe compiled it
     base = _fit_base(split, base_params, cfg, settings, plan, early=True)
     timings = {"base_fit": time.monotonic() - t0}
     ctx = RoundContext(
         cfg, settings, datasets, split, base_params, refit, plan, quick, base, timings
     )
+    ctx.kernel_substeps_per_s = kernel_rate
     ctx.after_screening = None if quick else _finish_base
     state = Selection(base, *_heldout_means(split, base))
     before = _Before(t0, issues, skipped)
@@ -408,6 +418,8 @@ def _assemble(
         per_recording=_per_recording_before_after(base_per, after_per),
         quick=ctx.quick,
         timings=dict(ctx.timings),
+        stage_costs=stage_costs(progress.ledger(), ctx.kernel_substeps_per_s, simulation_threads()),
+        kernel_substeps_per_s=ctx.kernel_substeps_per_s,
         status=status,
         still_checking=checking,
         drift=base_drifts(base, ctx.datasets, cfg, state.current),

@@ -82,6 +82,11 @@ def _threads() -> int:
     return max(1, int(numba.get_num_threads()))
 
 
+def simulation_threads() -> int:
+    """The threads the fits' simulations share out over (:func:`_threads`)."""
+    return _threads()
+
+
 def _forget_pool() -> None:
     """After a fork the child has none of the parent's pool threads: start a new pool."""
     _pools.clear()

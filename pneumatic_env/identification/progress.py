@@ -14,7 +14,8 @@ most ``max_unfinished`` (99 %) until :meth:`Progress.finish`.
 It draws a ``tqdm`` bar when ``tqdm`` is importable (the ``train`` extra) and the
 output is a terminal, else it writes a log line at most every ``interval_s`` seconds.
 Nothing is shown unless a :class:`Progress` is active (the library is silent by
-default; the CLI activates one unless ``--quiet``).
+default; the CLI activates one unless ``--quiet``). Shown or not, every stage's start and
+the work done by then go to a ledger (:func:`ledger`): what each stage cost.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ __all__ = [
     "active",
     "advance",
     "finish",
+    "ledger",
     "plan",
     "report_to",
     "restart_clock",
@@ -40,6 +42,8 @@ __all__ = [
 log = logging.getLogger("pneumatic_env.identification")
 _ACTIVE: list[Progress] = []
 _SHARED: list = []  # in a worker process: the parent's multiprocessing.Value of work done
+_WORK = [0.0]  # all the work reported here (and by this process's workers), shown or not
+_LEDGER: list[tuple[str, float, float]] = []  # (stage, start, work done before it)
 
 
 class Progress:
@@ -194,11 +198,26 @@ def plan(work: float) -> None:
 
 
 def stage(name: str, work: float = 0.0, later: float = 0.0) -> None:
+    _LEDGER.append((name, time.monotonic(), _WORK[0]))
     if _ACTIVE:
         _ACTIVE[-1].stage(name, work, later)
 
 
+def ledger(start: bool = False) -> list[dict]:
+    """Each stage since the ledger was last started, in order: its name, seconds and work
+    (the stage running now up to now); ``start=True`` starts the ledger afresh instead."""
+    if start:
+        _LEDGER.clear()
+        return []
+    ends = [(t, w) for _, t, w in _LEDGER[1:]] + [(time.monotonic(), _WORK[0])]
+    return [
+        {"stage": name, "seconds": t_end - t, "work": w_end - w}
+        for (name, t, w), (t_end, w_end) in zip(_LEDGER, ends)
+    ]
+
+
 def advance(work: float) -> None:
+    _WORK[0] += work
     if _ACTIVE:
         _ACTIVE[-1].advance(work)
     for counter in _SHARED:

@@ -25,6 +25,7 @@ from pathlib import Path
 from pneumatic_env.text_format import jsonable, number_text
 
 from .diagnose import Diagnosis
+from .stage_costs import stage_cost_lines
 
 __all__ = ["REPORT_FILES", "diagnosis_json", "write_report"]
 
@@ -132,6 +133,9 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
     lines += _confidence_lines(data) + _stand_in_lines(data)
     lines += _per_recording_lines(data) + _screening_lines(data)
     lines += _candidate_lines(data) + _calibration_lines(data) + _residual_lines(data)
+    lines += stage_cost_lines(
+        data["stage_costs"], data["kernel_lane_substeps_per_s"], data["simulation_threads"]
+    )
     lines += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots]
     lines += [
         "",

@@ -100,6 +100,8 @@ class RoundContext:
     # the work planned after the current round's screening (its refits, and what an
     # accepted effect would start: :func:`work_after_refits`), for the progress display
     work_after_screening: float = 0.0
+    # the kernel's lane-substeps per second on one core (.stage_costs), for the report
+    kernel_substeps_per_s: float = 0.0
 
     @property
     def moving(self) -> bool:
