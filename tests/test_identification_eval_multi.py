@@ -102,11 +102,12 @@ def test_screening_recall_reads_round_1_refits_from_quick_and_full_records():
         result("heat_transfer", None, ["iso_flow_law"], ["iso_flow_law"], 14.0),  # missed
         result("none", None, ["leakage"], ["leakage"], 9.0),  # no catalog effect: not counted
         result("a+b", {"leakage": 1.0, "supply_ripple": 1.0}, ["x"], ["leakage"], 20.0),
+        result("c+d", {"leakage": 1.0, "coil_lag": 1.0}, ["x"], ["coil_lag"], 30.0),
     ]
     summary = summarise_screening(results)
-    assert (summary["n_rigs"], summary["all_refitted"]) == (4, 3)
+    assert (summary["n_rigs"], summary["all_refitted"], summary["any_refitted"]) == (5, 3, 4)
     assert (summary["n_single"], summary["first"]) == (3, 1)
-    assert summary["missed"] == ["heat_transfer seed 1: heat_transfer"]
-    assert (summary["seconds_median"], summary["seconds_max"]) == (12.0, 20.0)
+    assert summary["missed"] == ["heat_transfer seed 1: heat_transfer", "c+d seed 1: leakage"]
+    assert (summary["seconds_median"], summary["seconds_max"]) == (14.0, 30.0)
     block = screening_markdown(summary, results, _args(quick=True, effects=None))
-    assert "among round 1's refits: 3 of 4 rigs" in block
+    assert "among round 1's refits: 3 of 5 rigs" in block and "later rounds" in block

@@ -381,6 +381,7 @@ def _assemble(
     base_per = split.per_recording(base_preds)
     after_nrmse, after_preds = split.heldout_nrmse(state.current)
     after_per = split.per_recording(after_preds)
+    ledger = progress.ledger()  # the stages up to now, as the total below
     ctx.timings["total"] = time.monotonic() - before.t0
     status, checking = "complete", None
     if running_round is not None:
@@ -418,7 +419,7 @@ def _assemble(
         per_recording=_per_recording_before_after(base_per, after_per),
         quick=ctx.quick,
         timings=dict(ctx.timings),
-        stage_costs=stage_costs(progress.ledger(), ctx.kernel_substeps_per_s, simulation_threads()),
+        stage_costs=stage_costs(ledger, ctx.kernel_substeps_per_s, simulation_threads()),
         kernel_substeps_per_s=ctx.kernel_substeps_per_s,
         status=status,
         still_checking=checking,
