@@ -248,7 +248,8 @@ def simulate_unique_jobs(jobs: Sequence[tuple]) -> list[dict[str, np.ndarray]]:
     indices, sim_jobs = [], []
     for ds, columns, n_samples, column_scopes in jobs:
         unique: dict = {}  # plant key -> its position among the simulated columns
-        plants, idx = [], []
+        plants: list[dict] = []
+        idx: list[int] = []
         for plant, scopes in zip(columns, column_scopes):
             resolved = dataset_overrides(ds, plant, scopes)
             if ds.rod_mode == "fixed" and resolved.get("piston_mode", MODE_FIXED) == MODE_FIXED:
