@@ -39,7 +39,8 @@ FRICTION_NAMES = ("static_friction_n", "dynamic_friction_n", "viscous_friction_n
 
 
 #: One simulation job: a dataset, its columns of overrides, the samples to simulate, the
-#: scopes of every column and, optionally, each column's own (see :func:`_simulate`).
+#: scopes of every column and, optionally, each column's own (``column_scopes[j]``, default
+#: the job's scopes for every column).
 SimulationJob = tuple[
     Dataset,
     Sequence[Mapping[str, float]],
@@ -186,9 +187,10 @@ def _run_pieces(calls: Sequence[tuple], n_threads: int) -> Iterator[np.ndarray]:
 
 
 def simulate_jobs(jobs: Sequence[SimulationJob]) -> list[dict[str, np.ndarray]]:
-    """:func:`_simulate` of every job, all of them at once: their batch rollouts are cut
-    into column pieces (:func:`_pieces`, :func:`_balanced`) and shared out over
-    :func:`_threads` threads, the costliest first.
+    """The true (plant) channels ``(n_samples, m)`` of every job's columns of overrides,
+    all of them at once: columns whose rod moves and columns whose rod is clamped at their
+    own substeps, the batch rollouts cut into column pieces (:func:`_pieces`,
+    :func:`_balanced`) and shared out over :func:`_threads` threads, the costliest first.
     The results are bit-identical to one rollout per job. The work done is reported to
     :mod:`.progress`."""
     n_threads = _threads()
@@ -214,29 +216,13 @@ def simulate_jobs(jobs: Sequence[SimulationJob]) -> list[dict[str, np.ndarray]]:
     ]
 
 
-def _simulate(
-    ds: Dataset,
-    columns: Sequence[Mapping[str, float]],
-    n_samples: int,
-    scopes: Mapping[str, Sequence[str]] | None = None,
-    column_scopes: Sequence[Mapping[str, Sequence[str]]] | None = None,
-) -> dict[str, np.ndarray]:
-    """True (plant) channels of ``ds`` for each column of overrides: ``(n_samples, m)``.
-
-    ``column_scopes[j]`` (default: ``scopes`` for every column) scopes column j's values.
-    Columns whose rod moves and columns whose rod is clamped are simulated in separate
-    batches, each at its own substep (:func:`simulate_jobs`, over both cores).
-    """
-    return simulate_jobs([(ds, columns, n_samples, scopes, column_scopes)])[0]
-
-
 def simulate_unique(
     ds: Dataset,
     columns: Sequence[Mapping[str, float | str]],
     n_samples: int,
     column_scopes: Sequence[Mapping[str, Sequence[str]]],
 ) -> dict[str, np.ndarray]:
-    """:func:`_simulate` of ``columns``, each plant that reaches ``ds`` simulated once: a
+    """:func:`simulate_jobs` of ``columns``, each plant that reaches ``ds`` simulated once: a
     value scoped away from its rod mode, or the piston's friction on a clamped rod, does
     not make a column differ."""
     return simulate_unique_jobs([(ds, columns, n_samples, column_scopes)])[0]
@@ -375,7 +361,7 @@ class FitProblem:
     def _simulate_each(
         self, columns: Sequence[Mapping[str, float]], n_samples: Sequence[int]
     ) -> list[dict[str, np.ndarray]]:
-        """:func:`_simulate` of ``columns`` on every dataset (``n_samples[k]`` of dataset
+        """:func:`simulate_jobs` of ``columns`` on every dataset (``n_samples[k]`` of dataset
         k), all datasets in one :func:`simulate_jobs` call."""
         return simulate_jobs(
             [(ds, columns, n, self.scopes, None) for ds, n in zip(self.datasets, n_samples)]

@@ -12,7 +12,7 @@ Gauss-Newton step per candidate predicts what its refit would give:
    a finite neutral value (not fitted in log10) also at the neutral point (a score test),
    and for effects fitted in log10 also one decade either side of the warm start; the
    best prediction counts. Every plant candidate's columns of
-   a recording are one batch rollout (:func:`.calibrate._simulate`); sensor candidates
+   every recording are one call of :func:`.problem.simulate_jobs`; sensor candidates
    only re-filter the current simulation;
    A moving rod is simulated at ``screening.max_substep_moving_s`` (coarser than the
    fits' substep: the same model for the current fit and every candidate);

@@ -508,6 +508,7 @@ def chunk_effects(chunk_constants, n_lanes):
 
 
 LANE_KIND_BITS = 2  # lane_classes: the batch lane kind, then one bit per chunk_effects flag
+_FLAGS = ("leaky", "selected", "lagged", "four_paths", "vented", "drooped", "lines")
 
 
 @njit(cache=True)
@@ -546,9 +547,6 @@ def lane_class_cost(code: int) -> float:
     if flag["lines"]:
         return 15.0
     return 4.0 if code & ((1 << LANE_KIND_BITS) - 1) == int(BATCH_GENERAL) else 1.0
-
-
-_FLAGS = ("leaky", "selected", "lagged", "four_paths", "vented", "drooped", "lines")
 
 
 def constants_cache(n_envs):
