@@ -192,8 +192,9 @@ def refitted_in_round_1(data: dict) -> list[str]:
 
 
 def summarise_screening(results: list[dict]) -> dict:
-    """The screening's recall over rigs with effects in the catalog: rigs whose every
-    effect is refitted in round 1, effects ranked first (single-effect rigs), per effect."""
+    """The screening's recall over rigs with effects in the catalog: rigs whose every true
+    effect is among round 1's refits, rigs with at least one there, the misses, and the
+    single-effect rigs whose effect the screening ranks first; the time per rig."""
     rigs, all_refitted, any_refitted, first, single = 0, 0, 0, 0, 0
     missed: list[str] = []
     for r in results:

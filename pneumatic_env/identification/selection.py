@@ -187,7 +187,7 @@ def selection_round(
     accepted = _accepted(ctx, state, round_scores, rnd, after)
     if not accepted:
         return False
-    _adopt(ctx, state, accepted[0], round_scores, after - ctx.plan.refit)
+    _adopt(ctx, state, accepted[0], round_scores, max(after - ctx.plan.refit, 0.0))
     return True
 
 
