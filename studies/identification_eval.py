@@ -546,9 +546,7 @@ def _floats(text: str) -> list[float]:
     return [float(t) for t in text.split(",") if t.strip()]
 
 
-def main(argv: list[str] | None = None) -> int:
-    from pneumatic_env.identification.candidates import available_candidates
-
+def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python -m pneumatic_env.studies.identification_eval",
         description=__doc__.splitlines()[0],
@@ -612,6 +610,13 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="Markdown file whose evaluate block is replaced by the results",
     )
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    from pneumatic_env.identification.candidates import available_candidates
+
+    p = _parser()
     args = p.parse_args(argv)
     names = args.candidates.split(",") if args.candidates else None
     candidates = [c.name for c in available_candidates(names)]

@@ -131,6 +131,7 @@ def kernel_throughput(folder: Path, repeats: int) -> tuple[float, float]:
     from pneumatic_env.identification.checks import read_checked
     from pneumatic_env.identification.config import load_config
     from pneumatic_env.identification.datasets import prepare_datasets
+    from pneumatic_env.identification.stage_costs import kernel_substeps_per_s
     from pneumatic_env.params import parameter_array
     from pneumatic_env.physics.constants import CHUNK_ENVS
     from pneumatic_env.simulator import BatchSimulator
@@ -139,23 +140,18 @@ def kernel_throughput(folder: Path, repeats: int) -> tuple[float, float]:
     recordings = [read_checked(p) for p in sorted(folder.glob("*.csv"))]
     datasets, _ = prepare_datasets(recordings, None, cfg)
     ds = next(d for d in datasets if d.rod_mode == "fixed")
-    currents = ds.recording.i_c[:-1]
-    rates = []
-    for lanes, parallel in ((CHUNK_ENVS, False), (2 * CHUNK_ENVS, True)):
-        sim = BatchSimulator(parameter_array([ds.values] * lanes), ds.dt_s, ds.substeps)
-        block = np.repeat(currents[:, None], lanes, axis=1)
-        best = []
-        for _ in range(repeats + 1):  # the first run compiles
-            sim.reset(initial=ds.initial)
-            t0 = time.perf_counter()
-            if parallel:
-                for row in block:
-                    sim.step(row)
-            else:
-                sim.rollout(block)
-            best.append(time.perf_counter() - t0)
-        rates.append(block.size * ds.substeps / statistics.median(best[1:]))
-    return rates[0], rates[1]
+    one_core = kernel_substeps_per_s(ds, samples=None, repeats=repeats)
+    lanes = 2 * CHUNK_ENVS  # two chunks, stepped by step_parallel
+    sim = BatchSimulator(parameter_array([ds.values] * lanes), ds.dt_s, ds.substeps)
+    block = np.repeat(ds.recording.i_c[:-1, None], lanes, axis=1)
+    seconds = []
+    for _ in range(repeats + 1):  # the first run compiles
+        sim.reset(initial=ds.initial)
+        t0 = time.perf_counter()
+        for row in block:
+            sim.step(row)
+        seconds.append(time.perf_counter() - t0)
+    return one_core, block.size * ds.substeps / statistics.median(seconds[1:])
 
 
 def _candidate_values(values: dict, candidate: str) -> dict:

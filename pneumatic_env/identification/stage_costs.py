@@ -12,7 +12,7 @@ the paper's model (a pressure node, the transmission line) shows as a higher rat
 
 from __future__ import annotations
 
-import math
+import statistics
 import time
 
 import numpy as np
@@ -26,24 +26,28 @@ from .datasets import Dataset
 __all__ = ["kernel_substeps_per_s", "stage_cost_lines", "stage_costs"]
 
 KERNEL_SAMPLES = 1000  # samples of the current the throughput is timed on
-KERNEL_REPEATS = 3  # the fastest of this many runs counts (the first may compile)
+KERNEL_REPEATS = 2  # timed runs after a first one (which may compile); their median counts
 
 
-def kernel_substeps_per_s(ds: Dataset) -> float:
+def kernel_substeps_per_s(
+    ds: Dataset, samples: int | None = KERNEL_SAMPLES, repeats: int = KERNEL_REPEATS
+) -> float:
     """Lane-substeps per second of the base model at ``ds``'s substep on one core: a
-    full chunk of ``ds``'s parameters over its first ``KERNEL_SAMPLES`` samples."""
-    n = max(2, min(KERNEL_SAMPLES, len(ds.recording.i_c)))
+    full chunk of ``ds``'s parameters over its first ``samples`` samples (None: all),
+    the median of ``repeats`` runs after a first one (``studies.identification_speed``
+    takes its one-core figure from here too)."""
+    n_all = len(ds.recording.i_c)
+    n = n_all if samples is None else max(2, min(samples, n_all))
     params = np.ascontiguousarray(np.repeat(parameter_array([ds.values]), CHUNK_ENVS, axis=1))
     currents = np.repeat(ds.recording.i_c[: n - 1, None], CHUNK_ENVS, axis=1)
-    best = math.inf
-    for _ in range(KERNEL_REPEATS):
+    seconds = []
+    for _ in range(repeats + 1):
         sim = BatchSimulator(params, ds.dt_s, ds.substeps)
-        if ds.initial:
-            sim.reset(initial=ds.initial)
+        sim.reset(initial=ds.initial)
         t0 = time.perf_counter()
         sim.rollout(currents)
-        best = min(best, time.perf_counter() - t0)
-    return (n - 1) * ds.substeps * CHUNK_ENVS / max(best, 1e-9)
+        seconds.append(time.perf_counter() - t0)
+    return (n - 1) * ds.substeps * CHUNK_ENVS / max(statistics.median(seconds[1:]), 1e-9)
 
 
 def stage_costs(ledger: list[dict], substeps_per_s: float, threads: int) -> list[dict]:
