@@ -123,3 +123,30 @@ def test_seed_statistics_count_the_seeds_below_the_baseline():
     assert lines["b"].split("|")[4].strip() == "2 of 2"
     assert lines["worst ratio"].split("|")[2].strip() == "1.80"
     assert lines["worst ratio"].split("|")[4].strip() == "1 of 2 at most"
+
+
+def test_the_seed_actors_at_a_residual_gain(tmp_path, capsys):
+    """``--residual-gain``: each seed's residual runs at that gain of its trained bound
+    (the shipped actors are scaled already: rescaled from the trained bound, not
+    compounded); without ``--seed-runs`` the option is refused by name."""
+    from pneumatic_env.agents.learned import (
+        LearnedActor,
+        shipped_policy_path,
+        trained_correction_fraction,
+    )
+    from pneumatic_env.agents.robustness import actors_at_gain, main
+
+    shipped = [shipped_policy_path("ppo_adaptive", v) for v in ("Numatics-2m", "Airpel-2m")]
+    for gain in (0.0, 0.9, 1.0):
+        out = tmp_path / f"g{gain}"
+        out.mkdir()
+        paths = actors_at_gain(shipped, gain, out)
+        assert [p.parent for p in paths] == [out, out] and paths[0] != paths[1]
+        for src, path in zip(shipped, paths):
+            trained = trained_correction_fraction(LearnedActor(src).meta)
+            meta = LearnedActor(path).meta
+            assert meta["residual"]["correction_fraction"] == pytest.approx(gain * trained)
+            assert meta["residual_gain"]["gain"] == gain
+    with pytest.raises(SystemExit):
+        main(["--residual-gain", "0.9"])
+    assert "--residual-gain 0.9 needs --seed-runs" in capsys.readouterr().err
