@@ -230,3 +230,59 @@ def test_clamped_friction_laws_reproduce_the_general_path_bit_for_bit(seed):
     sets = _friction_sets()
     currents = random_currents(np.random.default_rng(seed), 300, len(sets))
     assert assert_batch_matches_general_path(sets, currents)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_the_valve_ends_solved_in_lockstep_equal_the_solve_lane_by_lane(seed):
+    """``batch_lines``' valve-end solve over a chunk (lanes done at the first guess, at the
+    pressure floor, with the valve closed, and after Illinois steps of different counts)
+    gives each lane ``nodes._line_valve_end``'s pressure, flow and exhaust, bit for bit."""
+    from pneumatic_env.physics import batch_lines as BL
+    from pneumatic_env.physics.nodes import _line_valve_end
+    from pneumatic_env.simulator import BatchSimulator
+
+    rng = np.random.default_rng(seed)
+    n = K.CHUNK_ENVS
+    sets = [
+        load_parameters(
+            "numatics",
+            tube_waves=1.0,
+            discharge_coefficient=0.15 + 0.2 * rng.random(),
+            supply_pressure_pa=4e5 + 4e5 * rng.random(),
+            valve_null_leak_area_m2=float(rng.choice([0.0, 2e-8])),
+        )
+        for _ in range(n)
+    ]
+    sim = BatchSimulator(parameter_array(sets), 1e-3, 20)
+    constants = sim.constants[0]
+    K.refresh_constants(sim.params, 0, n, 5e-5, sim.constants_key, constants)
+    rows = np.zeros(BL.N_ROWS * n)
+    # spool positions from closed (inside the overlap) to fully open either way; waves from
+    # below the atmosphere to above the supply
+    spool = rng.choice([0.0, 1.0], n) * rng.uniform(-1.2e-3, 1.2e-3, n)
+    waves = rng.uniform(0.3e5, 9e5, (2, n))
+    expected = []
+    for j in range(n):
+        c = K.load_constants(constants, j)
+        area_a, area_b = BL.line_valve_areas(c, spool[j])
+        for block, ends, wave in (
+            (BL.R_END, (area_a, area_b), waves[0, j]),
+            (BL.R_END + BL.N_END, (area_b, area_a), waves[1, j]),
+        ):
+            rows[(block + BL.E_SUPPLY) * n + j] = ends[0]
+            rows[(block + BL.E_EXHAUST) * n + j] = ends[1]
+            rows[(block + BL.E_WAVE) * n + j] = wave
+        expected.append(
+            (
+                _line_valve_end(c, area_a, area_b, waves[0, j]),
+                _line_valve_end(c, area_b, area_a, waves[1, j]),
+            )
+        )
+    BL._solve(constants, rows, n, BL.R_END)
+    BL._solve(constants, rows, n, BL.R_END + BL.N_END)
+    for j in range(n):
+        for end, block in enumerate((BL.R_END, BL.R_END + BL.N_END)):
+            got = BL._end(rows, block, j)
+            assert got == expected[j][end], (j, end, got, expected[j][end])
+    closed = sum(e[0] == (waves[0, j], 0.0, 0.0) for j, e in enumerate(expected))
+    assert 0 < closed < n  # both closed and open valves were solved

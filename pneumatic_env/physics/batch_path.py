@@ -12,6 +12,7 @@ import numpy as np
 from numba import njit, prange
 
 from . import layout as L
+from .batch_lines import close_lines
 from .batch_nodes import node_substeps
 from .batch_rhs import rk4_base_substep, rk4_line_substep
 from .batch_work import (
@@ -44,7 +45,6 @@ from .general_path import (
     OUTPUT_STATE_ROWS,
     STIFFNESS_LIMIT,
     advance_env,
-    close_line_ends,
     close_substep,
     refinement,
     split_substep,
@@ -185,24 +185,6 @@ def line_substeps(constants, work, history, first, n_lanes, head_sub, h, leaks, 
         direction = work[W_DIRECTION * k + j]
         y = rk4_line_substep(c, y, drive, direction, arriving, h, leaks, selected)
         set_work_rows(work, 0, j, y)
-
-
-@njit(cache=True)
-def close_lines(constants, work, history, first, n_lanes, slot, h):
-    """``general_path.close_line_ends`` for the chunk's batch-path lanes with transmission
-    lines that the general path does not redo: the waves their ends send at boundary
-    ``slot`` and their exhaust mass (work row ``S_EXHAUST``)."""
-    k = CHUNK_ENVS
-    for j in range(n_lanes):
-        if (
-            constants[C_BASE_ONLY * k + j] == BATCH_GENERAL
-            or constants[C_WAVES * k + j] == 0.0
-            or work[W_REDO * k + j] != 0.0
-        ):
-            continue
-        c = load_constants(constants, j)
-        y = work_rows(work, 0, j)
-        work[L.S_EXHAUST * k + j] = close_line_ends(c, history, first + j, slot, y, h)
 
 
 @njit(cache=True, error_model="numpy")

@@ -17,7 +17,15 @@ from . import layout as L
 from .chamber import chamber_volumes
 from .constants import env_constants
 from .effects import lugre_bristle_step, spool_play_current
-from .nodes import exhaust_pressure_at_valve, line_flows, scalar_area, sent_wave
+from .nodes import _line_valve_end as line_valve_end
+from .nodes import (
+    exhaust_pressure_at_valve,
+    line_chamber_flows,
+    line_flows,
+    line_valve_areas,
+    scalar_area,
+    sent_wave,
+)
 from .piston import (
     MODE_FIXED,
     apply_event,
@@ -204,9 +212,23 @@ def close_line_ends(c, history, env, slot, y, h):
     their four ends send and their valve exhaust, written to the history, and the
     exhaust mass (``y[6]``) with the exhaust added by the trapezoid rule over the substep
     of ``h`` s."""
-    flow_1, flow_2, vented, port_1, q_1, port_2, q_2 = line_flows(
-        c, y[0], arriving_waves(c, history, env, slot, 0.0), y[2], y[3]
-    )
+    arriving = arriving_waves(c, history, env, slot, 0.0)
+    area_a, area_b = line_valve_areas(c, y[0])
+    end_1 = line_valve_end(c, area_a, area_b, arriving[0])
+    end_2 = line_valve_end(c, area_b, area_a, arriving[1])
+    return send_line_waves(c, history, env, slot, y, h, arriving, end_1, end_2)
+
+
+@njit(cache=True)
+def send_line_waves(c, history, env, slot, y, h, arriving, end_1, end_2):
+    """``close_line_ends`` given the waves ``arriving`` at the four line ends and the
+    solved valve ends (pressure, flow into the line, exhaust flow; ``nodes._line_valve_end``)
+    ``end_1``, ``end_2``: the chamber ends' flows, the waves the four ends send and the
+    lines' valve exhaust, written to the history; the exhaust mass by the trapezoid rule."""
+    port_1, q_1, exhaust_1 = end_1
+    port_2, q_2, exhaust_2 = end_2
+    flow_1, flow_2 = line_chamber_flows(c, (arriving[2], arriving[3]), y[2], y[3])
+    vented = exhaust_1 + exhaust_2
     start = history[ring_slot(slot - 1, history.shape[0]), L.H_LINE_EXHAUST, env]
     history[slot, L.H_LINE_EXHAUST, env] = vented
     history[slot, L.H_WAVE_VALVE_1, env] = sent_wave(c, port_1, q_1)

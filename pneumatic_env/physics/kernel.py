@@ -18,7 +18,8 @@ RK4 substep at a time in a single loop over the chunk that LLVM compiles to SIMD
 (``base_derivatives``, branch-free, ``vecmath``), and so those with the effects it adds on
 (``constants.batch_lane_kind``: leaks, coil lags, valve null leak, exhaust back-pressure,
 supply droop, energy equation, tube air, ISO flow law; ``batch_derivatives``,
-``batch_nodes``), and the transmission lines lane by lane (``line_substeps``). The
+``batch_nodes``), and the transmission lines (their RK4 lane by lane, ``line_substeps``;
+their valve ends at the substep boundaries in lockstep, ``batch_lines``). The
 general path (``advance_env``, one environment through the whole control period,
 ``derivatives``) takes environments with other effects on, and redoes a lane's substep
 that is stiff or crosses a piston event. Both give the same numbers bit for bit

@@ -378,6 +378,13 @@ def _line_valve_end(c, supply_area, exhaust_area, wave_in_pa):
     return port, q, exhaust
 
 
+@njit(cache=True, forceinline=True)
+def line_valve_areas(c, spool_m):
+    """The valve's open areas (spool at ``spool_m``, with its null leak) from the supply
+    into line 1 and from line 1 to the exhaust; mirrored for line 2."""
+    return scalar_area(c, spool_m) + c.null_leak, scalar_area(c, -spool_m) + c.null_leak
+
+
 @njit(cache=True)
 def line_flows(c, spool_m, arriving, p1_pa, p2_pa):
     """The tubes as transmission lines (effect ``tube_waves``): the flows at their ends.
@@ -388,8 +395,7 @@ def line_flows(c, spool_m, arriving, p1_pa, p2_pa):
     valve's exhaust flow to the atmosphere, and the pressure and the flow into the line at
     valve end 1 and at valve end 2).
     """
-    area_a = scalar_area(c, spool_m) + c.null_leak
-    area_b = scalar_area(c, -spool_m) + c.null_leak
+    area_a, area_b = line_valve_areas(c, spool_m)
     port_1, q_1, exhaust_1 = _line_valve_end(c, area_a, area_b, arriving[0])
     port_2, q_2, exhaust_2 = _line_valve_end(c, area_b, area_a, arriving[1])
     flow_1, flow_2 = line_chamber_flows(c, (arriving[2], arriving[3]), p1_pa, p2_pa)
