@@ -234,9 +234,10 @@ def test_clamped_friction_laws_reproduce_the_general_path_bit_for_bit(seed):
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_the_valve_ends_solved_in_lockstep_equal_the_solve_lane_by_lane(seed):
-    """``batch_lines``' valve-end solve over a chunk (lanes done at the first guess, at the
-    pressure floor, with the valve closed, and after Illinois steps of different counts)
-    gives each lane ``nodes._line_valve_end``'s pressure, flow and exhaust, bit for bit."""
+    """``batch_lines``' valve-end solve over a chunk (random spool positions, closed ones
+    among them, and waves from below the atmosphere to above the supply, so the lanes stop
+    after different numbers of Illinois steps) gives each lane ``nodes._line_valve_end``'s
+    pressure, flow and exhaust, bit for bit."""
     from pneumatic_env.physics import batch_lines as BL
     from pneumatic_env.physics.nodes import _line_valve_end
     from pneumatic_env.simulator import BatchSimulator
