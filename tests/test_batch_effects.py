@@ -266,21 +266,20 @@ def test_the_valve_ends_solved_in_lockstep_equal_the_solve_lane_by_lane(seed):
     for j in range(n):
         c = K.load_constants(constants, j)
         area_a, area_b = BL.line_valve_areas(c, spool[j])
-        for block, ends, wave in (
-            (BL.R_END, (area_a, area_b), waves[0, j]),
-            (BL.R_END + BL.N_END, (area_b, area_a), waves[1, j]),
+        for end, (block, areas) in enumerate(
+            ((BL.R_END, (area_a, area_b)), (BL.R_END + BL.N_END, (area_b, area_a)))
         ):
-            rows[(block + BL.E_SUPPLY) * n + j] = ends[0]
-            rows[(block + BL.E_EXHAUST) * n + j] = ends[1]
-            rows[(block + BL.E_WAVE) * n + j] = wave
+            rows[(block + BL.E_SUPPLY) * n + j] = areas[0]
+            rows[(block + BL.E_EXHAUST) * n + j] = areas[1]
+            rows[(BL.R_WAVES + end) * n + j] = waves[end, j]
         expected.append(
             (
                 _line_valve_end(c, area_a, area_b, waves[0, j]),
                 _line_valve_end(c, area_b, area_a, waves[1, j]),
             )
         )
-    BL._solve(constants, rows, n, BL.R_END)
-    BL._solve(constants, rows, n, BL.R_END + BL.N_END)
+    BL._solve(constants, rows, n, BL.R_END, BL.R_WAVES)
+    BL._solve(constants, rows, n, BL.R_END + BL.N_END, BL.R_WAVES + 1)
     for j in range(n):
         for end, block in enumerate((BL.R_END, BL.R_END + BL.N_END)):
             got = BL._end(rows, block, j)

@@ -30,14 +30,14 @@ from .nodes import (
 )
 from .right_hand_side import arriving_waves
 
-# rows of a chunk's valve-end array: the four arriving waves, then per valve end a block:
-# its supply and exhaust areas and arriving wave, the bracket (lo, f(lo), hi, f(hi), the
-# side replaced last), the result (pressure, flow into the line, exhaust flow) and whether
-# the lane is done
+# rows of a chunk's valve-end array: the four arriving waves (valve end 1's and 2's
+# first), then per valve end a block: its supply and exhaust areas, the bracket (lo, f(lo),
+# hi, f(hi), the side replaced last), the result (pressure, flow into the line, exhaust
+# flow) and whether the lane is done
 R_WAVES = 0
-E_SUPPLY, E_EXHAUST, E_WAVE, E_LO, E_F_LO, E_HI, E_F_HI, E_SIDE = range(8)
-E_PORT, E_Q, E_EXHAUST_FLOW, E_DONE = range(8, 12)
-N_END = 12
+E_SUPPLY, E_EXHAUST, E_LO, E_F_LO, E_HI, E_F_HI, E_SIDE = range(7)
+E_PORT, E_Q, E_EXHAUST_FLOW, E_DONE = range(7, 11)
+N_END = 11
 R_END = 4
 N_ROWS = R_END + 2 * N_END
 
@@ -73,21 +73,19 @@ def _gather(constants, work, history, first, n_lanes, slot, rows):
             rows[(block + E_SUPPLY) * k + j] = supply
             rows[(block + E_EXHAUST) * k + j] = exhaust
             rows[(block + E_DONE) * k + j] = 0.0
-        rows[(R_END + E_WAVE) * k + j] = arriving[0]
-        rows[(R_END + N_END + E_WAVE) * k + j] = arriving[1]
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def _start(constants, rows, n_lanes, block):
+def _start(constants, rows, n_lanes, block, wave_row):
     """``_line_valve_end`` up to its Illinois loop on every lane of the valve end whose
-    rows start at ``block``: the closed valve, the first guess and the bracket's far end;
-    a lane done there gets its result."""
+    rows start at ``block`` (its arriving wave in row ``wave_row``): the closed valve, the
+    first guess and the bracket's far end; a lane done there gets its result."""
     k = CHUNK_ENVS
     for j in range(n_lanes):
         c = load_constants(constants, j)
         supply = rows[(block + E_SUPPLY) * k + j]
         exhaust = rows[(block + E_EXHAUST) * k + j]
-        wave = rows[(block + E_WAVE) * k + j]
+        wave = rows[wave_row * k + j]
         skipped = rows[(block + E_DONE) * k + j] != 0.0
         closed = supply <= 0.0 and exhaust <= 0.0
         tolerance = LINE_PRESSURE_RTOL * c.supply_pa
@@ -116,7 +114,7 @@ def _start(constants, rows, n_lanes, block):
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def _iteration(constants, rows, n_lanes, block):
+def _iteration(constants, rows, n_lanes, block, wave_row):
     """One Illinois step of ``_line_valve_end`` on every lane of the valve end at
     ``block`` not done (the others keep their rows): the new point, its result, and the
     bracket updated unless it stops there."""
@@ -129,7 +127,7 @@ def _iteration(constants, rows, n_lanes, block):
         side = rows[(block + E_SIDE) * k + j]
         supply = rows[(block + E_SUPPLY) * k + j]
         exhaust = rows[(block + E_EXHAUST) * k + j]
-        wave = rows[(block + E_WAVE) * k + j]
+        wave = rows[wave_row * k + j]
         port = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
         f, q, exhaust_flow = _line_valve_end_residual(c, supply, exhaust, wave, port)
         tolerance = LINE_PRESSURE_RTOL * c.supply_pa
@@ -150,14 +148,15 @@ def _iteration(constants, rows, n_lanes, block):
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
-def _solve(constants, rows, n_lanes, block):
-    """The valve end at ``block`` on every lane: its start, then lockstep Illinois steps
-    while a lane is open (at most ``_line_valve_end``'s count)."""
-    _start(constants, rows, n_lanes, block)
+def _solve(constants, rows, n_lanes, block, wave_row):
+    """The valve end at ``block`` (its arriving wave in row ``wave_row``) on every lane:
+    its start, then lockstep Illinois steps while a lane is open (at most
+    ``_line_valve_end``'s count)."""
+    _start(constants, rows, n_lanes, block, wave_row)
     for _ in range(SUPPLY_DROOP_MAX_ITERATIONS):
         if not _any_lane_open(rows, n_lanes, block + E_DONE):
             break
-        _iteration(constants, rows, n_lanes, block)
+        _iteration(constants, rows, n_lanes, block, wave_row)
 
 
 @njit(cache=True, forceinline=True)
@@ -179,8 +178,8 @@ def close_lines(constants, work, history, first, n_lanes, slot, h):
     k = CHUNK_ENVS
     rows = np.zeros(N_ROWS * k)
     _gather(constants, work, history, first, n_lanes, slot, rows)
-    _solve(constants, rows, n_lanes, R_END)
-    _solve(constants, rows, n_lanes, R_END + N_END)
+    _solve(constants, rows, n_lanes, R_END, R_WAVES)
+    _solve(constants, rows, n_lanes, R_END + N_END, R_WAVES + 1)
     for j in range(n_lanes):
         if not _closing(constants, work, j):
             continue

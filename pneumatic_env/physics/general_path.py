@@ -17,12 +17,11 @@ from . import layout as L
 from .chamber import chamber_volumes
 from .constants import env_constants
 from .effects import lugre_bristle_step, spool_play_current
-from .nodes import _line_valve_end as line_valve_end
 from .nodes import (
     exhaust_pressure_at_valve,
     line_chamber_flows,
     line_flows,
-    line_valve_areas,
+    line_valve_ends,
     scalar_area,
     sent_wave,
 )
@@ -213,9 +212,7 @@ def close_line_ends(c, history, env, slot, y, h):
     exhaust mass (``y[6]``) with the exhaust added by the trapezoid rule over the substep
     of ``h`` s."""
     arriving = arriving_waves(c, history, env, slot, 0.0)
-    area_a, area_b = line_valve_areas(c, y[0])
-    end_1 = line_valve_end(c, area_a, area_b, arriving[0])
-    end_2 = line_valve_end(c, area_b, area_a, arriving[1])
+    end_1, end_2 = line_valve_ends(c, y[0], arriving)
     return send_line_waves(c, history, env, slot, y, h, arriving, end_1, end_2)
 
 

@@ -385,6 +385,17 @@ def line_valve_areas(c, spool_m):
     return scalar_area(c, spool_m) + c.null_leak, scalar_area(c, -spool_m) + c.null_leak
 
 
+@njit(cache=True, forceinline=True)
+def line_valve_ends(c, spool_m, arriving):
+    """The valve ends of lines 1 and 2 (``_line_valve_end``: pressure, flow into the line,
+    exhaust flow), the spool at ``spool_m``, the waves ``arriving`` there first in it."""
+    area_a, area_b = line_valve_areas(c, spool_m)
+    return (
+        _line_valve_end(c, area_a, area_b, arriving[0]),
+        _line_valve_end(c, area_b, area_a, arriving[1]),
+    )
+
+
 @njit(cache=True)
 def line_flows(c, spool_m, arriving, p1_pa, p2_pa):
     """The tubes as transmission lines (effect ``tube_waves``): the flows at their ends.
@@ -395,9 +406,7 @@ def line_flows(c, spool_m, arriving, p1_pa, p2_pa):
     valve's exhaust flow to the atmosphere, and the pressure and the flow into the line at
     valve end 1 and at valve end 2).
     """
-    area_a, area_b = line_valve_areas(c, spool_m)
-    port_1, q_1, exhaust_1 = _line_valve_end(c, area_a, area_b, arriving[0])
-    port_2, q_2, exhaust_2 = _line_valve_end(c, area_b, area_a, arriving[1])
+    (port_1, q_1, exhaust_1), (port_2, q_2, exhaust_2) = line_valve_ends(c, spool_m, arriving)
     flow_1, flow_2 = line_chamber_flows(c, (arriving[2], arriving[3]), p1_pa, p2_pa)
     return flow_1, flow_2, exhaust_1 + exhaust_2, port_1, q_1, port_2, q_2
 
