@@ -170,6 +170,36 @@ def test_drift_notice_names_the_parameters_outside_their_range_and_what_they_sta
     assert _drift_lines({"base_drift": [], "suggested_by_drift": [], "candidates": []}) == []
 
 
+def test_a_dead_volume_held_at_its_floor_is_a_drift_a_friction_at_zero_is_not():
+    """The dead volumes are simulated no smaller than their plausible minimum
+    (``simulated_min``: a smaller chamber makes the kernel split its substeps): a
+    coordinate below maps to the floor, one above is untouched; a fit held there is
+    reported, a fit just inside is not, and a friction at its physical floor of zero is not
+    a held edge."""
+    cfg = load_config()
+    cap = cfg.base_parameters["dead_volume_cap_m3"]
+    assert cap.lower < cap.simulated_min == cap.plausible_min  # the config's floor
+    assert cap.from_u(cap.to_u(0.5 * cap.plausible_min)) == cap.plausible_min
+    above = 1.37 * cap.plausible_min
+    assert cap.from_u(cap.to_u(above)) == pytest.approx(above, rel=1e-12)
+    data = SimpleNamespace(values={"dead_volume_cap_m3": 1e-6, "dead_volume_rod_m3": 1e-6})
+    fit = _fit_with(
+        {
+            "dead_volume_cap_m3": cap.from_u(cap.to_u(0.2 * cap.plausible_min)),
+            "dead_volume_rod_m3": 2.0 * cap.plausible_min,
+            "static_friction_n": 0.0,
+        }
+    )
+    drifts = base_drifts(fit, [data], cfg)
+    assert [d.name for d in drifts] == ["dead_volume_cap_m3"]
+    held = drifts[0]
+    assert held.held_at_bound and held.direction == "below" and held.factor == 1.0
+    row = "\n".join(
+        _drift_lines({"base_drift": [held.to_dict()], "suggested_by_drift": [], "candidates": []})
+    )
+    assert "| held at its floor, below |" in row
+
+
 # --------------------------------------------------------------------------- acceptance
 
 

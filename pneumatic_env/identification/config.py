@@ -41,6 +41,7 @@ _PARAM_KEYS = {
     "neutral",
     "log",
     "fd_step",
+    "simulated_min",
 }
 _PARAM_REQUIRED = ("unit", "source", "lower", "upper", "plausible_min", "plausible_max", "scale")
 
@@ -68,6 +69,9 @@ class FitParameter:
     neutral: float | None = None
     log: bool = False
     fd_step: float | None = None  # forward-difference step in optimiser units (else the default)
+    #: the smallest value simulated (None: no floor); a coordinate below maps to it, so the
+    #: cost is flat there and a fit that stays above sees the model as without it
+    simulated_min: float | None = None
 
     def to_u(self, value: float) -> float:
         """Physical value -> optimiser coordinate."""
@@ -77,9 +81,8 @@ class FitParameter:
 
     def from_u(self, u: float) -> float:
         """Optimiser coordinate -> physical value."""
-        if self.log:
-            return self.scale * 10.0 ** min(max(u, -300.0), 300.0)
-        return u * self.scale
+        value = self.scale * 10.0 ** min(max(u, -300.0), 300.0) if self.log else u * self.scale
+        return value if self.simulated_min is None else max(value, self.simulated_min)
 
     @property
     def bounds_u(self) -> tuple[float, float]:
@@ -115,6 +118,7 @@ def _parse_parameter(
         neutral=nums.get("neutral"),
         log=log,
         fd_step=nums.get("fd_step"),
+        simulated_min=nums.get("simulated_min"),
     )
 
 
@@ -130,6 +134,7 @@ def _entry_numbers(where: str, name: str, entry: Mapping) -> dict[str, float]:
         "initial",
         "neutral",
         "fd_step",
+        "simulated_min",
     ):
         if key in entry:
             if key == "neutral" and entry[key] is None:
@@ -169,6 +174,11 @@ def _check_entry_ranges(where: str, name: str, nums: Mapping[str, float], log: b
     if log and not nums["lower"] > 0:
         raise ConfigError(
             f"{where}: entry {name!r}: 'lower' {nums['lower']!r} must be > 0 with log: true"
+        )
+    if "simulated_min" in nums and not nums["lower"] <= nums["simulated_min"] < nums["upper"]:
+        raise ConfigError(
+            f"{where}: entry {name!r}: 'simulated_min' {nums['simulated_min']!r} must be in "
+            f"[{nums['lower']!r}, {nums['upper']!r})"
         )
     if "initial" in nums and not nums["lower"] <= nums["initial"] <= nums["upper"]:
         raise ConfigError(

@@ -5,7 +5,11 @@ the data (on a tube-wave rig the discharge coefficient fell from 0.25 to 0.095 a
 volume rose six-fold). Each base parameter fitted outside ``plausible_min`` ..
 ``plausible_max`` (``base_parameters`` in ``configs/identification.yaml``) is reported
 with its nominal and fitted values, the factor outside the range, and the effects it may
-stand for (``base_drift`` in the config, with the physical reasoning).
+stand for (``base_drift`` in the config, with the physical reasoning). A parameter whose
+smallest simulated value is the plausible edge itself (``simulated_min``, the dead
+volumes: a smaller chamber makes the kernel split its substeps) cannot leave the range;
+held on that edge, it is reported as a drift with a factor of 1 (at least: the data pull
+it further).
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ class Drift:
     effects: tuple[str, ...]  # what it may stand for (config base_drift)
     explanation: str
     final: float | None = None  # in the model with the selected effects, if refitted
+    held_at_bound: bool = False  # on the plausible edge, its floor (factor >= 1)
 
     def to_dict(self) -> dict:
         return {
@@ -51,6 +56,7 @@ class Drift:
             "may_stand_for": list(self.effects),
             "explanation": self.explanation,
             "final": self.final,
+            "held_at_bound": self.held_at_bound,
         }
 
 
@@ -76,26 +82,44 @@ def drift_table(cfg: IdentificationConfig) -> dict[str, dict[str, tuple[tuple[st
     return out
 
 
+#: A fitted value within this relative distance of its floor or bound is held there.
+BOUND_RTOL = 1e-3
+
+
+def _side(p, value: float) -> tuple[str, float, bool] | None:
+    """(direction, factor outside, held at the bound) of a value outside ``p``'s plausible
+    range or held on a plausible edge that is its floor (the optimiser's bound or the
+    smallest value simulated); None inside. A plausible minimum of zero (the frictions)
+    is a physical floor, not a held edge."""
+    floor = p.lower if p.simulated_min is None else max(p.lower, p.simulated_min)
+    if value > p.plausible_max:
+        return "above", value / p.plausible_max if p.plausible_max > 0 else math.inf, False
+    if value < p.plausible_min:
+        return "below", p.plausible_min / value if value > 0 else math.inf, False
+    if floor >= p.plausible_min > 0.0 and value <= floor * (1.0 + BOUND_RTOL):
+        return "below", 1.0, True
+    if 0.0 < p.upper <= p.plausible_max and value >= p.upper * (1.0 - BOUND_RTOL):
+        return "above", 1.0, True
+    return None
+
+
 def base_drifts(
     base: FitResult,
     datasets: Sequence[Dataset],
     cfg: IdentificationConfig,
     final: FitResult | None = None,
 ) -> list[Drift]:
-    """The base parameters of ``base`` fitted outside their plausible range, farthest
-    first; ``final``: the model with the selected effects (its value of each, if fitted)."""
+    """The base parameters of ``base`` fitted outside their plausible range (or held on
+    its edge by the optimiser's bound), farthest first; ``final``: the model with the
+    selected effects (its value of each, if fitted)."""
     table = drift_table(cfg)
     out = []
     for p in base.parameters:
         value = base.values[p.name]
-        if p.plausible_min <= value <= p.plausible_max:
+        where = _side(p, value)
+        if where is None:
             continue
-        above = value > p.plausible_max
-        if above:
-            factor = value / p.plausible_max if p.plausible_max > 0 else math.inf
-        else:
-            factor = p.plausible_min / value if value > 0 else math.inf
-        side = "above" if above else "below"
+        side, factor, held = where
         effects, why = table.get(p.name, {}).get(side, ((), "no known stand-in"))
         nominal = p.initial if p.initial is not None else datasets[0].values[p.name]
         out.append(
@@ -111,6 +135,7 @@ def base_drifts(
                 effects,
                 why,
                 None if final is None else final.values.get(p.name),
+                held,
             )
         )
     return sorted(out, key=lambda d: -d.factor)

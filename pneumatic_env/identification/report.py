@@ -192,7 +192,8 @@ def _drift_lines(data: dict) -> list[str]:
         "## Base parameters outside their plausible range",
         "",
         "A base parameter fitted far outside what a real rig can have is itself evidence "
-        "of a missing effect: the model bends it to take up the effect's part of the data.",
+        "of a missing effect: the model bends it to take up the effect's part of the data. "
+        "One held at its floor sits on a plausible edge the fit does not simulate beyond.",
         "",
         "| parameter | nominal | fitted | plausible range | factor outside | with the "
         "selected effects | may stand for | why |",
@@ -201,6 +202,8 @@ def _drift_lines(data: dict) -> list[str]:
     for d in data["base_drift"]:
         lo, hi = d["plausible_range"]
         factor = "-" if d["factor_outside"] is None else f"{d['factor_outside']:.2f} x"
+        if d.get("held_at_bound"):
+            factor = "held at its floor,"
         lines.append(
             f"| {d['parameter']} | {_fmt(d['nominal'])} {d['unit']} | {_fmt(d['fitted'])} | "
             f"[{_fmt(lo, 3)}, {_fmt(hi, 3)}] | {factor} {d['direction']} | "
