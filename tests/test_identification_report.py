@@ -10,13 +10,14 @@ import pytest
 
 from pneumatic_env.identification import progress
 from pneumatic_env.identification.checks import read_checked
-from pneumatic_env.identification.config import load_config
+from pneumatic_env.identification.config import _parse_parameter, load_config
 from pneumatic_env.identification.diagnose import diagnose
 from pneumatic_env.identification.drift import base_drifts, suggested_effects
 from pneumatic_env.identification.report import _drift_lines, write_report
 from pneumatic_env.identification.results import FitResult
 from pneumatic_env.identification.scoring import acceptance
 from pneumatic_env.identification.selection import WorkPlan, work_after_refits
+from pneumatic_env.params import ConfigError
 from pneumatic_env.studies.virtual_rig import make_recording
 
 
@@ -198,6 +199,11 @@ def test_a_dead_volume_held_at_its_floor_is_a_drift_a_friction_at_zero_is_not():
         _drift_lines({"base_drift": [held.to_dict()], "suggested_by_drift": [], "candidates": []})
     )
     assert "| held at its floor, below |" in row
+    # a floor outside the optimiser's bounds is refused, naming the entry, value and range
+    entry = {**cfg.raw["base_parameters"]["dead_volume_cap_m3"], "simulated_min": 1e-5}
+    refused = r"'dead_volume_cap_m3': 'simulated_min' 1e-05 must be in \[1e-08, 6e-06\)"
+    with pytest.raises(ConfigError, match=refused):
+        _parse_parameter("identification.yaml", "dead_volume_cap_m3", entry, "plant", False)
 
 
 # --------------------------------------------------------------------------- acceptance

@@ -110,7 +110,7 @@ def base_drifts(
     final: FitResult | None = None,
 ) -> list[Drift]:
     """The base parameters of ``base`` fitted outside their plausible range (or held on
-    its edge by the optimiser's bound), farthest first; ``final``: the model with the
+    its edge by their floor, ``_side``), farthest first; ``final``: the model with the
     selected effects (its value of each, if fitted)."""
     table = drift_table(cfg)
     out = []
