@@ -82,24 +82,20 @@ def drift_table(cfg: IdentificationConfig) -> dict[str, dict[str, tuple[tuple[st
     return out
 
 
-#: A fitted value within this relative distance of its floor or bound is held there.
+#: A fitted value within this relative distance of its floor is held there.
 BOUND_RTOL = 1e-3
 
 
 def _side(p, value: float) -> tuple[str, float, bool] | None:
-    """(direction, factor outside, held at the bound) of a value outside ``p``'s plausible
-    range or held on a plausible edge that is its floor (the optimiser's bound or the
-    smallest value simulated); None inside. A plausible minimum of zero (the frictions)
-    is a physical floor, not a held edge."""
-    floor = p.lower if p.simulated_min is None else max(p.lower, p.simulated_min)
+    """(direction, factor outside, held at the floor) of a value outside ``p``'s plausible
+    range or held on its ``simulated_min`` where that is the plausible edge; None inside."""
     if value > p.plausible_max:
         return "above", value / p.plausible_max if p.plausible_max > 0 else math.inf, False
     if value < p.plausible_min:
         return "below", p.plausible_min / value if value > 0 else math.inf, False
-    if floor >= p.plausible_min > 0.0 and value <= floor * (1.0 + BOUND_RTOL):
+    floor = p.simulated_min
+    if floor is not None and floor >= p.plausible_min and value <= floor * (1.0 + BOUND_RTOL):
         return "below", 1.0, True
-    if 0.0 < p.upper <= p.plausible_max and value >= p.upper * (1.0 - BOUND_RTOL):
-        return "above", 1.0, True
     return None
 
 

@@ -203,7 +203,7 @@ def _drift_lines(data: dict) -> list[str]:
         lo, hi = d["plausible_range"]
         factor = "-" if d["factor_outside"] is None else f"{d['factor_outside']:.2f} x"
         if d.get("held_at_bound"):
-            factor = "held at its floor," if d["direction"] == "below" else "held at its bound,"
+            factor = "held at its floor,"
         lines.append(
             f"| {d['parameter']} | {_fmt(d['nominal'])} {d['unit']} | {_fmt(d['fitted'])} | "
             f"[{_fmt(lo, 3)}, {_fmt(hi, 3)}] | {factor} {d['direction']} | "
