@@ -10,7 +10,9 @@ the model the right way explains part of it. Two checks keep such a second effec
    ``diagnosis.min_relative_improvement`` over the model with the effects before it,
    and raise none. A first effect is judged by the median over the recordings; a later
    one carries the burden of a second explanation, the first effect's form error, which
-   shows on some experiments and not on others.
+   shows on some experiments and not on others. A recording whose error the refit
+   changes by less than ``diagnosis.refit_noise_band`` either way (what refits that add
+   nothing do) did not show the effect: it neither supports nor refuses it.
 2. :func:`freer_form_check`: it must also beat a freer form of the effects already
    selected: their plant parameters refitted per experiment type (rod clamped, on a
    spring, free; a value per rod mode of the training data). A form error of the first
@@ -34,7 +36,13 @@ from .config import FitParameter, IdentificationConfig
 from .holdout import Holdout
 from .scoring import CandidateScore, mean_nrmse, unique
 
-__all__ = ["FreerForm", "fit_freer_form", "freer_form_check", "second_effect_support"]
+__all__ = [
+    "FreerForm",
+    "fit_freer_form",
+    "freer_form_check",
+    "second_effect_support",
+    "shown",
+]
 
 log = logging.getLogger("pneumatic_env.identification")
 
@@ -48,21 +56,33 @@ def _figures(per: Mapping[str, float]) -> str:
     return ", ".join(f"{k} {100 * v:+.1f} %" for k, v in per.items())
 
 
-def second_effect_support(sc: CandidateScore, min_rel: float, acts_on: set[str]) -> None:
+def shown(per: Mapping[str, float], acts_on: set[str], band: float) -> list[str]:
+    """The recordings of ``per`` (held-out improvements) it acts on (:func:`_acting`) whose
+    error changed by ``band`` or more either way: those that showed the effect or not."""
+    return [k for k in _acting(per, acts_on) if not abs(per[k]) < band]
+
+
+def second_effect_support(
+    sc: CandidateScore, min_rel: float, acts_on: set[str], band: float = 0.0
+) -> None:
     """Refuse a later-round effect (``sc.accepted`` False, with the reason) unless it lowers
     the held-out error of every held-out recording it can act on (``acts_on``,
     :meth:`.Holdout.acted_on`) by ``min_rel`` over the model with the effects before it,
-    and raises that of none."""
+    and raises that of none; a recording whose error changed by less than ``band``
+    either way (``diagnosis.refit_noise_band``) counts for neither, and one must
+    remain."""
     per = {k: v for k, v in sc.per_recording.items() if math.isfinite(v)}
-    short = [k for k in _acting(per, acts_on) if not per[k] >= min_rel]
-    worse = [k for k, v in per.items() if v < 0]
-    if per and not short and not worse:
+    showing = shown(per, acts_on, band)
+    short = [k for k in showing if not per[k] >= min_rel]
+    worse = [k for k, v in per.items() if v < -band]
+    if showing and not short and not worse:
         return
     sc.accepted = False
-    if short or not per:
+    if short or not showing:
+        unshown = "" if showing else f"; none changed by {100 * band:.0f} % or more"
         sc.reasons.append(
             f"not {100 * min_rel:.0f} % better on every held-out recording it acts on "
-            f"than the effects already selected ({_figures(per)})"
+            f"than the effects already selected ({_figures(per)}{unshown})"
         )
     if worse:
         sc.reasons.append(
@@ -155,18 +175,21 @@ def freer_form_check(
     current_per: Mapping[str, float],
     min_rel: float,
     acts_on: set[str],
+    band: float = 0.0,
 ) -> float:
     """Refuse ``sc`` (``accepted`` False, with the reason) unless it lowers the held-out
     error of every held-out recording it acts on by ``min_rel`` below the freer form of
     the effects before it, each against the lower of the freer form's and the current
-    model's error (a freer form that extrapolates worse sets no bar). Returns the
-    smallest of those improvements (the margin)."""
+    model's error (a freer form that extrapolates worse sets no bar); the recordings
+    that did not show it (:func:`shown`, ``band``) are left out. Returns the smallest of
+    those improvements (the margin)."""
     per = {}
     for name, nrmse in sc.per_recording_nrmse.items():
         ref = min(freer.per_recording_nrmse.get(name, math.inf), current_per.get(name, math.inf))
         if math.isfinite(ref) and ref > 0 and math.isfinite(nrmse):
             per[name] = (ref - nrmse) / ref
-    margin = min((per[k] for k in _acting(per, acts_on)), default=-math.inf)
+    showing = set(shown(sc.per_recording, acts_on, band))
+    margin = min((per[k] for k in _acting(per, acts_on) if k in showing), default=-math.inf)
     figures = _figures(per)
     if margin >= min_rel:
         sc.notes.append(
