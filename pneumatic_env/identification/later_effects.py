@@ -188,8 +188,8 @@ def freer_form_check(
         ref = min(freer.per_recording_nrmse.get(name, math.inf), current_per.get(name, math.inf))
         if math.isfinite(ref) and ref > 0 and math.isfinite(nrmse):
             per[name] = (ref - nrmse) / ref
-    showing = set(shown(sc.per_recording, acts_on, band))
-    margin = min((per[k] for k in _acting(per, acts_on) if k in showing), default=-math.inf)
+    showing = shown(sc.per_recording, acts_on, band)
+    margin = min((per[k] for k in showing if k in per), default=-math.inf)
     figures = _figures(per)
     if margin >= min_rel:
         sc.notes.append(
