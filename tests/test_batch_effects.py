@@ -18,6 +18,10 @@ from rollout_inputs import assert_batch_matches_general_path, random_currents
 BATCH_EFFECTS = {
     "leakage": ({"leakage_area_m2": 2e-7}, {"leakage_area_m2": 1e-9}),
     "rod_seal_leak": ({"rod_seal_leak_area_m2": 2e-7}, {"rod_seal_leak_area_m2": 1e-9}),
+    "laminar_leak": (
+        {"leakage_conductance_kg_per_pa_s": 1e-9, "wall_heat_transfer_w_per_k": 0.5},
+        {"leakage_conductance_kg_per_pa_s": 3e-11},
+    ),
     "both_leaks": (
         {"leakage_area_m2": 5e-8, "rod_seal_leak_area_m2": 1e-7},
         {"leakage_area_m2": 1e-9, "rod_seal_leak_area_m2": 3e-9},
@@ -164,7 +168,8 @@ def test_the_batch_path_takes_the_effect_lanes(effect):
     ]
     want = [
         K.BATCH_LEAKS
-        if "leakage_area_m2" in setting or "rod_seal_leak_area_m2" in setting
+        if {"leakage_area_m2", "rod_seal_leak_area_m2", "leakage_conductance_kg_per_pa_s"}
+        & set(setting)
         else K.BATCH_BASE
         for setting in BATCH_EFFECTS[effect]
         for _ in ROD_SETUPS

@@ -44,6 +44,7 @@ ON = {
     "exhaust_volume_m3": {"exhaust_vent_area_m2": 2e-6, "exhaust_volume_m3": 1e-5},
     "lugre_stiffness_n_per_m": {"lugre_stiffness_n_per_m": 1e5},
     "lugre_damping_n_s_per_m": {"lugre_stiffness_n_per_m": 1e5, "lugre_damping_n_s_per_m": 300.0},
+    "leakage_conductance_kg_per_pa_s": {"leakage_conductance_kg_per_pa_s": 3e-11},
 }
 T_S = 293.15
 
@@ -189,6 +190,31 @@ def test_rod_seal_leak_empties_chamber_2_into_the_atmosphere():
     c1 = math.sqrt(1.4 / 287.0 * (2 / 2.4) ** (2.4 / 0.4))
     choked = p["discharge_coefficient"] * area * 5e5 * c1 / math.sqrt(p["temperature_k"])
     assert out[0, L.O_EXHAUST, 0] == pytest.approx(choked * 1e-3, rel=1e-3)
+
+
+def test_laminar_leak_flows_in_proportion_to_the_pressure_difference():
+    """A laminar leak across the piston (G (P1 - P2)) with the valve shut: chamber 1 empties
+    into chamber 2 without overshooting it, no air leaves the cylinder, and the first
+    millisecond's flow doubles with the pressure difference (an orifice's, Eq. 39, grows
+    about with its square root at these ratios)."""
+    g = 3e-11
+    p = load_parameters(leakage_conductance_kg_per_pa_s=g)
+    starts = [(4e5, 3e5), (5e5, 3e5)]
+    sims = [_sim([p], initial={"p1": p1, "p2": p2}) for p1, p2 in starts]
+    outs = [sim.rollout(np.zeros((400, 1)))[:, :, 0] for sim in sims]
+    a1, _, _ = areas(p)
+    v1 = p["dead_volume_cap_m3"] + a1 * p["stroke_m"] / 2
+    gas_rt = p["gas_constant_j_per_kg_k"] * p["temperature_k"]
+    drops = []
+    for (p1, p2), out in zip(starts, outs):
+        assert np.all(np.diff(out[:, L.O_P1]) < 0) and np.all(np.diff(out[:, L.O_P2]) > 0)
+        assert np.all(out[:, L.O_P1] > out[:, L.O_P2])  # they meet, never cross
+        assert np.all(out[:, L.O_EXHAUST] == 0.0)
+        # leaving chamber 1 at alpha_out = 1 (Eq. 14): dP1 = R T G (P1 - P2) dt / V1
+        expected = gas_rt * g * (p1 - p2) * 1e-3 / v1
+        assert p1 - out[0, L.O_P1] == pytest.approx(expected, rel=0.02)
+        drops.append(p1 - out[0, L.O_P1])
+    assert drops[1] / drops[0] == pytest.approx(2.0, rel=0.02)
 
 
 # --------------------------------------------------------------------------- 3 null leak

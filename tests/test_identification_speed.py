@@ -248,3 +248,39 @@ def test_always_refit_adds_the_named_candidates_below_the_top_once():
     wrong = IdentificationConfig(raw, cfg.path)
     with pytest.raises(ConfigError, match=r"always_refit names \['warp_drive'\].*allowed are"):
         form_picks(wrong, screens, top)
+
+
+def test_a_close_rival_of_a_refitted_candidate_is_refitted_too():
+    """A candidate below the top whose separating-experiment rival is refitted is refitted
+    too when its predicted BIC drop is at least ``screening.rival_refit_ratio`` of the
+    rival's (the user13 leak + coil-lag rig: the leak at -42 behind the null leak at -51);
+    not when it is further behind, not a rival, or the rival's drop is below the BIC
+    threshold; a ratio outside [0, 1] is refused naming the field."""
+    from types import SimpleNamespace
+
+    from pneumatic_env.identification.config import (
+        ConfigError,
+        IdentificationConfig,
+        load_config,
+    )
+    from pneumatic_env.identification.selection import rival_picks
+
+    cfg = load_config()
+    ratio = cfg.number("screening", "rival_refit_ratio")
+    assert 0.0 < ratio < 1.0
+
+    def screen(name, ic):
+        return SimpleNamespace(name=name, predicted_delta_ic=ic)
+
+    top = [screen("channel_time_skew", -61.0), screen("valve_null_leak", -51.0)]
+    close = screen("leakage", -51.0 * (ratio + 0.05))
+    far = screen("leakage", -51.0 * (ratio - 0.05))
+    stranger = screen("lugre", -50.0)  # close, but no rival of a refitted one
+    assert rival_picks(cfg, [close, stranger], top) == [close]
+    assert rival_picks(cfg, [far, stranger], top) == []
+    weak = [screen("valve_null_leak", -5.0)]  # a rival that would not pass the BIC test
+    assert rival_picks(cfg, [screen("leakage", -5.0)], weak) == []
+    raw = copy.deepcopy(dict(cfg.raw))
+    raw["screening"]["rival_refit_ratio"]["value"] = 1.5
+    with pytest.raises(ConfigError, match=r"rival_refit_ratio = 1.5 is not allowed: must be <= 1"):
+        rival_picks(IdentificationConfig(raw, cfg.path), [close], top)

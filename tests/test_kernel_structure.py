@@ -78,6 +78,7 @@ COPIED = {
     "spring_rest": "spring_rest_position_m",
     "null_leak": "valve_null_leak_area_m2",
     "seal_leak": "rod_seal_leak_area_m2",
+    "leak_conductance": "leakage_conductance_kg_per_pa_s",
     "supply_resistance": "supply_resistance_pa_s_per_kg",
     "exhaust_vent": "exhaust_vent_area_m2",
     "heat_conductance": "wall_heat_transfer_w_per_k",

@@ -247,6 +247,7 @@ class IdentificationConfig:
         *,
         positive=False,
         minimum: float | None = None,
+        maximum: float | None = None,
     ) -> float:
         """A finite numeric setting, checked."""
         v = self.value(section, name, sub)
@@ -261,6 +262,10 @@ class IdentificationConfig:
         if minimum is not None and v < minimum:
             raise ConfigError(
                 f"{self.path}: {where} = {v!r} is not allowed: must be >= {minimum!r}"
+            )
+        if maximum is not None and v > maximum:
+            raise ConfigError(
+                f"{self.path}: {where} = {v!r} is not allowed: must be <= {maximum!r}"
             )
         return v
 

@@ -16,7 +16,7 @@ import math
 from numba import njit
 
 from .chamber import pressure_rate
-from .effects import chamber_energy_rates, rate_with_isothermal_tube_air
+from .effects import chamber_energy_rates, laminar_leak_flow, rate_with_isothermal_tube_air
 from .flow import FLOW_LAW_PAPER
 from .nodes import chamber_end_flow, line_chamber_flows, path_mass_flow
 from .right_hand_side import _axpy, _motion_and_spool, _rk4_combine, _volumes
@@ -193,7 +193,9 @@ def batch_derivatives(
     enthalpy_1 = in_1 * c.temperature
     enthalpy_2 = in_2 * c.temperature
     if leaks:
-        leak_12 = path_mass_flow(c, c.discharge, c.leak_area, p1, p2, inv_sqrt_t1, inv_sqrt_t2, law)
+        leak_12 = path_mass_flow(
+            c, c.discharge, c.leak_area, p1, p2, inv_sqrt_t1, inv_sqrt_t2, law
+        ) + laminar_leak_flow(c.leak_conductance, p1, p2)
         seal_2 = path_mass_flow(
             c, c.discharge, c.seal_leak, p2, c.ambient_pa, inv_sqrt_t2, t_node, law
         )

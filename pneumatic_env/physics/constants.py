@@ -71,6 +71,7 @@ Constants = namedtuple(
         "discharge_ex",
         "null_leak",
         "seal_leak",
+        "leak_conductance",  # kg/(Pa s): the laminar leak between the chambers
         "flow_law",
         "supply_resistance",
         "exhaust_vent",
@@ -225,6 +226,7 @@ def env_constants(params, env, substep_s):
         discharge_ex=p[L.P_DISCHARGE_COEFFICIENT] * p[L.P_EXHAUST_DISCHARGE_RATIO],
         null_leak=p[L.P_VALVE_NULL_LEAK_AREA_M2],
         seal_leak=p[L.P_ROD_SEAL_LEAK_AREA_M2],
+        leak_conductance=p[L.P_LEAKAGE_CONDUCTANCE_KG_PER_PA_S],
         flow_law=float(flow_law),
         supply_resistance=p[L.P_SUPPLY_RESISTANCE_PA_S_PER_KG],
         exhaust_vent=p[L.P_EXHAUST_VENT_AREA_M2],
@@ -270,6 +272,8 @@ def env_constants(params, env, substep_s):
             )
             * (linear_slope + c1)
             / math.sqrt(temperature)
+            # the laminar leak: |dm/dP| = G per chamber
+            + gas * temperature * max(p[L.P_ALPHA_IN], k) * p[L.P_LEAKAGE_CONDUCTANCE_KG_PER_PA_S]
             # a line's chamber end: |dm/dP| <= 2 / Z_c (``tube.line_chamber_flow``: 1 / Z_c,
             # up to twice that where the friction's fall with the pressure adds to it)
             + waves_flag * 2.0 * gas * temperature * max(p[L.P_ALPHA_IN], k) / line_impedance
@@ -328,6 +332,7 @@ def base_model_only(c):
         and c.null_leak == 0.0
         and c.leak_area == 0.0
         and c.seal_leak == 0.0
+        and c.leak_conductance == 0.0
         and c.coil_lag == 0.0
         and c.coil_force_lag == 0.0
         and c.energy == 0.0
@@ -353,7 +358,8 @@ def batch_lane_kind(c):
     where it would but for the leak orifices, else ``BATCH_GENERAL``."""
     if not _batch_path_effects_only(c):
         return BATCH_GENERAL
-    return BATCH_BASE if c.leak_area == 0.0 and c.seal_leak == 0.0 else BATCH_LEAKS
+    leakless = c.leak_area == 0.0 and c.seal_leak == 0.0 and c.leak_conductance == 0.0
+    return BATCH_BASE if leakless else BATCH_LEAKS
 
 
 N_CONSTANTS = len(Constants._fields)
@@ -454,6 +460,7 @@ def load_constants(constants, lane):
         constants[78 * k + lane],
         constants[79 * k + lane],
         constants[80 * k + lane],
+        constants[81 * k + lane],
     )
 
 

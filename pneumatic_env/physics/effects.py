@@ -43,6 +43,14 @@ def rate_with_isothermal_tube_air(
     return bracket / (volume_m3 + alpha * tube_air_m3)
 
 
+@njit(cache=True, forceinline=True, error_model="numpy")
+def laminar_leak_flow(conductance_kg_per_pa_s, p_from_pa, p_to_pa):
+    """Mass flow of a laminar leak from ``from`` to ``to`` (effect, docs/effects.md): a
+    seal clearance's viscous flow, proportional to the pressure difference, G (P_from -
+    P_to), where the orifice of Eq. 39 goes with its square root and chokes."""
+    return conductance_kg_per_pa_s * (p_from_pa - p_to_pa)
+
+
 @njit(cache=True)
 def drooped_supply_pressure(
     supply_pressure_pa, supply_flow_kg_per_s, supply_resistance_pa_s_per_kg

@@ -87,6 +87,7 @@ PARAMETER_NAMES = (
     "lugre_damping_n_s_per_m",  # LuGre bristle damping sigma1 (used only with sigma0 > 0)
     "tube_air_model",  # the tube air of tube_volume_fraction: 0 a polytropic dead volume,
     # 1 an isothermal volume at the chamber's pressure
+    "leakage_conductance_kg_per_pa_s",  # laminar leak chamber 1 <-> 2: G (P1 - P2)
 )
 
 # The parameters a cylinder file (configs/cylinders/) defines: bore through leakage.
@@ -113,6 +114,7 @@ EFFECT_NEUTRAL_VALUES = {
     "lugre_stiffness_n_per_m": 0.0,
     "lugre_damping_n_s_per_m": 0.0,
     "tube_air_model": 0.0,
+    "leakage_conductance_kg_per_pa_s": 0.0,
 }
 
 # Parameter rows: P_<NAME> is the row of ``name`` in PARAMETER_NAMES (written out so that
@@ -174,6 +176,7 @@ P_EXHAUST_VOLUME_M3 = 53
 P_LUGRE_STIFFNESS_N_PER_M = 54
 P_LUGRE_DAMPING_N_S_PER_M = 55
 P_TUBE_AIR_MODEL = 56
+P_LEAKAGE_CONDUCTANCE_KG_PER_PA_S = 57
 N_PARAMS = len(PARAMETER_NAMES)
 PARAMETER_INDEX = {name: row for row, name in enumerate(PARAMETER_NAMES)}  # name -> row
 

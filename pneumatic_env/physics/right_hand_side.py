@@ -21,6 +21,7 @@ from .effects import (
     coil_force_gain,
     lagged_coil_current,
     lagged_coil_force_current,
+    laminar_leak_flow,
     rate_with_isothermal_tube_air,
     stribeck_friction,
 )
@@ -123,7 +124,7 @@ def _chamber_mass_flows(c, p1, p2, valve, arriving, exhaust_node_pa, inv_sqrt_t1
         )
     leak_12 = path_mass_flow(
         c, c.discharge, c.leak_area, p1, p2, inv_sqrt_t1, inv_sqrt_t2, c.flow_law
-    )
+    ) + laminar_leak_flow(c.leak_conductance, p1, p2)
     seal_2 = path_mass_flow(
         c, c.discharge, c.seal_leak, p2, c.ambient_pa, inv_sqrt_t2, c.inv_sqrt_t, c.flow_law
     )
