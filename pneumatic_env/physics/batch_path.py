@@ -92,10 +92,11 @@ def begin_substeps(constants, work, n_lanes, h):
 @njit(cache=True, forceinline=True, error_model="numpy")
 def _substeps_vectorised(constants, work, n_lanes, h, leaks, selected, four_paths, driven):
     """RK4 substep of ``batch_rhs.batch_derivatives`` for every lane of a chunk, with the
-    leak orifices (``leaks``), the effects selected per lane (``selected``) and the valve's
-    four paths (``four_paths``), the spool driven by the held command ``W_CURRENT`` or,
-    ``driven``, by the currents in ``W_DRIVE`` (the coil lags'); a loop LLVM vectorises
-    once the flags (constants where this is inlined) have folded away."""
+    leaks (``leaks``: orifices, laminar), the effects selected per lane (``selected``)
+    and the valve's four paths (``four_paths``), the spool driven by the held command
+    ``W_CURRENT`` or, ``driven``, by the currents in ``W_DRIVE`` (the coil lags'); a
+    loop LLVM vectorises once the flags (constants where this is inlined) have folded
+    away."""
     k = CHUNK_ENVS
     for j in range(n_lanes):
         c = load_constants(constants, j)

@@ -4,11 +4,12 @@ environments compiles to SIMD code, and its RK4 substep (``rk4_base_substep``).
 
 ``base_derivatives`` is the paper's model (``constants.base_model_only``);
 ``batch_derivatives`` adds, behind flags that are constants where it is inlined (so a loop
-without the effects compiles as before), the leak orifices (``leaks``), the valve's four
-paths with its null leak (``four_paths``) and the effects each lane selects for itself
-(``selected``: the energy equation with wall heat transfer, the tubes' isothermal air, the
-ISO 6358 flow law). Both give ``derivatives``' numbers bit for bit: the same operations in
-the same order, a closed leak or valve path adding 0.0 as it does there.
+without the effects compiles as before), the leaks (``leaks``: the orifices and the
+laminar leak), the valve's four paths with its null leak (``four_paths``) and the
+effects each lane selects for itself (``selected``: the energy equation with wall heat
+transfer, the tubes' isothermal air, the ISO 6358 flow law). Both give ``derivatives``'
+numbers bit for bit: the same operations in the same order, a closed leak or valve path
+adding 0.0 as it does there.
 """
 
 import math
@@ -155,8 +156,8 @@ def batch_derivatives(
     exhaust_pa,
     arriving=None,
 ):
-    """``base_derivatives`` of the RK4 state ``y``, plus with ``leaks`` the leak orifices
-    (cross-piston, rod seal: their flows added to the chambers' in- and outflows in
+    """``base_derivatives`` of the RK4 state ``y``, plus with ``leaks`` the leaks (orifices,
+    laminar; cross-piston, rod seal: their flows added to the chambers' in- and outflows in
     ``derivatives``' order), with ``selected`` the effects each lane has on or off (the
     energy equation: gas temperatures T1, T2, the valve's flows at the upstream air's
     temperature; the tubes' isothermal air; the ISO 6358 flow law) and with

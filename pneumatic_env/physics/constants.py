@@ -291,8 +291,9 @@ def env_constants(params, env, substep_s):
 
 @njit(cache=True)
 def _batch_path_effects_only(c):
-    """``base_model_only`` but for the effects the batch path adds on: the two leak
-    orifices (``leakage_area_m2``, ``rod_seal_leak_area_m2``; ``BATCH_LEAKS``), the coil
+    """``base_model_only`` but for the effects the batch path adds on: the leaks (the
+    orifices ``leakage_area_m2``, ``rod_seal_leak_area_m2`` and the laminar
+    ``leakage_conductance_kg_per_pa_s``; ``BATCH_LEAKS``), the coil
     lags (``coil_time_constant_s``; the currents at its RK4 stages, ``lagged_coil_rows``),
     the valve's null leak (``valve_null_leak_area_m2``: all four valve paths, in a chunk
     with one), the pressure nodes (the exhaust back-pressure, a vent with no volume; the
@@ -319,7 +320,7 @@ def base_model_only(c):
     chamber from being open together, and ``base_derivatives`` gives the same result with
     two valve paths instead of four. Three effects are in it (the exhaust discharge ratio,
     the tube volume as a dead volume, the spool friction, whose play acts before the
-    substeps); the leak orifices, the coil lags, the valve's null leak, the exhaust
+    substeps); the leaks (orifices, laminar), the coil lags, the valve's null leak, the exhaust
     back-pressure, the supply droop, the energy equation, the tubes' isothermal air, the
     ISO flow law and the transmission lines take the batch path too
     (``batch_lane_kind``); the others send the environment to the general path.
@@ -343,9 +344,9 @@ def base_model_only(c):
 
 # How the batch path advances an environment (``batch_lane_kind``, the cache's row
 # C_BASE_ONLY): by the general path, with ``base_derivatives``, or with
-# ``base_derivatives`` and the leak orifices (cross-piston and rod-seal leakage); either
-# batch kind with or without the coil lags, the valve's null leak and the effects
-# ``batch_rhs`` selects per lane.
+# ``base_derivatives`` and the leaks (cross-piston orifice and laminar leak, rod-seal
+# orifice); either batch kind with or without the coil lags, the valve's null leak and
+# the effects ``batch_rhs`` selects per lane.
 BATCH_GENERAL = 0.0
 BATCH_BASE = 1.0
 BATCH_LEAKS = 2.0
@@ -354,8 +355,8 @@ BATCH_LEAKS = 2.0
 @njit(cache=True)
 def batch_lane_kind(c):
     """``BATCH_BASE`` where ``base_model_only`` holds but for the effects the batch path
-    adds on other than the leak orifices (``_batch_path_effects_only``), ``BATCH_LEAKS``
-    where it would but for the leak orifices, else ``BATCH_GENERAL``."""
+    adds on other than the leaks (``_batch_path_effects_only``), ``BATCH_LEAKS``
+    where it would but for the leaks (orifices, laminar), else ``BATCH_GENERAL``."""
     if not _batch_path_effects_only(c):
         return BATCH_GENERAL
     leakless = c.leak_area == 0.0 and c.seal_leak == 0.0 and c.leak_conductance == 0.0
@@ -487,7 +488,7 @@ N_CACHED_CONSTANTS = N_CONSTANTS + 1
 
 @njit(cache=True)
 def chunk_effects(chunk_constants, n_lanes):
-    """Whether any lane of a chunk has the leak orifices (``BATCH_LEAKS``), an effect
+    """Whether any lane of a chunk has the leaks (``BATCH_LEAKS``), an effect
     ``batch_rhs`` selects per lane (energy equation, tube air, ISO flow law), a coil lag,
     the valve's null leak (``batch_rhs._valve_flows``' four paths), an exhaust vent, a
     supply resistance (the pressure nodes of ``batch_nodes``); then whether any and
