@@ -35,6 +35,7 @@ from pneumatic_env.studies.virtual_rig import make_recording
 DURATION_S = 1.0
 # A few candidates that cover a plant effect and the three sensor-side effects.
 CANDIDATES = ["leakage", "pressure_sensor_offset", "pressure_sensor_lag", "channel_time_skew"]
+LEAK = "leakage_conductance_kg_per_pa_s"  # the leakage candidate's parameter (a laminar leak)
 
 
 @pytest.fixture(scope="module")
@@ -151,25 +152,24 @@ def test_leakage_is_diagnosed_and_lowers_the_heldout_error(leak_diagnoses, seed)
     before = np.mean(list(diag.baseline_nrmse.values()))
     after = np.mean(list(diag.after_nrmse.values()))
     assert after < 0.6 * before
-    lo, hi = diag.final.ci["leakage_area_m2"]
+    lo, hi = diag.final.ci[LEAK]
     assert lo > 0.0  # the leak is significantly non-zero
 
 
 def test_leakage_diagnosis_is_stable_across_noise_seeds(leak_diagnoses, rig_dir):
     # same leak strength, different base perturbation and noise draws: the same effect is
-    # selected, and the fitted leak capacity C_f * A (the orifice flow of Eq. 39 scales with
-    # the product), relative to the rig's (its laminar leak is matched to an orifice of
-    # C_f * A_ref with its own perturbed C_f), agrees within 25 % between the seeds
+    # selected, and the fitted laminar conductance, relative to the rig's (its laminar leak
+    # is matched to an orifice of C_f * A_ref at half the supply span, with its own
+    # perturbed C_f and supply), agrees within 25 % between the seeds
+    from pneumatic_env.studies.rig_plants import _laminar_conductance
+
     assert leak_diagnoses[1].selected == leak_diagnoses[2].selected == ["leakage"]
     ratios = []
     for seed in (1, 2):
         fit = leak_diagnoses[seed].final.all_values()
         truth = _truth(_rig(rig_dir, "leakage", seed))
-        ratios.append(
-            fit["leakage_area_m2"]
-            * fit["discharge_coefficient"]
-            / (truth["effect_reference"] * truth["parameters"]["discharge_coefficient"])
-        )
+        rig_conductance = _laminar_conductance(truth["parameters"], truth["effect_reference"])
+        ratios.append(fit[LEAK] / rig_conductance)
     assert abs(ratios[0] - ratios[1]) < 0.25 * max(ratios)
 
 
@@ -203,7 +203,7 @@ def test_ablation_refuses_a_candidate_whose_effect_does_not_carry_the_improvemen
         return fit.cost, _mean(nrmse), per
 
     # the same fitted base with a leak far too small to matter (held out or in training)
-    values = {**score.fit.values, "leakage_area_m2": 1e-14}
+    values = {**score.fit.values, LEAK: 1e-17}
     cost, mean, per = simulated(values)
     fit = replace(score.fit, values=values, cost=cost)
     weak = replace(score, fit=fit, heldout_mean=mean, per_recording_nrmse=per, reasons=[])
@@ -214,7 +214,7 @@ def test_ablation_refuses_a_candidate_whose_effect_does_not_carry_the_improvemen
     )
     # the real leak scored as if its held-out errors were those of the leak switched
     # off: the training fit still needs the leak at these base values, so it stays
-    _, mean_off, per_off = simulated({**score.fit.values, "leakage_area_m2": 0.0})
+    _, mean_off, per_off = simulated({**score.fit.values, LEAK: 0.0})
     blind = replace(score, heldout_mean=mean_off, per_recording_nrmse=per_off, notes=[])
     assert not _improvement_is_the_basin(blind, diag.base, 0.10, split, cfg)
     assert blind.accepted and "the base parameters need the effect" in blind.notes[0]
@@ -225,7 +225,7 @@ def test_ablation_refuses_a_candidate_whose_effect_does_not_carry_the_improvemen
     assert not hurts.accepted and "the base needs the effect only if" in hurts.reasons[0]
     # ... nor when the refit's base alone, the effect off, fits better than the current
     # model (a current model whose training cost is above the one with the leak off)
-    cost_off, _, _ = simulated({**score.fit.values, "leakage_area_m2": 0.0})
+    cost_off, _, _ = simulated({**score.fit.values, LEAK: 0.0})
     worse_current = replace(diag.base, cost=1.5 * cost_off)
     basin = replace(score, heldout_mean=mean_off, per_recording_nrmse=per_off, reasons=[])
     assert _improvement_is_the_basin(basin, worse_current, 0.10, split, cfg)
