@@ -277,6 +277,7 @@ def test_a_close_rival_of_a_refitted_candidate_is_refitted_too():
     far = screen("leakage", -51.0 * (ratio - 0.05))
     stranger = screen("lugre", -50.0)  # close, but no rival of a refitted one
     assert rival_picks(cfg, [close, stranger], top) == [close]
+    assert rival_picks(cfg, [close], [*top, close]) == []  # a drift or form pick already
     assert rival_picks(cfg, [far, stranger], top) == []
     weak = [screen("valve_null_leak", -5.0)]  # a rival that would not pass the BIC test
     assert rival_picks(cfg, [screen("leakage", -5.0)], weak) == []

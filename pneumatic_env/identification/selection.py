@@ -282,9 +282,11 @@ def rival_picks(cfg: IdentificationConfig, rest: Sequence, taken: Sequence) -> l
     null leak at -51, then refitted: held out 0.0097 against 0.0100)."""
     ratio = cfg.number("screening", "rival_refit_ratio", minimum=0.0, maximum=1.0)
     min_ic = cfg.diagnosis("min_ic_drop")
-    rivals = [pair for pair, _ in cfg.separating_experiments()]
+    rivals = {pair for pair, _ in cfg.separating_experiments()}
     picks = []
     for s in rest:
+        if any(s is t for t in taken):  # a drift or form pick already
+            continue
         for t in taken:
             pair = frozenset((s.name, t.name))
             drop = -t.predicted_delta_ic

@@ -313,6 +313,12 @@ def _batch_path_effects_only(c):
 
 
 @njit(cache=True)
+def _leakless(c):
+    """No leak between the chambers (orifice or laminar) and none at the rod seal."""
+    return c.leak_area == 0.0 and c.seal_leak == 0.0 and c.leak_conductance == 0.0
+
+
+@njit(cache=True)
 def base_model_only(c):
     """Whether an environment runs the paper's model with no effect that needs ``derivatives``.
 
@@ -331,9 +337,7 @@ def base_model_only(c):
         and c.exhaust_vent == 0.0
         and c.supply_resistance == 0.0
         and c.null_leak == 0.0
-        and c.leak_area == 0.0
-        and c.seal_leak == 0.0
-        and c.leak_conductance == 0.0
+        and _leakless(c)
         and c.coil_lag == 0.0
         and c.coil_force_lag == 0.0
         and c.energy == 0.0
@@ -359,8 +363,7 @@ def batch_lane_kind(c):
     where it would but for the leaks (orifices, laminar), else ``BATCH_GENERAL``."""
     if not _batch_path_effects_only(c):
         return BATCH_GENERAL
-    leakless = c.leak_area == 0.0 and c.seal_leak == 0.0 and c.leak_conductance == 0.0
-    return BATCH_BASE if leakless else BATCH_LEAKS
+    return BATCH_BASE if _leakless(c) else BATCH_LEAKS
 
 
 N_CONSTANTS = len(Constants._fields)
