@@ -138,6 +138,8 @@ class Controller:
     def __init__(self, context: ControllerContext):
         self.context = context
         self.n_envs: int | None = None
+        self.smoothing_steps: int | np.ndarray = 0  # set_reference_smoothing
+        self._past_reference: np.ndarray | None = None  # (n, W): ref(k - W .. k - 1)
 
     @property
     def env_options(self) -> dict:
@@ -153,6 +155,8 @@ class Controller:
             return
         rows = np.atleast_1d(np.asarray(envs, dtype=np.int64))
         if rows.size:
+            if self._past_reference is not None:
+                self._past_reference[rows] = np.nan
             self._reset_rows(rows)
 
     def act(self, obs) -> np.ndarray:
@@ -170,7 +174,57 @@ class Controller:
         if self.n_envs != o.shape[0]:
             self.n_envs = o.shape[0]
             self._allocate(self.n_envs)
-        return self._act(self.observation_si(o))
+            width = int(np.max(self.smoothing_steps))
+            self._past_reference = np.full((self.n_envs, width), np.nan) if width else None
+        si = self.observation_si(o)
+        current = self._act(self.smoothed_reference(si))
+        if self._past_reference is not None:  # ref(k) joins the last W references
+            now = si[:, OBS_REF : OBS_REF + 1]
+            past = np.where(np.isnan(self._past_reference), now, self._past_reference)
+            self._past_reference = np.concatenate([past[:, 1:], now], axis=1)
+        return current
+
+    def set_reference_smoothing(self, owner: str, steps) -> None:
+        """``reference_smoothing_steps`` W (an integer >= 0 or one per env, at most the
+        preview): the controller tracks the centred moving average of the reference over
+        k - W .. k + W control periods (``smoothed_reference``); 0 leaves it as it is."""
+        w = np.asarray(steps)
+        h = self.context.preview_steps
+        if w.dtype == bool or not np.all(np.isfinite(w)) or np.any(w != np.rint(w)):
+            ok = False
+        else:
+            ok = bool(np.all((w >= 0) & (w <= h)))
+        if not ok:
+            raise ValueError(
+                f"{owner}: reference_smoothing_steps = {steps!r} is not allowed: an integer "
+                f"from 0 to the preview ({h} control periods), or one per env"
+            )
+        self.smoothing_steps = w.astype(np.int64) if w.ndim else int(w)
+
+    def smoothed_reference(self, obs: np.ndarray, rows=None) -> np.ndarray:
+        """SI rows ``obs`` (of the env rows ``rows``, default all) with ref(k + j), j = 0..H,
+        replaced by its centred mean over ref(k + j - W .. k + j + W): the last W references
+        before k (before a new episode: its first reference) and the preview, held at its last value
+        beyond it. A step in the reference becomes a ramp over 2 W + 1 periods centred on
+        it, which a loop that cannot follow a step tracks with a smaller RMS error. A copy;
+        ``obs`` itself where W = 0."""
+        if self._past_reference is None:
+            return obs
+        rows = slice(None) if rows is None else np.asarray(rows)
+        past = self._past_reference[rows]
+        ref = obs[:, OBS_REF:]
+        width, h = past.shape[1], ref.shape[1]
+        past = np.where(np.isnan(past), ref[:, :1], past)
+        extended = np.concatenate([past, ref, np.repeat(ref[:, -1:], width, axis=1)], axis=1)
+        cum = np.concatenate([np.zeros((ref.shape[0], 1)), np.cumsum(extended, axis=1)], axis=1)
+        w = np.asarray(self.smoothing_steps)
+        w = np.broadcast_to(w if w.ndim == 0 else w[rows], (ref.shape[0],))[:, None]
+        centre = width + np.arange(h)[None, :]
+        r = np.arange(ref.shape[0])[:, None]
+        out = obs.copy()
+        mean = (cum[r, centre + w + 1] - cum[r, centre - w]) / (2 * w + 1)
+        out[:, OBS_REF:] = np.where(w > 0, mean, ref)  # rows with W = 0 as they were
+        return out
 
     def observation_si(self, obs: np.ndarray) -> np.ndarray:
         """Undo ``normalize_observation`` so the controller works in SI

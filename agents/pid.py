@@ -10,6 +10,8 @@ Why a *rate* feed-forward: with the rod clamped and no leakage, a closed valve h
 force, so the static map from desired force to current is zero; the valve current sets the
 flow, i.e. the force *rate* (Eq. 14 with dV = 0). ``k_ff`` maps the reference slope to a
 current. i_db and i_sat follow from the valve geometry (``base.valve_currents``).
+With ``reference_smoothing_steps`` W > 0, r is the reference's centred mean over 2 W + 1
+periods (``base.Controller.smoothed_reference``; 0 in the benchmark's gains).
 Gains come from ``configs/agents/pid-<variant>.yaml`` (written by ``agents/tune_pid.py``).
 """
 
@@ -51,9 +53,11 @@ class PIDController(Controller):
         antiwindup_tracking_s,
         deadband_ramp_a,
         deadband_compensation,
+        reference_smoothing_steps=0,
     ):
         super().__init__(context)
         own = "PIDController"
+        self.set_reference_smoothing(own, reference_smoothing_steps)
         self.kp = check_gain(own, "kp_a_per_n", kp_a_per_n)
         self.ki = check_gain(own, "ki_a_per_n_s", ki_a_per_n_s)
         self.kd = check_gain(own, "kd_a_s_per_n", kd_a_s_per_n)

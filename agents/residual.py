@@ -60,10 +60,15 @@ BASE_CLASSES: dict[str, type[Controller]] = {
 BASE_CONTROLLERS = tuple(BASE_CLASSES)
 
 
-def base_gain_names(base: str) -> list[str]:
-    """The gains of the base controller ``base``: its class's keyword-only arguments."""
+def base_gain_names(base: str, required: bool = False) -> list[str]:
+    """The gains of the base controller ``base``: its class's keyword-only arguments (with
+    ``required``, those without a default)."""
     signature = inspect.signature(BASE_CLASSES[base].__init__)
-    return [p.name for p in signature.parameters.values() if p.kind is p.KEYWORD_ONLY]
+    return [
+        p.name
+        for p in signature.parameters.values()
+        if p.kind is p.KEYWORD_ONLY and not (required and p.default is not p.empty)
+    ]
 
 
 @dataclass(frozen=True)
@@ -115,7 +120,7 @@ class ResidualConfig:
                 f"gains {allowed} (or None: the variant's)"
             )
         unknown = [str(k) for k in self.gains if k not in allowed]
-        missing = [k for k in allowed if k not in self.gains]
+        missing = [k for k in base_gain_names(self.base, required=True) if k not in self.gains]
         if unknown or missing:
             raise ValueError(
                 f"gains = {dict(self.gains)!r} is not allowed: unknown {unknown}, missing "

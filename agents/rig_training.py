@@ -83,6 +83,19 @@ BASE_CANDIDATES = {
 BASE_CHOICES = ("auto", *BASE_CONTROLLERS)
 
 
+def smoothed_name(name: str, steps: int) -> str:
+    """The row of the base candidate ``name`` tracking its reference smoothed over +-steps."""
+    return f"{name}, reference smoothed +-{steps}"
+
+
+def _named_candidates(smoothing: dict[str, int] | None = None) -> dict[str, tuple[str, int]]:
+    """Row name -> (``BASE_CANDIDATES`` name, reference smoothing W): the four candidates
+    as they are, and each one given in ``smoothing`` with its W."""
+    out = {name: (name, 0) for name in BASE_CANDIDATES}
+    out.update({smoothed_name(n, w): (n, w) for n, w in (smoothing or {}).items()})
+    return out
+
+
 def retuned_pid_gains(rig: FittedRig, tuning: dict | None = None) -> dict:
     """The PID gains of the tuning grid (``configs/agents/tuning.yaml``) best on the
     fitted rig, with the grid's fixed values."""
@@ -104,12 +117,17 @@ def _spec(name: str, kind: str, gains: dict, base_params: dict | None, preview: 
     return ControllerSpec(name, {"preview_steps": preview, "normalize_observation": False}, build)
 
 
-def candidate_base(rig: FittedRig, name: str, pid_gains: dict) -> tuple[str, dict, dict | None]:
+def candidate_base(
+    rig: FittedRig, name: str, pid_gains: dict, smoothing_steps: int = 0
+) -> tuple[str, dict, dict | None]:
     """(kind, gains, model parameters or None for the fitted rig's) of the base ``name``
-    (``BASE_CANDIDATES``)."""
+    (``BASE_CANDIDATES``), tracking its reference smoothed over +-``smoothing_steps``
+    (``Controller.smoothed_reference``) if > 0."""
     kind, model = BASE_CANDIDATES[name]
     retuned = kind == "pid" and model == "fitted"
     gains = dict(pid_gains) if retuned else classical_gains(kind, rig.variant)
+    if smoothing_steps:
+        gains["reference_smoothing_steps"] = int(smoothing_steps)
     return kind, gains, rig.nominal_parameters() if model == "nominal" else None
 
 
@@ -123,20 +141,51 @@ def rig_controllers(rig: FittedRig, pid_gains: dict, suite: Suite) -> list[Contr
     ]
 
 
+def search_smoothing(
+    rig: FittedRig, pid_gains: dict, classical: list[dict], suite: Suite, grid
+) -> tuple[dict[str, int], list[dict], dict[str, dict[int, float]]]:
+    """The reference smoothing W of each base candidate searched on the fitted rig's suite:
+    every W of ``grid`` beside the candidate's own figure (W = 0, ``classical``). Returns
+    {candidate: its best W, where one beats W = 0}, their figures (rows named
+    ``smoothed_name``) and {candidate: {W: mean RMS error %}} of every W tried."""
+    own = {f["controller"]: f["rms_error_pct"] for f in classical}
+    grid = sorted({int(w) for w in grid if int(w) > 0})
+    specs = [
+        _spec(f"{n}|{w}", *candidate_base(rig, n, pid_gains, w), suite.preview_steps)
+        for n in BASE_CANDIDATES
+        for w in grid
+    ]
+    figures = {f["controller"]: f for f in (suite_summary(rig, specs, suite) if specs else [])}
+    tried = {
+        n: {0: own[n], **{w: figures[f"{n}|{w}"]["rms_error_pct"] for w in grid}}
+        for n in BASE_CANDIDATES
+    }
+    best = {n: min(t, key=lambda w: (t[w], w)) for n, t in tried.items()}
+    smoothing = {n: w for n, w in best.items() if w > 0}
+    rows = [
+        {**figures[f"{n}|{w}"], "controller": smoothed_name(n, w)} for n, w in smoothing.items()
+    ]
+    return smoothing, rows, tried
+
+
 def _check_base(base: str) -> None:
     if base not in BASE_CHOICES:
         raise ValueError(f"base = {base!r} is not allowed: use one of {list(BASE_CHOICES)}")
 
 
-def choose_base(classical: list[dict], base: str = "auto") -> dict:
+def choose_base(
+    classical: list[dict], base: str = "auto", smoothing: dict[str, int] | None = None
+) -> dict:
     """The residual's base from the classical controllers' figures on the fitted rig
-    (``suite_summary`` of ``rig_controllers``): the candidate (``BASE_CANDIDATES``) with
-    the lowest mean RMS error, among all (``"auto"``) or those of the kind ``base``.
-    Returns ``{"controller": name, "kind", "model", "reason", "rms_error_pct": {name: %}}``."""
+    (``suite_summary`` of ``rig_controllers``; the rows of ``smoothing``, from
+    ``search_smoothing``, too): the candidate with the lowest mean RMS error, among all
+    (``"auto"``) or those of the kind ``base``. Returns ``{"controller": name, "kind",
+    "model", "smoothing_steps", "reason", "rms_error_pct": {name: %}}``."""
     _check_base(base)
+    named = _named_candidates(smoothing)
     by_name = {f["controller"]: f["rms_error_pct"] for f in classical}
-    rms = {name: by_name[name] for name in BASE_CANDIDATES}
-    allowed = [n for n in rms if base == "auto" or BASE_CANDIDATES[n][0] == base]
+    rms = {name: by_name[name] for name in named}
+    allowed = [n for n in rms if base == "auto" or BASE_CANDIDATES[named[n][0]][0] == base]
     name = min(allowed, key=lambda n: rms[n])
     listed = ", ".join(f"{n} {v:.2f} %" for n, v in rms.items())
     reason = (
@@ -144,11 +193,13 @@ def choose_base(classical: list[dict], base: str = "auto") -> dict:
         if base == "auto"
         else f"given (base={base}, the better of its kind; on the fitted rig: {listed})"
     )
-    kind, model = BASE_CANDIDATES[name]
+    kind, model = BASE_CANDIDATES[named[name][0]]
     return {
         "controller": name,
         "kind": kind,
         "model": model,
+        "candidate": named[name][0],
+        "smoothing_steps": named[name][1],
         "reason": reason,
         "rms_error_pct": rms,
     }
@@ -285,21 +336,29 @@ def train_for_rig(
     ``base``: the residual's base (``BASE_CHOICES``; ``choose_base``). Returns the summary
     figures, the controller's path and the base."""
     _check_base(base)
+    tuning = tuning or load_agent_config("tuning", raw=("references",))
     rig, out = load_rig(report_dir), Path(out)
     suite = suite or load_suite()
     log(f"[1/5] rig: {rig.cylinder}, tube {rig.params['tube_length_m']:g} m -> {rig.env_id}")
     randomization = rig_randomization(report_dir)
     log(f"[2/5] PID gains searched on the fitted rig ({len(randomization)} randomised params)")
     pid_gains = retuned_pid_gains(rig, tuning)
-    log("[3/5] suite on the fitted rig: PID and sliding mode, nominal and retuned")
+    log(
+        "[3/5] suite on the fitted rig: PID and sliding mode, nominal and retuned, each "
+        "with its reference smoothing searched"
+    )
     classical = suite_summary(rig, rig_controllers(rig, pid_gains, suite), suite)
-    chosen = choose_base(classical, base)
+    smoothing, smoothed, tried = search_smoothing(
+        rig, pid_gains, classical, suite, tuning["rig_base"]["reference_smoothing_steps"]
+    )
+    classical += smoothed
+    chosen = choose_base(classical, base, smoothing)
     log(f"      residual base: {chosen['controller']} ({chosen['reason']})")
     held = _train_residual(
         rig,
         out,
         randomization,
-        candidate_base(rig, chosen["controller"], pid_gains),
+        candidate_base(rig, chosen["candidate"], pid_gains, chosen["smoothing_steps"]),
         minutes=minutes,
         steps=steps,
         seed=seed,
@@ -334,6 +393,7 @@ def train_for_rig(
                 "figures": figures,
                 "base": record,
                 "pid_gains": pid_gains,
+                "reference_smoothing": tried,
                 "randomization": randomization,
             },
             indent=2,

@@ -14,6 +14,10 @@ Per control period and env:
    evaluated at the measured pressures; the spool opening giving Fdot_d is found on a grid of
    openings (monotone search with interpolation), then x_s (Eq. 43) and the current (Eq. 46).
 
+With ``reference_smoothing_steps`` W > 0 the reference r is first the centred mean over
+2 W + 1 periods (``base.Controller.smoothed_reference``): a step becomes a ramp centred
+on it (``agents/rig_training.py`` searches W on a fitted rig; the benchmark's gains use 0).
+
 The controller's model is the paper's nominal model built from the simulator's sub-model
 functions (orifice area, orifice flow, tube attenuation, chamber pressure rate); effects the
 simulator may add beyond the paper (configs/effects.yaml) are model error to it. It reads only
@@ -236,9 +240,11 @@ class SlidingModeController(Controller):
         extra_lead_s,
         predictor,
         opening_grid_points,
+        reference_smoothing_steps=0,
     ):
         super().__init__(context)
         own = "SlidingModeController"
+        self.set_reference_smoothing(own, reference_smoothing_steps)
         self.lam = check_gain(own, "lambda_integral_per_s", lambda_integral_per_s)
         self.k_r = check_gain(own, "reaching_gain_per_s", reaching_gain_per_s)
         self.eta = check_gain(own, "switching_gain_n_per_s", switching_gain_n_per_s)
@@ -371,6 +377,6 @@ class SlidingModeController(Controller):
     def peek(self, obs, rows):
         """(current, predicted error in N) that ``act`` would give rows ``rows`` for their
         observations ``obs`` (len(rows) rows, any normalisation), without changing state."""
-        o = self.observation_si(self._rows(obs))
+        o = self.smoothed_reference(self.observation_si(self._rows(obs)), rows)
         current, _, _, e = self._compute(o, self.integral[rows], self.pending[rows].sum(axis=1))
         return current, e

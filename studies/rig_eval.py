@@ -23,9 +23,9 @@ finishes (``OUT/RIG/rig.json``, ``OUT/RIG/seed_S.json``); a rerun skips the fini
 Local processes by default, Ray tasks with ``--ray-address`` (Ray imported only then).
 
 ``python -m pneumatic_env.studies.rig_eval --out runs/rig-eval [--rigs NAME ...] [--seeds
-1,2,3] [--minutes M] [--processes 2] [--ray-address ADDR]``; ``--quick``: one rig, tiny
-budgets (:meth:`Plan.quick`); ``--summary``: the table of what is finished, running
-nothing (:func:`finished`). Measured on 2 shared cores beside an identify run:
+1,2,3] [--minutes M] [--processes 2] [--train-processes 1] [--ray-address ADDR]``;
+``--quick``: one rig, tiny budgets (:meth:`Plan.quick`); ``--summary``: the table of what
+is finished, running nothing (:func:`finished`). Measured on 2 shared cores beside an identify run:
 ``--quick`` took 156 s (recording 1.4 s, identify --quick 151 s, the baselines 1.2 s; on
 the three-effect rig 398 s: recording 156 s, identify 199 s, baselines 34 s), too long
 for a test; the bookkeeping is tested on stubs.
@@ -37,6 +37,7 @@ import argparse
 import dataclasses
 import functools
 import json
+import shutil
 import subprocess
 import sys
 import time
@@ -216,8 +217,20 @@ def train_and_evaluate(job: dict) -> dict:
         "controller": str(controller),
         "residual_base": training.get("base"),
         **_closed_loop(str(controller), job),
+        "base_alone_rms_error_pct": base_alone(controller, job),
         "seconds": {"train": t1 - t0, "closed_loop": time.time() - t1},
     }
+
+
+def base_alone(controller: Path, job: dict) -> float:
+    """The suite's mean RMS error (%) on the rig's plant of the controller file's base alone
+    (a copy with its residual zeroed, ``agents.learned.zero_the_residual``): the learned
+    correction's own share is the difference."""
+    from pneumatic_env.agents.learned import zero_the_residual
+
+    copy = Path(shutil.copy(controller, controller.with_name("base_alone.npz")))
+    zero_the_residual(copy, "rig_eval: the base alone")
+    return _closed_loop(str(copy), job)["rms_error_pct"]
 
 
 # --------------------------------------------------------------------------- bookkeeping
@@ -263,9 +276,13 @@ def run_evaluation(
     prepare: Callable[[dict], dict] = prepare_rig,
     train: Callable[[dict], dict] = train_and_evaluate,
     log: Callable[[str], None] = _log,
+    train_processes: int = 1,
 ) -> dict:
-    """Every rig's stages, then every (rig, seed); returns :func:`summarise`'s summary
-    (also written to ``out/summary.json``)."""
+    """Every rig's stages (``processes`` at a time), then every (rig, seed)
+    (``train_processes`` at a time: one, as a user runs ``train --rig`` on the machine;
+    two trainings side by side on 2 cores made about 16 500 env steps/s each against
+    80 000-88 000 alone, so a wall-time budget bought a fifth of the samples); returns
+    :func:`summarise`'s summary (also written to ``out/summary.json``)."""
     plan_dict = {k: v for k, v in dataclasses.asdict(plan).items() if k not in ("rigs", "seeds")}
     common = {"plan": plan_dict}
     rig_jobs = [
@@ -282,7 +299,7 @@ def run_evaluation(
         for s in plan.seeds
     ]
     trained: dict[str, list] = {r.name: [] for r in plan.rigs}
-    for result in _run([(train, j) for j in seed_jobs], processes, ray_address):
+    for result in _run([(train, j) for j in seed_jobs], train_processes, ray_address):
         trained[result["rig"]].append(result)
         state = result.get("skipped") or result.get("failed") or "trained and run"
         log(f"rig {result['rig']} seed {result['seed']}: {state}")
@@ -350,16 +367,16 @@ def finished(plan: Plan, out: Path) -> tuple[dict[str, dict], dict[str, list[dic
 
 
 def _seed_lines(rigs: dict[str, dict], trained: dict[str, list[dict]]) -> list[str]:
-    """Per (rig, seed): the trained controller's error, its chatter and air against the
-    sliding mode's on the rig's plant (issue 35: within 1.5 x), its base (and whether
-    ``train --rig`` zeroed its residual), its time."""
-    lines = ["", "| rig | seed | RMS % | chatter / SM | air / SM | base | train s |"]
-    lines.append("|---|---|---|---|---|---|---|")
+    """Per (rig, seed): the trained controller's error and its base's alone, its chatter
+    and air against the sliding mode's on the rig's plant (issue 35: within 1.5 x), its
+    base (and whether ``train --rig`` zeroed its residual), its time."""
+    lines = ["", "| rig | seed | RMS % | base alone % | chatter / SM | air / SM | base | train s |"]
+    lines.append("|---|---|---|---|---|---|---|---|")
     for name, runs in trained.items():
         sm = rigs[name]["baselines"].get("sliding_mode", {})
         for r in sorted(runs, key=lambda r: r["seed"]):
             if "rms_error_pct" not in r:
-                lines.append(f"| {name} | {r['seed']} | {r.get('failed', 'skipped')} |||||")
+                lines.append(f"| {name} | {r['seed']} | {r.get('failed', 'skipped')} ||||||")
                 continue
             nan = float("nan")
             chatter = r.get("chatter_rms_a", nan) / sm.get("chatter_rms_a", nan)
@@ -368,8 +385,11 @@ def _seed_lines(rigs: dict[str, dict], trained: dict[str, list[dict]]) -> list[s
             base = record.get("controller", record.get("kind", "-"))  # a name since 2026-11-28
             base += " (residual zeroed)" if record.get("residual_zeroed") else ""
             seconds = r.get("seconds", {}).get("train", nan)
+            alone = r.get("base_alone_rms_error_pct")
             lines.append(
-                f"| {name} | {r['seed']} | {r['rms_error_pct']:.2f} | {chatter:.2f} | "
+                f"| {name} | {r['seed']} | {r['rms_error_pct']:.2f} | "
+                + ("-" if alone is None else f"{alone:.2f}")
+                + f" | {chatter:.2f} | "
                 f"{air:.2f} | {base} | {seconds:.0f} |"
             )
     return lines
@@ -411,7 +431,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rigs", nargs="+", default=None, choices=[r.name for r in EVAL_RIGS])
     p.add_argument("--seeds", type=lambda s: tuple(int(x) for x in s.split(",")), default=None)
     p.add_argument("--minutes", type=float, default=None, help="training budget per seed")
-    p.add_argument("--processes", type=int, default=2)
+    p.add_argument("--processes", type=int, default=2, help="recording, identify, baselines")
+    p.add_argument(
+        "--train-processes",
+        type=int,
+        default=1,
+        help="trainings at a time (default 1: each gets the machine, as a user's)",
+    )
     p.add_argument(
         "--ray-address",
         default=None,
@@ -440,7 +466,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     args.out.mkdir(parents=True, exist_ok=True)
     try:
-        summary = run_evaluation(plan, args.out, args.processes, args.ray_address)
+        summary = run_evaluation(
+            plan, args.out, args.processes, args.ray_address, train_processes=args.train_processes
+        )
     except ModuleNotFoundError as exc:
         if (exc.name or "").split(".")[0] != "ray":
             raise

@@ -25,7 +25,13 @@ def _prepare(job):
 def _train(job):
     CALLS.append(("train", job["rig"][0], job["seed"]))
     scale = 1.0 if job["rig"][0] == EVAL_RIGS[0].name else 0.5
-    return {"rig": job["rig"][0], "seed": job["seed"], "rms_error_pct": scale * job["seed"]}
+    rms = scale * job["seed"]
+    return {
+        "rig": job["rig"][0],
+        "seed": job["seed"],
+        "rms_error_pct": rms,
+        "base_alone_rms_error_pct": rms + 0.25,
+    }
 
 
 def _skipping_train(job):
@@ -80,6 +86,8 @@ def test_the_summary_of_a_stopped_run_reads_its_checkpoints(tmp_path, capsys):
     assert CALLS == []  # nothing ran
     out = capsys.readouterr().out
     assert all(f"| {n} |" in out for n in names) and "ratio over rigs" in out
+    # per seed: the trained controller's error beside its base's alone
+    assert f"| {names[0]} | 2 | 2.00 | 2.25 |" in out
 
 
 def test_a_missing_trainer_is_reported_not_scored(tmp_path):
@@ -102,3 +110,28 @@ def test_the_evaluation_rigs_are_the_issues():
         for r in EVAL_RIGS
     )
     assert len({r.seed for r in EVAL_RIGS}) == len(EVAL_RIGS)
+
+
+def test_trainings_run_one_at_a_time_by_default(tmp_path, monkeypatch):
+    """The rigs' stages share the processes; each training gets the machine (a wall-time
+    budget shared by two trainings buys each a fifth of the samples)."""
+    seen, real = [], rig_eval._run
+
+    def spy(tasks, processes, ray_address):
+        seen.append((tasks[0][0].__name__, processes))
+        return real(tasks, 1, None)
+
+    monkeypatch.setattr(rig_eval, "_run", spy)
+    plan = Plan(rigs=EVAL_RIGS[:2], seeds=(1, 2))
+    run_evaluation(plan, tmp_path, 2, prepare=_prepare, train=_train, log=lambda s: None)
+    assert seen == [("_prepare", 2), ("_train", 1)]
+    run_evaluation(
+        plan,
+        tmp_path / "b",
+        2,
+        prepare=_prepare,
+        train=_train,
+        log=lambda s: None,
+        train_processes=2,
+    )
+    assert seen[-1] == ("_train", 2)

@@ -194,12 +194,17 @@ def test_train_rig_writes_a_controller_that_runs_by_file_name_alone(tmp_path):
     meta = json.loads(str(np.load(path)["meta"]))
     assert meta["format"] == FORMAT_SELF_CONTAINED
     # auto: the base with the lowest error on the fitted rig, its model inside the file
+    # (the four candidates, and each with its best reference smoothing where it is better)
     rms = {f["controller"]: f["rms_error_pct"] for f in res["figures"]}
-    best = min(BASE_CANDIDATES, key=lambda n: rms[n])
+    assert set(BASE_CANDIDATES) <= set(res["base"]["rms_error_pct"]) <= set(rms)
+    best = min(res["base"]["rms_error_pct"], key=lambda n: rms[n])
     assert res["base"]["controller"] == best
-    assert meta["base_controller"]["kind"] == res["base"]["kind"] == BASE_CANDIDATES[best][0]
+    kind, model = BASE_CANDIDATES[res["base"]["candidate"]]
+    assert meta["base_controller"]["kind"] == res["base"]["kind"] == kind
+    smoothing = meta["base_controller"]["gains"].get("reference_smoothing_steps", 0)
+    assert smoothing == res["base"]["smoothing_steps"]
     on_nominal = meta["residual"]["base_model_params"]
-    assert (on_nominal is None) == (BASE_CANDIDATES[best][1] == "fitted")
+    assert (on_nominal is None) == (model == "fitted")
     assert meta["model"]["base_params"]["tube_length_m"] == 1.6
     # on the fitted rig it gives the summary's figure exactly, from the file alone
     rows, _ = run_suite(str(path), [rig.variant], suite, env_options=rig.env_options)
@@ -332,6 +337,40 @@ def test_train_rig_sits_on_the_winning_base_with_exactly_its_gains_and_model(
         twin.reset()
         ctrl.act(obs)
         assert np.array_equal(ctrl.residual.u_base, twin.act(obs))
+    env.close()
+
+
+def test_a_base_with_its_reference_smoothed_wins_and_travels_in_the_file(tmp_path, monkeypatch):
+    from pneumatic_env.agents import rig_training
+    from pneumatic_env.agents.base import ControllerContext
+    from pneumatic_env.agents.registry import classical_gains
+
+    # the search names its runs "CANDIDATE|W": the nominal sliding mode best at W = 2
+    figures = {SMC_NOMINAL: 4.0, f"{SMC_NOMINAL}|2": 3.0, f"{SMC_NOMINAL}|3": 3.5}
+    figures |= {f"{PID_RETUNED}|1": 3.2, PID_RETUNED: 3.6}
+    report, out = write_report(tmp_path / "report"), tmp_path / "out"
+    res = _train_with_figures(monkeypatch, figures, report, out)
+    winner = rig_training.smoothed_name(SMC_NOMINAL, 2)
+    assert res["base"]["controller"] == winner and res["base"]["smoothing_steps"] == 2
+    record = json.loads((out / "rig_training.json").read_text())
+    assert record["reference_smoothing"][SMC_NOMINAL] == {
+        "0": 4.0,
+        "1": 9.0,
+        "2": 3.0,
+        "3": 3.5,
+        "4": 9.0,
+    }
+    # the PID's own best smoothing is a row too; a candidate none beats gets none
+    assert record["base"]["rms_error_pct"][rig_training.smoothed_name(PID_RETUNED, 1)] == 3.2
+    assert not any(SMC_FITTED + "," in name for name in record["base"]["rms_error_pct"])
+    gains = {**classical_gains("sliding_mode", "Numatics-2m"), "reference_smoothing_steps": 2}
+    meta = json.loads(str(np.load(res["controller"])["meta"]))
+    assert meta["base_controller"] == {"kind": "sliding_mode", "gains": gains}
+    env = _two_envs_of_the_2m_variant()
+    ctrl = resolve_controller(res["controller"], "Numatics-2m").build(
+        ControllerContext.from_env(env)
+    )
+    assert ctrl.residual.base.smoothing_steps == 2
     env.close()
 
 
