@@ -178,10 +178,12 @@ class Controller:
             self._past_reference = np.full((self.n_envs, width), np.nan) if width else None
         si = self.observation_si(o)
         current = self._act(self.smoothed_reference(si))
-        if self._past_reference is not None:  # ref(k) joins the last W references
+        past = self._past_reference
+        if past is not None:  # ref(k) joins the last W references, in place
             now = si[:, OBS_REF : OBS_REF + 1]
-            past = np.where(np.isnan(self._past_reference), now, self._past_reference)
-            self._past_reference = np.concatenate([past[:, 1:], now], axis=1)
+            np.copyto(past, now, where=np.isnan(past))  # a new episode's: its first
+            past[:, :-1] = past[:, 1:]
+            past[:, -1:] = now
         return current
 
     def set_reference_smoothing(self, owner: str, steps) -> None:
@@ -190,10 +192,9 @@ class Controller:
         k - W .. k + W control periods (``smoothed_reference``); 0 leaves it as it is."""
         w = np.asarray(steps)
         h = self.context.preview_steps
-        if w.dtype == bool or not np.all(np.isfinite(w)) or np.any(w != np.rint(w)):
-            ok = False
-        else:
-            ok = bool(np.all((w >= 0) & (w <= h)))
+        ok = np.issubdtype(w.dtype, np.number) and bool(  # not bool, not text
+            np.all(np.isfinite(w) & (w == np.rint(w)) & (w >= 0) & (w <= h))
+        )
         if not ok:
             raise ValueError(
                 f"{owner}: reference_smoothing_steps = {steps!r} is not allowed: an integer "

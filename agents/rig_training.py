@@ -168,6 +168,18 @@ def search_smoothing(
     return smoothing, rows, tried
 
 
+def _classical_and_base(rig: FittedRig, pid_gains: dict, suite: Suite, tuning: dict, base: str):
+    """Stage 3: the base candidates' figures on the fitted rig, each also with its best
+    reference smoothing (``search_smoothing``), and the base chosen among them
+    (``choose_base``). Returns (figures, the choice, every smoothing tried)."""
+    classical = suite_summary(rig, rig_controllers(rig, pid_gains, suite), suite)
+    smoothing, smoothed, tried = search_smoothing(
+        rig, pid_gains, classical, suite, tuning["rig_base"]["reference_smoothing_steps"]
+    )
+    classical += smoothed
+    return classical, choose_base(classical, base, smoothing), tried
+
+
 def _check_base(base: str) -> None:
     if base not in BASE_CHOICES:
         raise ValueError(f"base = {base!r} is not allowed: use one of {list(BASE_CHOICES)}")
@@ -347,12 +359,7 @@ def train_for_rig(
         "[3/5] suite on the fitted rig: PID and sliding mode, nominal and retuned, each "
         "with its reference smoothing searched"
     )
-    classical = suite_summary(rig, rig_controllers(rig, pid_gains, suite), suite)
-    smoothing, smoothed, tried = search_smoothing(
-        rig, pid_gains, classical, suite, tuning["rig_base"]["reference_smoothing_steps"]
-    )
-    classical += smoothed
-    chosen = choose_base(classical, base, smoothing)
+    classical, chosen, tried = _classical_and_base(rig, pid_gains, suite, tuning, base)
     log(f"      residual base: {chosen['controller']} ({chosen['reason']})")
     held = _train_residual(
         rig,
