@@ -1,13 +1,15 @@
 """``pneumatic-env train --rig REPORT_DIR --out OUT``: a controller for the rig an
 identification report describes (``agents.rig``).
 
-Stages: the PID gains searched on the fitted rig (``agents.tune_pid.grid_search``; the
-sliding mode needs no search, it runs on the fitted model); the suite on the fitted rig
-for the classical controllers, which chooses the residual's base (``base="auto"``: the
-one of ``BASE_CANDIDATES`` with the lowest mean RMS error there: PID nominal or retuned,
-the sliding mode on the nominal or the fitted model; a long tube's waves and heat transfer
-can leave the sliding mode well behind PID, and a fit that trades one parameter for
-another can leave the sliding mode on the fitted model behind the nominal one); the fast
+Stages: the gains of PID and of the sliding mode (on the fitted and on the nominal model)
+searched on the fitted rig (``retuned_gains``: ``agents.tune_pid.grid_search``); the suite
+on the fitted rig for the classical controllers, which chooses the residual's base
+(``base="auto"``: the one of ``BASE_CANDIDATES`` with the lowest mean RMS error there:
+PID nominal or retuned, the sliding mode on the nominal or the fitted model, at the
+benchmark's gains or retuned, each also with its reference smoothed; a long tube's waves
+and heat transfer can leave the sliding mode well behind PID, a fit that trades one
+parameter for another can leave the sliding mode on the fitted model behind the nominal
+one, and spool friction favours other sliding-mode gains than the benchmark's); the fast
 trainer (``agents.ppo``, the variant's
 ``configs/agents/ppo_fast-<variant>.yaml`` with that base and its gains) on the fitted rig
 with the report's domain randomisation (``agents.rig.rig_randomization``); the final actor
@@ -20,7 +22,7 @@ fitted rig for it. Written to ``OUT``:
 - ``summary.md``: the suite's figures on the fitted rig of the new controller, PID and
   the sliding mode at their nominal tuning (the package's model of the rig and the
   benchmark's gains) and retuned for the fitted rig, and the base chosen and why;
-- ``rig_training.json``: the same figures, the base, the PID gains, the randomisation;
+- ``rig_training.json``: the same figures, the base, the retuned gains, the randomisation;
 - ``training/``: the trainer's output (``actor.npz``, ``progress.csv``, ``train.json``).
 
 The trainer's validation runs on the registered variant, not the fitted rig, so the final
@@ -56,6 +58,8 @@ __all__ = [
     "DEFAULT_MINUTES",
     "BASE_CHOICES",
     "BASE_CANDIDATES",
+    "RETUNED",
+    "retuned_gains",
     "train_for_rig",
     "choose_base",
     "candidate_base",
@@ -70,15 +74,20 @@ __all__ = [
 DEFAULT_MINUTES = 5.0
 
 #: the residual's possible bases, the classical controllers of ``rig_controllers``: name ->
-#: (kind, the model it runs on). On the "fitted" model PID has the gains searched on the
-#: fitted rig; else every base has the benchmark's gains of the variant. The first wins a
-#: tie (the trainer configs' own base).
+#: (kind, the model it runs on: the fitted rig's or the package's nominal one). Those in
+#: ``RETUNED`` have the gains searched on the fitted rig (``retuned_gains``), the others
+#: the benchmark's gains of the variant. The first wins a tie (the trainer configs' own
+#: base).
 BASE_CANDIDATES = {
     "sliding_mode (fitted model)": ("sliding_mode", "fitted"),
     "sliding_mode (nominal model)": ("sliding_mode", "nominal"),
     "pid (retuned on the fitted rig)": ("pid", "fitted"),
     "pid (nominal)": ("pid", "nominal"),
+    "sliding_mode (fitted model, retuned on the fitted rig)": ("sliding_mode", "fitted"),
+    "sliding_mode (nominal model, retuned on the fitted rig)": ("sliding_mode", "nominal"),
 }
+#: the candidates whose gains are searched on the fitted rig (PID has no model: "fitted")
+RETUNED = tuple(name for name in BASE_CANDIDATES if "retuned on the fitted rig" in name)
 #: ``train_for_rig(base=...)``, ``--base``: a kind (its better candidate) or "auto" (the best)
 BASE_CHOICES = ("auto", *BASE_CONTROLLERS)
 
@@ -89,20 +98,33 @@ def smoothed_name(name: str, steps: int) -> str:
 
 
 def _named_candidates(smoothing: dict[str, int] | None = None) -> dict[str, tuple[str, int]]:
-    """Row name -> (``BASE_CANDIDATES`` name, reference smoothing W): the four candidates
+    """Row name -> (``BASE_CANDIDATES`` name, reference smoothing W): the candidates
     as they are, and each one given in ``smoothing`` with its W."""
     out = {name: (name, 0) for name in BASE_CANDIDATES}
     out.update({smoothed_name(n, w): (n, w) for n, w in (smoothing or {}).items()})
     return out
 
 
-def retuned_pid_gains(rig: FittedRig, tuning: dict | None = None) -> dict:
-    """The PID gains of the tuning grid (``configs/agents/tuning.yaml``) best on the
-    fitted rig, with the grid's fixed values."""
+def _model_params(rig: FittedRig, model: str) -> dict | None:
+    """The parameters of a candidate's model: the nominal one's, or None (the env's, i.e.
+    the fitted rig's)."""
+    return rig.nominal_parameters() if model == "nominal" else None
+
+
+def retuned_gains(rig: FittedRig, tuning: dict | None = None) -> dict[str, dict]:
+    """{candidate of ``RETUNED``: its gains}: the tuning grid of its kind
+    (``configs/agents/tuning.yaml``) best on the fitted rig with the controller on the
+    candidate's model, with the grid's fixed values."""
     tuning = tuning or load_agent_config("tuning", raw=("references",))
-    res = grid_search("pid", rig.variant, tuning, env_options=rig.env_options)
-    best = res["combos"][res["best"]]
-    return {**tuning["pid"]["fixed"], **{n: float(v) for n, v in zip(res["names"], best)}}
+    out = {}
+    for name in RETUNED:
+        kind, model = BASE_CANDIDATES[name]
+        res = grid_search(
+            kind, rig.variant, tuning, rig.env_options, base_params=_model_params(rig, model)
+        )
+        best = zip(res["names"], res["combos"][res["best"]])
+        out[name] = {**tuning[kind]["fixed"], **{n: float(v) for n, v in best}}
+    return out
 
 
 def _spec(name: str, kind: str, gains: dict, base_params: dict | None, preview: int):
@@ -118,31 +140,31 @@ def _spec(name: str, kind: str, gains: dict, base_params: dict | None, preview: 
 
 
 def candidate_base(
-    rig: FittedRig, name: str, pid_gains: dict, smoothing_steps: int = 0
+    rig: FittedRig, name: str, retuned: dict[str, dict], smoothing_steps: int = 0
 ) -> tuple[str, dict, dict | None]:
     """(kind, gains, model parameters or None for the fitted rig's) of the base ``name``
-    (``BASE_CANDIDATES``), tracking its reference smoothed over +-``smoothing_steps``
+    (``BASE_CANDIDATES``; the gains of one in ``RETUNED`` from ``retuned``, of
+    ``retuned_gains``), tracking its reference smoothed over +-``smoothing_steps``
     (``Controller.smoothed_reference``) if > 0."""
     kind, model = BASE_CANDIDATES[name]
-    retuned = kind == "pid" and model == "fitted"
-    gains = dict(pid_gains) if retuned else classical_gains(kind, rig.variant)
+    gains = dict(retuned[name]) if name in RETUNED else classical_gains(kind, rig.variant)
     if smoothing_steps:
         gains["reference_smoothing_steps"] = int(smoothing_steps)
-    return kind, gains, rig.nominal_parameters() if model == "nominal" else None
+    return kind, gains, _model_params(rig, model)
 
 
-def rig_controllers(rig: FittedRig, pid_gains: dict, suite: Suite) -> list[ControllerSpec]:
-    """PID and the sliding mode at nominal tuning (the benchmark's gains of the variant
-    on the package's model of the rig) and retuned for the fitted rig (the searched PID
-    gains; the sliding mode on the fitted model): ``BASE_CANDIDATES``."""
+def rig_controllers(rig: FittedRig, retuned: dict[str, dict], suite: Suite) -> list[ControllerSpec]:
+    """PID and the sliding mode at nominal tuning (the benchmark's gains of the variant)
+    and retuned for the fitted rig (``retuned``), on the package's model of the rig or the
+    fitted one: ``BASE_CANDIDATES``."""
     return [
-        _spec(name, *candidate_base(rig, name, pid_gains), suite.preview_steps)
+        _spec(name, *candidate_base(rig, name, retuned), suite.preview_steps)
         for name in BASE_CANDIDATES
     ]
 
 
 def search_smoothing(
-    rig: FittedRig, pid_gains: dict, classical: list[dict], suite: Suite, grid
+    rig: FittedRig, retuned: dict[str, dict], classical: list[dict], suite: Suite, grid
 ) -> tuple[dict[str, int], list[dict], dict[str, dict[int, float]]]:
     """The reference smoothing W of each base candidate searched on the fitted rig's suite:
     every W of ``grid`` beside the candidate's own figure (W = 0, ``classical``). Returns
@@ -151,7 +173,7 @@ def search_smoothing(
     own = {f["controller"]: f["rms_error_pct"] for f in classical}
     grid = sorted({int(w) for w in grid if int(w) > 0})
     specs = [
-        _spec(f"{n}|{w}", *candidate_base(rig, n, pid_gains, w), suite.preview_steps)
+        _spec(f"{n}|{w}", *candidate_base(rig, n, retuned, w), suite.preview_steps)
         for n in BASE_CANDIDATES
         for w in grid
     ]
@@ -168,13 +190,13 @@ def search_smoothing(
     return smoothing, rows, tried
 
 
-def _classical_and_base(rig: FittedRig, pid_gains: dict, suite: Suite, tuning: dict, base: str):
+def _classical_and_base(rig: FittedRig, retuned: dict, suite: Suite, tuning: dict, base: str):
     """Stage 3: the base candidates' figures on the fitted rig, each also with its best
     reference smoothing (``search_smoothing``), and the base chosen among them
     (``choose_base``). Returns (figures, the choice, every smoothing tried)."""
-    classical = suite_summary(rig, rig_controllers(rig, pid_gains, suite), suite)
+    classical = suite_summary(rig, rig_controllers(rig, retuned, suite), suite)
     smoothing, smoothed, tried = search_smoothing(
-        rig, pid_gains, classical, suite, tuning["rig_base"]["reference_smoothing_steps"]
+        rig, retuned, classical, suite, tuning["rig_base"]["reference_smoothing_steps"]
     )
     classical += smoothed
     return classical, choose_base(classical, base, smoothing), tried
@@ -353,19 +375,22 @@ def train_for_rig(
     suite = suite or load_suite()
     log(f"[1/5] rig: {rig.cylinder}, tube {rig.params['tube_length_m']:g} m -> {rig.env_id}")
     randomization = rig_randomization(report_dir)
-    log(f"[2/5] PID gains searched on the fitted rig ({len(randomization)} randomised params)")
-    pid_gains = retuned_pid_gains(rig, tuning)
+    log(
+        "[2/5] PID and sliding-mode gains searched on the fitted rig "
+        f"({len(randomization)} randomised params)"
+    )
+    retuned = retuned_gains(rig, tuning)
     log(
         "[3/5] suite on the fitted rig: PID and sliding mode, nominal and retuned, each "
         "with its reference smoothing searched"
     )
-    classical, chosen, tried = _classical_and_base(rig, pid_gains, suite, tuning, base)
+    classical, chosen, tried = _classical_and_base(rig, retuned, suite, tuning, base)
     log(f"      residual base: {chosen['controller']} ({chosen['reason']})")
     held = _train_residual(
         rig,
         out,
         randomization,
-        candidate_base(rig, chosen["candidate"], pid_gains, chosen["smoothing_steps"]),
+        candidate_base(rig, chosen["candidate"], retuned, chosen["smoothing_steps"]),
         minutes=minutes,
         steps=steps,
         seed=seed,
@@ -399,7 +424,7 @@ def train_for_rig(
             {
                 "figures": figures,
                 "base": record,
-                "pid_gains": pid_gains,
+                "retuned_gains": retuned,
                 "reference_smoothing": tried,
                 "randomization": randomization,
             },

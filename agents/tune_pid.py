@@ -13,6 +13,7 @@ written to ``configs/agents/<controller>-<variant>.yaml``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import sys
 import time
@@ -35,12 +36,18 @@ CONTROLLERS = {"pid": PIDController, "sliding_mode": SlidingModeController}
 
 
 def grid_search(
-    controller: str, variant: str, tuning: dict, env_options: dict | None = None
+    controller: str,
+    variant: str,
+    tuning: dict,
+    env_options: dict | None = None,
+    base_params: dict | None = None,
 ) -> dict:
     """Run the grid of ``tuning[controller]`` on ``variant``; returns scores and the best combo.
 
     ``tuning`` is ``load_agent_config("tuning", raw=("references",))``; ``env_options``:
-    more env keyword arguments (e.g. a fitted rig's ``params``, ``agents.rig``).
+    more env keyword arguments (e.g. a fitted rig's ``params``, ``agents.rig``);
+    ``base_params``: the model the controller runs on, if not the env's (the sliding mode
+    on the nominal model of a fitted rig).
     """
     if controller not in CONTROLLERS:
         raise ValueError(
@@ -62,6 +69,8 @@ def grid_search(
         **(env_options or {}),
     )
     ctx = ControllerContext.from_env(env)
+    if base_params is not None:
+        ctx = dataclasses.replace(ctx, base_params=dict(base_params))
     gains = {n: np.repeat(np.array([c[j] for c in combos]), n_ref) for j, n in enumerate(names)}
     ctrl = CONTROLLERS[controller](ctx, **{**fixed, **gains})
     t0 = time.perf_counter()

@@ -151,11 +151,14 @@ def _tiny_tuning() -> dict:
     tuning = load_agent_config("tuning", raw=("references",))
     grid = {k: v[:2] for k, v in tuning["pid"]["grid"].items() if k == "kp_a_per_n"}
     grid.update({k: v[:1] for k, v in tuning["pid"]["grid"].items() if k != "kp_a_per_n"})
+    smc = {k: v[:1] for k, v in tuning["sliding_mode"]["grid"].items()}
+    smc["reaching_gain_per_s"] = tuning["sliding_mode"]["grid"]["reaching_gain_per_s"][:2]
     return {
         **tuning,
         "duration_s": 0.2,
         "references": tuning["references"][:2],
         "pid": {**tuning["pid"], "grid": grid},
+        "sliding_mode": {**tuning["sliding_mode"], "grid": smc},
     }
 
 
@@ -183,8 +186,10 @@ def test_train_rig_writes_a_controller_that_runs_by_file_name_alone(tmp_path):
         suite=suite,
     )
     summary = (tmp_path / "out" / "summary.md").read_text()
-    for name in ("controller.npz", "pid (nominal)", "pid (retuned", "sliding_mode (fitted"):
+    for name in ("controller.npz", "pid (nominal)", "pid (retuned", *BASE_CANDIDATES):
         assert name in summary
+    retuned = json.loads((tmp_path / "out" / "rig_training.json").read_text())["retuned_gains"]
+    assert set(retuned) == {n for n in BASE_CANDIDATES if "retuned" in n}
     # elsewhere, with the report and the trainer's output gone
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
@@ -194,7 +199,7 @@ def test_train_rig_writes_a_controller_that_runs_by_file_name_alone(tmp_path):
     meta = json.loads(str(np.load(path)["meta"]))
     assert meta["format"] == FORMAT_SELF_CONTAINED
     # auto: the base with the lowest error on the fitted rig, its model inside the file
-    # (the four candidates, and each with its best reference smoothing where it is better)
+    # (the six candidates, and each with its best reference smoothing where it is better)
     rms = {f["controller"]: f["rms_error_pct"] for f in res["figures"]}
     assert set(BASE_CANDIDATES) <= set(res["base"]["rms_error_pct"]) <= set(rms)
     best = min(res["base"]["rms_error_pct"], key=lambda n: rms[n])
@@ -266,7 +271,13 @@ def _train_with_figures(monkeypatch, figures: dict, report, out) -> dict:
 
     monkeypatch.setattr(rig_training, "suite_summary", _fake_suite_summary(figures))
     return rig_training.train_for_rig(
-        report, out, minutes=None, steps=1, overrides=TINY_TRAINING, log=lambda *a, **k: None
+        report,
+        out,
+        minutes=None,
+        steps=1,
+        overrides=TINY_TRAINING,
+        tuning=_tiny_tuning(),
+        log=lambda *a, **k: None,
     )
 
 
@@ -282,6 +293,7 @@ def _two_envs_of_the_2m_variant():
 
 PID_RETUNED, SMC_FITTED = "pid (retuned on the fitted rig)", "sliding_mode (fitted model)"
 SMC_NOMINAL = "sliding_mode (nominal model)"
+SMC_NOMINAL_RETUNED = "sliding_mode (nominal model, retuned on the fitted rig)"
 
 
 def _fake_suite_summary(figures: dict):
@@ -296,7 +308,7 @@ def _fake_suite_summary(figures: dict):
     return summary
 
 
-@pytest.mark.parametrize("winner", [PID_RETUNED, SMC_NOMINAL])
+@pytest.mark.parametrize("winner", [PID_RETUNED, SMC_NOMINAL, SMC_NOMINAL_RETUNED])
 def test_train_rig_sits_on_the_winning_base_with_exactly_its_gains_and_model(
     tmp_path, monkeypatch, winner
 ):
@@ -304,13 +316,21 @@ def test_train_rig_sits_on_the_winning_base_with_exactly_its_gains_and_model(
     from pneumatic_env.agents.registry import classical_gains
     from pneumatic_env.agents.residual import BASE_CLASSES
 
-    custom = {**classical_gains("pid", "Numatics-2m"), "kp_a_per_n": 0.0123, "ki_a_per_n_s": 0.3}
-    monkeypatch.setattr(rig_training, "retuned_pid_gains", lambda rig, tuning=None: custom)
+    custom = {
+        PID_RETUNED: {"kp_a_per_n": 0.0123, "ki_a_per_n_s": 0.3},
+        SMC_NOMINAL_RETUNED: {"reaching_gain_per_s": 300.0, "lambda_integral_per_s": 100.0},
+    }
+    retuned = {
+        name: {**classical_gains(rig_training.BASE_CANDIDATES[name][0], "Numatics-2m"), **g}
+        for name in rig_training.RETUNED
+        for g in [custom.get(name, {"reaching_gain_per_s": 60.0})]
+    }
+    monkeypatch.setattr(rig_training, "retuned_gains", lambda rig, tuning=None: retuned)
     figures = {PID_RETUNED: 4.0, SMC_FITTED: 5.0, winner: 3.0}
     report, out = write_report(tmp_path / "report"), tmp_path / "out"
     res = _train_with_figures(monkeypatch, figures, report, out)
     kind, model = rig_training.BASE_CANDIDATES[winner]
-    gains = custom if winner == PID_RETUNED else classical_gains(kind, "Numatics-2m")
+    gains = retuned[winner] if winner in retuned else classical_gains(kind, "Numatics-2m")
     nominal = load_rig(report).nominal_parameters()
     assert res["base"]["controller"] == winner and res["base"]["kind"] == kind
     assert f"The residual's base: {winner} (auto:" in (out / "summary.md").read_text()
@@ -338,6 +358,29 @@ def test_train_rig_sits_on_the_winning_base_with_exactly_its_gains_and_model(
         ctrl.act(obs)
         assert np.array_equal(ctrl.residual.u_base, twin.act(obs))
     env.close()
+
+
+def test_the_sliding_mode_is_retuned_on_the_fitted_rig_with_the_candidates_model(tmp_path):
+    """``retuned_gains``: each retuned candidate's gains are the tuning grid's best on the
+    fitted rig with the controller on the candidate's own model (the nominal model's grid
+    scores differ from those on the env's own, fitted, model)."""
+    from pneumatic_env.agents import rig_training
+    from pneumatic_env.agents.tune_pid import grid_search
+
+    rig = load_rig(write_report(tmp_path / "report"))
+    tuning = _tiny_tuning()
+    retuned = rig_training.retuned_gains(rig, tuning)
+    runs = {
+        model: grid_search("sliding_mode", rig.variant, tuning, rig.env_options, base_params=p)
+        for model, p in [("nominal", rig.nominal_parameters()), ("fitted", None)]
+    }
+    assert not np.allclose(runs["nominal"]["score"], runs["fitted"]["score"])
+    grid = tuning["sliding_mode"]["grid"]
+    for model, res in runs.items():
+        name = f"sliding_mode ({model} model, retuned on the fitted rig)"
+        best = dict(zip(res["names"], res["combos"][int(np.argmin(res["score"]))]))
+        assert {k: retuned[name][k] for k in best} == best
+        assert set(retuned[name]) == set(grid) | set(tuning["sliding_mode"]["fixed"])
 
 
 def test_a_base_with_its_reference_smoothed_wins_and_travels_in_the_file(tmp_path, monkeypatch):
