@@ -375,10 +375,7 @@ def train_for_rig(
     suite = suite or load_suite()
     log(f"[1/5] rig: {rig.cylinder}, tube {rig.params['tube_length_m']:g} m -> {rig.env_id}")
     randomization = rig_randomization(report_dir)
-    log(
-        "[2/5] PID and sliding-mode gains searched on the fitted rig "
-        f"({len(randomization)} randomised params)"
-    )
+    log(f"[2/5] PID, sliding-mode gains searched ({len(randomization)} randomised params)")
     retuned = retuned_gains(rig, tuning)
     log(
         "[3/5] suite on the fitted rig: PID and sliding mode, nominal and retuned, each "
