@@ -8,7 +8,8 @@ is the package's defaults for that cylinder, then the sidecars' rig values, then
 values. The env is the benchmark's ForceTrack variant of the cylinder with the tube length
 nearest the rig's (it has tuned gains and a trainer config), given the rig's parameters
 (``params=``, the tube length among them): a tube length the suite does not have is
-simulated at its own length.
+simulated at its own length. Its sensors carry the noise the recordings show
+(``diagnosis.json["sensor_noise"]``).
 
 :func:`rig_randomization` turns the report's uncertainty into the env's
 ``domain_randomization``: each identified fitted plant parameter over its confidence
@@ -22,7 +23,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from pneumatic_env import ids
@@ -90,6 +91,9 @@ class FittedRig:
     env_id: str  # the registered ForceTrack id nearest the rig
     stated: dict  # what the sidecars state (``RIG_KEYS``, SI)
     params: dict  # the fitted values over ``stated`` (kernel names, SI)
+    #: {channel: std} of the recordings' sensor noise (``diagnosis.json["sensor_noise"]``,
+    #: ``pneumatic_env.identification.noise``); empty for a report without it
+    sensor_noise: dict = field(default_factory=dict)
 
     @property
     def variant(self) -> str:
@@ -98,8 +102,12 @@ class FittedRig:
 
     @property
     def env_options(self) -> dict:
-        """``gym.make(env_id, **env_options)``: the fitted rig (tube length included)."""
-        return {"params": dict(self.params), "tube_length_m": self.params["tube_length_m"]}
+        """``gym.make(env_id, **env_options)``: the fitted rig (tube length included), its
+        sensors as noisy as the recordings'."""
+        out = {"params": dict(self.params), "tube_length_m": self.params["tube_length_m"]}
+        if self.sensor_noise:
+            out["sensor_noise"] = dict(self.sensor_noise)
+        return out
 
     def model_parameters(self) -> dict[str, float]:
         """Every kernel parameter of the fitted model (``load_parameters``)."""
@@ -114,7 +122,8 @@ class FittedRig:
 def load_rig(report_dir: str | Path) -> FittedRig:
     """The fitted rig of a report directory (``diagnosis.json``, ``fitted_final.yaml``)."""
     report_dir = Path(report_dir)
-    stated = _rig_of(report_dir, _diagnosis(report_dir))
+    diagnosis = _diagnosis(report_dir)
+    stated = _rig_of(report_dir, diagnosis)
     final = report_dir / "fitted_final.yaml"
     if not final.is_file():
         raise FileNotFoundError(f"{report_dir}: no fitted_final.yaml")
@@ -124,7 +133,8 @@ def load_rig(report_dir: str | Path) -> FittedRig:
     params = {**stated, **fitted}
     P.load_parameters(cylinder, params=params)  # names and values checked
     env_id = nearest_env_id(cylinder, params["tube_length_m"])
-    return FittedRig(report_dir, cylinder, env_id, stated, params)
+    noise = {k: float(v) for k, v in diagnosis.get("sensor_noise", {}).items()}
+    return FittedRig(report_dir, cylinder, env_id, stated, params, noise)
 
 
 def nearest_env_id(cylinder: str, tube_length_m: float) -> str:

@@ -26,7 +26,11 @@ fitted rig for it. Written to ``OUT``:
 - ``training/``: the trainer's output (``actor.npz``, ``progress.csv``, ``train.json``).
 
 The trainer's validation runs on the registered variant, not the fitted rig, so the final
-actor is used (not ``actor_best.npz``). If it loses to its base on the fitted rig, its
+actor is used (not ``actor_best.npz``). The fitted rig's sensors carry the recordings'
+noise (``agents.rig``), so its suite shows how much a controller turns noise into valve
+chatter: a base candidate whose chatter is over ``rig_base.max_chatter_ratio`` x the
+sliding mode's at nominal tuning is not chosen (unless all are). If the trained actor
+loses to its base on the fitted rig, or its chatter is over that limit and its base's, its
 residual is zeroed (``agents.learned.zero_the_residual``): the file then runs the base bit
 for bit, and ``summary.md`` and ``rig_training.json`` (``base.residual_zeroed``) say so
 with the trained actor's figures.
@@ -36,6 +40,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from collections.abc import Callable
 from pathlib import Path
 
@@ -62,6 +67,8 @@ __all__ = [
     "retuned_gains",
     "train_for_rig",
     "choose_base",
+    "chatter_limit",
+    "CHATTER_REFERENCE",
     "candidate_base",
     "rig_controllers",
     "suite_summary",
@@ -88,6 +95,9 @@ BASE_CANDIDATES = {
 }
 #: the candidates whose gains are searched on the fitted rig (PID has no model: "fitted")
 RETUNED = tuple(name for name in BASE_CANDIDATES if "retuned on the fitted rig" in name)
+#: the chatter a controller for the rig is held to is a multiple of this one's
+#: (``rig_base.max_chatter_ratio``, issue 35 target 1: the sliding mode at nominal tuning)
+CHATTER_REFERENCE = "sliding_mode (nominal model)"
 #: ``train_for_rig(base=...)``, ``--base``: a kind (its better candidate) or "auto" (the best)
 BASE_CHOICES = ("auto", *BASE_CONTROLLERS)
 
@@ -199,7 +209,8 @@ def _classical_and_base(rig: FittedRig, retuned: dict, suite: Suite, tuning: dic
         rig, retuned, classical, suite, tuning["rig_base"]["reference_smoothing_steps"]
     )
     classical += smoothed
-    return classical, choose_base(classical, base, smoothing), tried
+    max_chatter = tuning["rig_base"]["max_chatter_ratio"]
+    return classical, choose_base(classical, base, smoothing, max_chatter), tried
 
 
 def _check_base(base: str) -> None:
@@ -207,26 +218,49 @@ def _check_base(base: str) -> None:
         raise ValueError(f"base = {base!r} is not allowed: use one of {list(BASE_CHOICES)}")
 
 
+def chatter_limit(figures: list[dict], max_ratio: float | None) -> float:
+    """The chatter (A) a controller for the rig may have: ``max_ratio`` x that of
+    ``CHATTER_REFERENCE`` in ``figures`` (``rig_base.max_chatter_ratio``; None: no
+    limit)."""
+    if max_ratio is None:
+        return math.inf
+    ref = {f["controller"]: f["chatter_rms_a"] for f in figures}[CHATTER_REFERENCE]
+    return float(max_ratio) * ref
+
+
 def choose_base(
-    classical: list[dict], base: str = "auto", smoothing: dict[str, int] | None = None
+    classical: list[dict],
+    base: str = "auto",
+    smoothing: dict[str, int] | None = None,
+    max_chatter_ratio: float | None = None,
 ) -> dict:
     """The residual's base from the classical controllers' figures on the fitted rig
     (``suite_summary`` of ``rig_controllers``; the rows of ``smoothing``, from
     ``search_smoothing``, too): the candidate with the lowest mean RMS error, among all
-    (``"auto"``) or those of the kind ``base``. Returns ``{"controller": name, "kind",
+    (``"auto"``) or those of the kind ``base``, whose chatter is within
+    ``chatter_limit`` (all of them if none is). Returns ``{"controller": name, "kind",
     "model", "smoothing_steps", "reason", "rms_error_pct": {name: %}}``."""
     _check_base(base)
     named = _named_candidates(smoothing)
-    by_name = {f["controller"]: f["rms_error_pct"] for f in classical}
-    rms = {name: by_name[name] for name in named}
-    allowed = [n for n in rms if base == "auto" or BASE_CANDIDATES[named[n][0]][0] == base]
-    name = min(allowed, key=lambda n: rms[n])
+    by_name = {f["controller"]: f for f in classical}
+    rms = {name: by_name[name]["rms_error_pct"] for name in named}
+    kind_ok = [n for n in rms if base == "auto" or BASE_CANDIDATES[named[n][0]][0] == base]
+    limit = chatter_limit(classical, max_chatter_ratio)
+    quiet = [n for n in kind_ok if by_name[n]["chatter_rms_a"] <= limit]
+    name = min(quiet or kind_ok, key=lambda n: rms[n])
     listed = ", ".join(f"{n} {v:.2f} %" for n, v in rms.items())
     reason = (
         f"auto: the lowest mean RMS error on the fitted rig ({listed})"
         if base == "auto"
         else f"given (base={base}, the better of its kind; on the fitted rig: {listed})"
     )
+    loud = [n for n in kind_ok if n not in quiet]
+    if loud:
+        reason += (
+            f"; chatter over {limit:.4f} A ({max_chatter_ratio} x {CHATTER_REFERENCE}'s), "
+            + ("so not chosen: " if quiet else "as every candidate's, so allowed: ")
+            + ", ".join(loud)
+        )
     kind, model = BASE_CANDIDATES[named[name][0]]
     return {
         "controller": name,
@@ -333,18 +367,28 @@ def _train_residual(
     return kind, dict(trained.get("gains") or classical_gains(kind, rig.variant))
 
 
-def _zero_if_it_loses(rig, path, figures, record, suite, log) -> list[dict]:
+def _zero_if_it_loses(rig, path, figures, record, suite, log, max_chatter_ratio) -> list[dict]:
     """Zero the residual of ``path`` (``zero_the_residual``) if its figures on the fitted rig
-    (``figures[0]``) lose to its base's (``record``, from ``choose_base``); then the file's
-    figures anew and ``record["residual_zeroed"]`` with the trained ones. Returns the
-    figures."""
-    base_rms = record["rms_error_pct"][record["controller"]]
-    if figures[0]["rms_error_pct"] <= base_rms:
+    (``figures[0]``) lose to its base's (``record``, from ``choose_base``) in RMS error,
+    or exceed ``chatter_limit`` and the base's chatter; then the file's figures anew and
+    ``record["residual_zeroed"]`` with the trained ones. Returns the figures."""
+    trained = figures[0]
+    base_row = {f["controller"]: f for f in figures[1:]}[record["controller"]]
+    base_rms = base_row["rms_error_pct"]
+    limit = max(chatter_limit(figures[1:], max_chatter_ratio), base_row["chatter_rms_a"])
+    if trained["rms_error_pct"] > base_rms:
+        reason = (
+            f"the trained residual ({trained['rms_error_pct']:.2f} %) lost to its base "
+            f"({base_rms:.2f} %) on the fitted rig: the file runs the base"
+        )
+    elif trained["chatter_rms_a"] > limit:
+        reason = (
+            f"the trained residual's chatter ({trained['chatter_rms_a']:.4f} A) is over "
+            f"{limit:.4f} A ({max_chatter_ratio} x {CHATTER_REFERENCE}'s, or its base's) "
+            "on the fitted rig: the file runs the base"
+        )
+    else:
         return figures
-    reason = (
-        f"the trained residual ({figures[0]['rms_error_pct']:.2f} %) lost to its base "
-        f"({base_rms:.2f} %) on the fitted rig: the file runs the base"
-    )
     log(f"      {reason}")
     record["residual_zeroed"] = {"reason": reason, "trained": figures[0]}
     zero_the_residual(path, reason)
@@ -373,6 +417,7 @@ def train_for_rig(
     tuning = tuning or load_agent_config("tuning", raw=("references",))
     rig, out = load_rig(report_dir), Path(out)
     suite = suite or load_suite()
+    max_chatter = tuning["rig_base"]["max_chatter_ratio"]
     log(f"[1/5] rig: {rig.cylinder}, tube {rig.params['tube_length_m']:g} m -> {rig.env_id}")
     randomization = rig_randomization(report_dir)
     log(f"[2/5] PID, sliding-mode gains searched ({len(randomization)} randomised params)")
@@ -411,7 +456,7 @@ def train_for_rig(
     figures = suite_summary(rig, [str(path)], suite) + classical
     record = {**chosen, "gains": None if held is None else held[1], "residual_zeroed": None}
     if held is not None:
-        figures = _zero_if_it_loses(rig, path, figures, record, suite, log)
+        figures = _zero_if_it_loses(rig, path, figures, record, suite, log, max_chatter)
     figures[0]["controller"] = "controller.npz (train --rig)"
     (out / "summary.md").write_text(
         summary_markdown(rig, figures, record, command), encoding="utf-8"

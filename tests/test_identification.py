@@ -273,7 +273,6 @@ def test_tube_volume_is_identified_from_two_tube_lengths(rig_dir, seed):
 EFFECT_RIVALS = {
     "load_cell_compliance": "pressure_sensor_offset",
     "rod_seal_leak": "exhaust_discharge",
-    "valve_null_leak": "leakage",
     "supply_droop": "exhaust_discharge",
     "pressure_sensor_offset": "rod_seal_leak",
     "channel_time_skew": "pressure_sensor_lag",
@@ -320,6 +319,29 @@ def test_effect_at_realistic_strength_is_diagnosed(effect_diagnoses, effect):
     before = np.mean(list(diag.baseline_nrmse.values()))
     after = np.mean(list(diag.after_nrmse.values()))
     assert after < 0.85 * before
+
+
+@pytest.mark.slow
+def test_the_valve_null_leak_and_the_piston_leak_are_named_as_close_rivals(rig_dir):
+    """The valve's null leak (the rig's laminar form through the spool clearance) against
+    the laminar cross-piston leak, on one 1 s recording of the identification excitation:
+    with fits run to convergence both cut the held-out error by about as much (seeds 1-3:
+    81 against 82 %, 80 against 85 %, 67 against 70 %; 2026-12-07), so these data cannot
+    tell them apart (the test once asked for the null leak on seed 1 alone, and passed
+    only where a fit stopping on the 1 % plateau left the piston leak behind). The claim,
+    on every seed: a leak of the two is selected and cuts the error by 50 % or more, the
+    other is the runner-up, and the report suggests the experiment that separates them
+    (``separating_experiments``)."""
+    pair = {"valve_null_leak", "leakage"}
+    for seed in (1, 2, 3):
+        csv = _rig(rig_dir, "valve_null_leak", seed)
+        diag = diagnose([read_checked(csv)], candidates=sorted(pair), max_effects=1)
+        assert len(diag.selected) == 1 and diag.selected[0] in pair, seed
+        assert {diag.winner, diag.runner_up} == pair, seed
+        assert diag.suggestion == separating_experiment(*sorted(pair)), seed
+        before = np.mean(list(diag.baseline_nrmse.values()))
+        after = np.mean(list(diag.after_nrmse.values()))
+        assert after < 0.5 * before, seed
 
 
 @pytest.mark.slow

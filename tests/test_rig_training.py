@@ -264,12 +264,12 @@ def test_bench_rig_runs_the_suite_on_the_fitted_rig(tmp_path, capsys):
     assert fitted[0]["rms_error_pct"] != nominal[0]["rms_error_pct"]  # another plant
 
 
-def _train_with_figures(monkeypatch, figures: dict, report, out) -> dict:
+def _train_with_figures(monkeypatch, figures: dict, report, out, chatter=None) -> dict:
     """``train_for_rig`` on a tiny budget with the suite's figures faked
     (``_fake_suite_summary``)."""
     from pneumatic_env.agents import rig_training
 
-    monkeypatch.setattr(rig_training, "suite_summary", _fake_suite_summary(figures))
+    monkeypatch.setattr(rig_training, "suite_summary", _fake_suite_summary(figures, chatter))
     return rig_training.train_for_rig(
         report,
         out,
@@ -296,14 +296,21 @@ SMC_NOMINAL = "sliding_mode (nominal model)"
 SMC_NOMINAL_RETUNED = "sliding_mode (nominal model, retuned on the fitted rig)"
 
 
-def _fake_suite_summary(figures: dict):
+def _fake_suite_summary(figures: dict, chatter: dict | None = None):
     """``suite_summary`` with the controllers named in ``figures`` at their mean RMS error
-    (%), any other at 9 %."""
+    (%), any other at 9 %; those named in ``chatter`` at that chatter (A), any other at 0."""
 
     def summary(rig, controllers, suite=None):
         names = [getattr(c, "name", str(c)) for c in controllers]
-        zero = {"chatter_rms_a": 0.0, "air_mg": 0.0}
-        return [{"controller": n, "rms_error_pct": figures.get(n, 9.0), **zero} for n in names]
+        return [
+            {
+                "controller": n,
+                "rms_error_pct": figures.get(n, 9.0),
+                "chatter_rms_a": (chatter or {}).get(n, 0.0),
+                "air_mg": 0.0,
+            }
+            for n in names
+        ]
 
     return summary
 
@@ -520,3 +527,41 @@ def test_a_residual_that_loses_to_its_base_on_the_fitted_rig_is_zeroed(tmp_path,
         assert np.array_equal(u, twin.act(obs))
         obs, *_ = env.step(u[:, None])
     env.close()
+
+
+def test_a_base_candidate_that_chatters_over_the_limit_is_not_chosen():
+    """``rig_base.max_chatter_ratio`` (1.5) x the sliding mode's chatter at nominal tuning:
+    a candidate over it is passed over for the next best; if every candidate of the kind
+    asked for is over it, the best of them is chosen and the reason says so."""
+    from pneumatic_env.agents import rig_training
+    from pneumatic_env.agents.config import load_agent_config
+
+    tuning = load_agent_config("tuning", raw=("references",))
+    ratio = tuning["rig_base"]["max_chatter_ratio"]
+    assert ratio == 1.5  # the issue's limit
+    rms = {PID_RETUNED: 3.0, SMC_FITTED: 4.0, SMC_NOMINAL: 5.0, "pid (nominal)": 3.5}
+    loud = {SMC_NOMINAL: 0.010, PID_RETUNED: 0.016, "pid (nominal)": 0.016, SMC_FITTED: 0.015}
+    figures = _fake_suite_summary(rms, loud)(None, rig_training.BASE_CANDIDATES)
+    assert rig_training.chatter_limit(figures, ratio) == pytest.approx(0.015)
+    assert rig_training.choose_base(figures)["controller"] == PID_RETUNED  # no limit given
+    chosen = rig_training.choose_base(figures, "auto", None, ratio)
+    assert chosen["controller"] == SMC_FITTED  # at the limit is within it
+    assert "so not chosen: " + PID_RETUNED in chosen["reason"]
+    pid = rig_training.choose_base(figures, "pid", None, ratio)
+    assert pid["controller"] == PID_RETUNED and "so allowed" in pid["reason"]
+
+
+def test_a_residual_that_chatters_over_the_limit_is_zeroed(tmp_path, monkeypatch):
+    """A trained controller better than its base in RMS error but with chatter over 1.5 x
+    the sliding mode's (and over its base's) on the fitted rig runs its base."""
+    out = tmp_path / "out"
+    trained = str(out / "controller.npz")
+    figures = {PID_RETUNED: 4.0, SMC_FITTED: 5.0, SMC_NOMINAL: 3.0, trained: 2.0}
+    quiet = _train_with_figures(
+        monkeypatch, figures, write_report(tmp_path / "report"), out, {SMC_NOMINAL: 0.01}
+    )
+    assert quiet["base"]["residual_zeroed"] is None  # the trained actor is kept
+    loud = {SMC_NOMINAL: 0.01, trained: 0.0151}
+    res = _train_with_figures(monkeypatch, figures, tmp_path / "report", out, loud)
+    zeroed = res["base"]["residual_zeroed"]
+    assert zeroed["trained"]["chatter_rms_a"] == 0.0151 and "chatter" in zeroed["reason"]

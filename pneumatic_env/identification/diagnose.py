@@ -63,6 +63,7 @@ from .checks import dead_band_current
 from .config import IdentificationConfig, load_config
 from .drift import base_drifts, suggested_effects
 from .holdout import Holdout
+from .noise import sensor_noise
 from .problem import FitProblem, simulation_threads
 from .residuals import PHASES, phase_masks, residual_analysis
 from .scoring import (
@@ -151,6 +152,8 @@ class Diagnosis:
             "recordings": [ds.name for ds in self.datasets],
             # each recording's sidecar as stated: the rig (agents.rig reads it back)
             "rigs": {ds.name: ds.recording.rig for ds in self.datasets},
+            # the sensors' white noise from the recordings alone (agents.rig reads it back)
+            "sensor_noise": sensor_noise([ds.recording for ds in self.datasets]),
             "holdout": self.holdout,
             "issues": [str(i) for i in self.issues],
             "thresholds": self.thresholds,
