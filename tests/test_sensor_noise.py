@@ -91,6 +91,7 @@ def test_the_report_states_the_virtual_rigs_sensor_noise_and_the_fitted_rig_has_
     data = write_report(diag, tmp_path / "report", plots=False)
     assert data["sensor_noise"] == found
     assert json.loads((tmp_path / "report" / "diagnosis.json").read_text())["sensor_noise"]
+    assert f"p1 {found['p1']:.3g}" in (tmp_path / "report" / "report.md").read_text()
     rig = load_rig(tmp_path / "report")
     assert rig.env_options["sensor_noise"] == found
     env = gym.make_vec(rig.env_id, num_envs=256, normalize_observation=False, **rig.env_options)

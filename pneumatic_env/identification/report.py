@@ -119,6 +119,10 @@ def _markdown(diag: Diagnosis, data: dict, plots: Sequence[str]) -> str:
         "",
         "Recordings: " + ", ".join(f"`{n}`" for n in data["recordings"]) + ".",
         f"Held-out data: {json.dumps(data['holdout'])}.",
+        "Sensor noise (white, from the recordings alone; `train --rig` and `bench --rig` "
+        "give the fitted rig this noise): "
+        + (", ".join(f"{c} {v:.3g}" for c, v in data["sensor_noise"].items()) or "-")
+        + " (SI units).",
         "",
     ]
     if data["status"] != "complete":
