@@ -109,6 +109,14 @@ class FittedRig:
             out["sensor_noise"] = dict(self.sensor_noise)
         return out
 
+    @property
+    def noiseless_env_options(self) -> dict:
+        """``env_options`` with exact sensors: the rig the classical gains are searched on
+        (``agents.rig_training.retuned_gains``; the grid's chatter penalty,
+        ``configs/agents/tuning.yaml: chatter_penalty_pct_per_a``, was set on exact
+        sensors, and on noisy ones it picked gains that track worse)."""
+        return {k: v for k, v in self.env_options.items() if k != "sensor_noise"}
+
     def model_parameters(self) -> dict[str, float]:
         """Every kernel parameter of the fitted model (``load_parameters``)."""
         return P.load_parameters(self.cylinder, params=dict(self.params))

@@ -123,14 +123,19 @@ def _model_params(rig: FittedRig, model: str) -> dict | None:
 
 def retuned_gains(rig: FittedRig, tuning: dict | None = None) -> dict[str, dict]:
     """{candidate of ``RETUNED``: its gains}: the tuning grid of its kind
-    (``configs/agents/tuning.yaml``) best on the fitted rig with the controller on the
-    candidate's model, with the grid's fixed values."""
+    (``configs/agents/tuning.yaml``) best on the fitted rig with exact sensors
+    (``FittedRig.noiseless_env_options``) with the controller on the candidate's model,
+    with the grid's fixed values."""
     tuning = tuning or load_agent_config("tuning", raw=("references",))
     out = {}
     for name in RETUNED:
         kind, model = BASE_CANDIDATES[name]
         res = grid_search(
-            kind, rig.variant, tuning, rig.env_options, base_params=_model_params(rig, model)
+            kind,
+            rig.variant,
+            tuning,
+            rig.noiseless_env_options,
+            base_params=_model_params(rig, model),
         )
         best = zip(res["names"], res["combos"][res["best"]])
         out[name] = {**tuning[kind]["fixed"], **{n: float(v) for n, v in best}}

@@ -370,18 +370,28 @@ def test_train_rig_sits_on_the_winning_base_with_exactly_its_gains_and_model(
 def test_the_sliding_mode_is_retuned_on_the_fitted_rig_with_the_candidates_model(tmp_path):
     """``retuned_gains``: each retuned candidate's gains are the tuning grid's best on the
     fitted rig with the controller on the candidate's own model (the nominal model's grid
-    scores differ from those on the env's own, fitted, model)."""
+    scores differ from those on the env's own, fitted, model), with exact sensors: a
+    report's sensor noise reaches the fitted rig's suites, not the gain search."""
     from pneumatic_env.agents import rig_training
     from pneumatic_env.agents.tune_pid import grid_search
 
-    rig = load_rig(write_report(tmp_path / "report"))
+    report = write_report(tmp_path / "report")
+    data = json.loads((report / "diagnosis.json").read_text())
+    data["sensor_noise"] = {"p1": 1000.0, "p2": 1000.0, "f": 0.2}
+    (report / "diagnosis.json").write_text(json.dumps(data))
+    rig = load_rig(report)
+    assert rig.env_options["sensor_noise"] == data["sensor_noise"]
+    exact = rig.noiseless_env_options
+    assert exact == {k: v for k, v in rig.env_options.items() if k != "sensor_noise"}
     tuning = _tiny_tuning()
     retuned = rig_training.retuned_gains(rig, tuning)
     runs = {
-        model: grid_search("sliding_mode", rig.variant, tuning, rig.env_options, base_params=p)
+        model: grid_search("sliding_mode", rig.variant, tuning, exact, base_params=p)
         for model, p in [("nominal", rig.nominal_parameters()), ("fitted", None)]
     }
     assert not np.allclose(runs["nominal"]["score"], runs["fitted"]["score"])
+    noisy = grid_search("sliding_mode", rig.variant, tuning, rig.env_options)
+    assert not np.allclose(noisy["score"], runs["fitted"]["score"])  # the noise matters
     grid = tuning["sliding_mode"]["grid"]
     for model, res in runs.items():
         name = f"sliding_mode ({model} model, retuned on the fitted rig)"
