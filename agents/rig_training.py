@@ -205,16 +205,18 @@ def search_smoothing(
     return smoothing, rows, tried
 
 
-def _classical_and_base(rig: FittedRig, retuned: dict, suite: Suite, tuning: dict, base: str):
+def _classical_and_base(
+    rig: FittedRig, retuned: dict, suite: Suite, tuning: dict, base: str, max_chatter: float
+):
     """Stage 3: the base candidates' figures on the fitted rig, each also with its best
     reference smoothing (``search_smoothing``), and the base chosen among them
-    (``choose_base``). Returns (figures, the choice, every smoothing tried)."""
+    (``choose_base`` with ``max_chatter``, ``rig_base.max_chatter_ratio``). Returns
+    (figures, the choice, every smoothing tried)."""
     classical = suite_summary(rig, rig_controllers(rig, retuned, suite), suite)
     smoothing, smoothed, tried = search_smoothing(
         rig, retuned, classical, suite, tuning["rig_base"]["reference_smoothing_steps"]
     )
     classical += smoothed
-    max_chatter = tuning["rig_base"]["max_chatter_ratio"]
     return classical, choose_base(classical, base, smoothing, max_chatter), tried
 
 
@@ -431,7 +433,7 @@ def train_for_rig(
         "[3/5] suite on the fitted rig: PID and sliding mode, nominal and retuned, each "
         "with its reference smoothing searched"
     )
-    classical, chosen, tried = _classical_and_base(rig, retuned, suite, tuning, base)
+    classical, chosen, tried = _classical_and_base(rig, retuned, suite, tuning, base, max_chatter)
     log(f"      residual base: {chosen['controller']} ({chosen['reason']})")
     held = _train_residual(
         rig,

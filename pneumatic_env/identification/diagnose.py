@@ -35,6 +35,7 @@ facts of their sidecars (never the notes).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import time
 from collections.abc import Callable, Sequence
@@ -143,6 +144,12 @@ class Diagnosis:
     drift: list = field(default_factory=list)  # .drift.Drift: base parameters implausible
     stand_ins: list = field(default_factory=list)  # removals tried after the rounds
 
+    @functools.cached_property
+    def sensor_noise(self) -> dict[str, float]:
+        """{channel: white-noise std (SI)} of the recordings (``.noise.sensor_noise``),
+        once however often the report is written."""
+        return sensor_noise([ds.recording for ds in self.datasets])
+
     def ranked(self) -> list[CandidateScore]:
         """Round 1 by score (refitted candidates first), then each later round."""
         return sorted(self.scores, key=lambda s: (s.round, not s.refitted, -s.relative_improvement))
@@ -153,7 +160,7 @@ class Diagnosis:
             # each recording's sidecar as stated: the rig (agents.rig reads it back)
             "rigs": {ds.name: ds.recording.rig for ds in self.datasets},
             # the sensors' white noise from the recordings alone (agents.rig reads it back)
-            "sensor_noise": sensor_noise([ds.recording for ds in self.datasets]),
+            "sensor_noise": self.sensor_noise,
             "holdout": self.holdout,
             "issues": [str(i) for i in self.issues],
             "thresholds": self.thresholds,
