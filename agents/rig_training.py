@@ -30,10 +30,16 @@ actor is used (not ``actor_best.npz``). The fitted rig's sensors carry the recor
 noise (``agents.rig``), so its suite shows how much a controller turns noise into valve
 chatter: a base candidate whose chatter is over ``rig_base.max_chatter_ratio`` x the
 sliding mode's at nominal tuning is not chosen (unless all are). If the trained actor
-loses to its base on the fitted rig, or its chatter is over that limit and its base's, its
-residual is zeroed (``agents.learned.zero_the_residual``): the file then runs the base bit
-for bit, and ``summary.md`` and ``rig_training.json`` (``base.residual_zeroed``) say so
-with the trained actor's figures.
+does not cut its base's mean RMS error on the fitted rig by
+``rig_base.min_residual_gain`` (2 %: the fitted rig is not the rig), or its chatter is
+over that limit and its base's, its residual is zeroed
+(``agents.learned.zero_the_residual``): the file then runs the base bit for bit, and
+``summary.md`` and ``rig_training.json`` (``base.residual_zeroed``) say so with the
+trained actor's figures. With ``base="auto"`` the shipped learned controllers of the
+variant are scored on the fitted rig too (``agents.rig_shipped``): the best of them
+becomes ``controller.npz`` if it cuts the error of the file written so far there by
+``rig_base.min_shipped_gain`` (10 %) within the chatter limit (``base.shipped`` says so;
+the trained file is kept in ``training/controller_trained.npz``).
 """
 
 from __future__ import annotations
@@ -45,17 +51,16 @@ from collections.abc import Callable
 from pathlib import Path
 
 import gymnasium as gym
-import numpy as np
 
 from .base import ControllerContext, ControllerSpec
-from .bench import run_suite
-from .bench_results import markdown_table
 from .config import agent_config_path, load_agent_config
 from .learned import write_self_contained, zero_the_residual
 from .ppo import train
 from .registry import classical_gains
 from .residual import BASE_CLASSES, BASE_CONTROLLERS
 from .rig import FittedRig, load_rig, rig_randomization
+from .rig_shipped import SHIPPED_SUFFIX, adopt_shipped, best_shipped, shipped_for
+from .rig_summary import suite_summary, summary_markdown
 from .suite import Suite, load_suite
 from .tune_pid import grid_search
 
@@ -205,19 +210,18 @@ def search_smoothing(
     return smoothing, rows, tried
 
 
-def _classical_and_base(
-    rig: FittedRig, retuned: dict, suite: Suite, tuning: dict, base: str, max_chatter: float
-):
+def _classical_and_base(rig: FittedRig, retuned: dict, suite: Suite, rig_base: dict, base: str):
     """Stage 3: the base candidates' figures on the fitted rig, each also with its best
-    reference smoothing (``search_smoothing``), and the base chosen among them
-    (``choose_base`` with ``max_chatter``, ``rig_base.max_chatter_ratio``). Returns
-    (figures, the choice, every smoothing tried)."""
+    reference smoothing (``search_smoothing``, ``rig_base.reference_smoothing_steps``), and
+    the base chosen among them (``choose_base`` with ``rig_base.max_chatter_ratio``).
+    Returns (figures, the choice, every smoothing tried)."""
     classical = suite_summary(rig, rig_controllers(rig, retuned, suite), suite)
     smoothing, smoothed, tried = search_smoothing(
-        rig, retuned, classical, suite, tuning["rig_base"]["reference_smoothing_steps"]
+        rig, retuned, classical, suite, rig_base["reference_smoothing_steps"]
     )
     classical += smoothed
-    return classical, choose_base(classical, base, smoothing, max_chatter), tried
+    chosen = choose_base(classical, base, smoothing, rig_base["max_chatter_ratio"])
+    return classical, chosen, tried
 
 
 def _check_base(base: str) -> None:
@@ -280,62 +284,6 @@ def choose_base(
     }
 
 
-def suite_summary(rig: FittedRig, controllers: list, suite: Suite | None = None) -> list[dict]:
-    """Mean RMS error (%), chatter (A) and air (mg) over the suite's tasks on the fitted
-    rig, per controller (a name, file or ``ControllerSpec``)."""
-    suite = suite or load_suite()
-    out = []
-    for c in controllers:
-        rows, _ = run_suite(c, [rig.variant], suite, env_options=rig.env_options)
-        out.append(
-            {
-                "controller": rows[0]["controller"],
-                **{k: float(np.mean([r[k] for r in rows])) for k in _FIGURES},
-            }
-        )
-    return out
-
-
-_FIGURES = ("rms_error_pct", "chatter_rms_a", "air_mg")
-
-
-def summary_markdown(rig: FittedRig, figures: list[dict], base: dict, command: str) -> str:
-    """``summary.md``: the figures of each controller on the fitted rig (the first the
-    new controller, the others classical) and the base it sits on (``choose_base``)."""
-    best_classical = min(f["rms_error_pct"] for f in figures[1:])
-    rows = [
-        [
-            f["controller"],
-            f"{f['rms_error_pct']:.2f}",
-            f"{f['rms_error_pct'] / best_classical:.2f}",
-            f"{f['chatter_rms_a']:.4f}",
-            f"{f['air_mg']:.1f}",
-        ]
-        for f in figures
-    ]
-    header = ["controller", "mean RMS error (%)", "x best classical", "chatter (A)", "air (mg)"]
-    return "\n".join(
-        [
-            f"# Controller for the rig of {rig.report_dir}",
-            "",
-            f"The fitted rig: {rig.cylinder}, tube {rig.params['tube_length_m']:g} m, "
-            f"supply {rig.params.get('supply_pressure_pa', float('nan')):.0f} Pa "
-            f"(env {rig.env_id} with the report's fitted_final.yaml). Benchmark suite "
-            "means over its tasks (docs/benchmark.md).",
-            "",
-            markdown_table(header, rows),
-            "",
-            f"The residual's base: {base['controller']} ({base['reason']}).",
-            ""
-            if not base.get("residual_zeroed")
-            else f"The residual was zeroed: {base['residual_zeroed']['reason']}.",
-            "",
-            f"Command: `{command}`" if command else "",
-            "",
-        ]
-    )
-
-
 def _train_residual(
     rig: FittedRig,
     out: Path,
@@ -374,19 +322,22 @@ def _train_residual(
     return kind, dict(trained.get("gains") or classical_gains(kind, rig.variant))
 
 
-def _zero_if_it_loses(rig, path, figures, record, suite, log, max_chatter_ratio) -> list[dict]:
+def _zero_if_it_loses(rig, path, figures, record, suite, log, rig_base: dict) -> list[dict]:
     """Zero the residual of ``path`` (``zero_the_residual``) if its figures on the fitted rig
-    (``figures[0]``) lose to its base's (``record``, from ``choose_base``) in RMS error,
-    or exceed ``chatter_limit`` and the base's chatter; then the file's figures anew and
-    ``record["residual_zeroed"]`` with the trained ones. Returns the figures."""
+    (``figures[0]``) do not cut its base's (``record``, from ``choose_base``) mean RMS
+    error by ``rig_base["min_residual_gain"]``, or exceed ``chatter_limit`` and the base's
+    chatter; then the file's figures anew and ``record["residual_zeroed"]`` with the
+    trained ones. Returns the figures."""
     trained = figures[0]
     base_row = {f["controller"]: f for f in figures[1:]}[record["controller"]]
     base_rms = base_row["rms_error_pct"]
+    max_chatter_ratio, min_gain = rig_base["max_chatter_ratio"], rig_base["min_residual_gain"]
     limit = max(chatter_limit(figures[1:], max_chatter_ratio), base_row["chatter_rms_a"])
-    if trained["rms_error_pct"] > base_rms:
+    if trained["rms_error_pct"] > base_rms * (1.0 - min_gain):
         reason = (
-            f"the trained residual ({trained['rms_error_pct']:.2f} %) lost to its base "
-            f"({base_rms:.2f} %) on the fitted rig: the file runs the base"
+            f"the trained residual ({trained['rms_error_pct']:.2f} %) did not cut its base's "
+            f"error ({base_rms:.2f} %) by {100 * min_gain:g} % on the fitted rig "
+            "(rig_base.min_residual_gain): the file runs the base"
         )
     elif trained["chatter_rms_a"] > limit:
         reason = (
@@ -399,6 +350,35 @@ def _zero_if_it_loses(rig, path, figures, record, suite, log, max_chatter_ratio)
     log(f"      {reason}")
     record["residual_zeroed"] = {"reason": reason, "trained": figures[0]}
     zero_the_residual(path, reason)
+    return suite_summary(rig, [str(path)], suite) + figures[1:]
+
+
+def _shipped_figures(rig: FittedRig, suite: Suite, names: list[str]) -> list[dict]:
+    """The suite's figures on the fitted rig of the shipped actors ``names`` that have one
+    for the rig's variant (``shipped_for``), rows named ``<name> (shipped)``."""
+    rows = suite_summary(rig, shipped_for(names, rig.variant), suite)
+    return [{**f, "controller": f["controller"] + SHIPPED_SUFFIX} for f in rows]
+
+
+def _adopt_if_better(rig, path, figures, shipped, record, context, suite, log, rig_base):
+    """Write the best shipped actor (``best_shipped``) as ``path`` if it cuts the trained
+    controller's error (``figures[0]``) on the fitted rig by ``rig_base["min_shipped_gain"]``
+    within ``chatter_limit``; then the file's figures anew and ``record["shipped"]``.
+    Returns the figures."""
+    limit = chatter_limit(figures[1:], rig_base["max_chatter_ratio"])
+    best = best_shipped(figures[0], shipped, limit, rig_base["min_shipped_gain"])
+    if best is None:
+        return figures
+    name = best["controller"].removesuffix(SHIPPED_SUFFIX)
+    kept = adopt_shipped(name, rig.variant, context, path)
+    reason = (
+        f"The shipped {name} ({best['rms_error_pct']:.2f} %) beat the trained controller "
+        f"({figures[0]['rms_error_pct']:.2f} %) on the fitted rig by more than "
+        f"{100 * rig_base['min_shipped_gain']:g} % within the chatter limit, "
+        f"so controller.npz is {name} with the fitted model (the trained one: {kept})"
+    )
+    log(f"      {reason}")
+    record["shipped"] = {"adopted": name, "reason": reason, "trained": figures[0]}
     return suite_summary(rig, [str(path)], suite) + figures[1:]
 
 
@@ -424,17 +404,20 @@ def train_for_rig(
     tuning = tuning or load_agent_config("tuning", raw=("references",))
     rig, out = load_rig(report_dir), Path(out)
     suite = suite or load_suite()
-    max_chatter = tuning["rig_base"]["max_chatter_ratio"]
     log(f"[1/5] rig: {rig.cylinder}, tube {rig.params['tube_length_m']:g} m -> {rig.env_id}")
     randomization = rig_randomization(report_dir)
     log(f"[2/5] PID, sliding-mode gains searched ({len(randomization)} randomised params)")
     retuned = retuned_gains(rig, tuning)
     log(
         "[3/5] suite on the fitted rig: PID and sliding mode, nominal and retuned, each "
-        "with its reference smoothing searched"
+        "with its reference smoothing searched; the shipped learned controllers"
     )
-    classical, chosen, tried = _classical_and_base(rig, retuned, suite, tuning, base, max_chatter)
+    rig_base = tuning["rig_base"]
+    classical, chosen, tried = _classical_and_base(rig, retuned, suite, rig_base, base)
     log(f"      residual base: {chosen['controller']} ({chosen['reason']})")
+    # a kind asked for (--base) asks for a residual on it: no shipped actor instead
+    candidates = rig_base["shipped_candidates"] if base == "auto" else []
+    shipped = _shipped_figures(rig, suite, candidates)
     held = _train_residual(
         rig,
         out,
@@ -462,8 +445,11 @@ def train_for_rig(
     log(f"[5/5] suite on the fitted rig: {path.name}")
     figures = suite_summary(rig, [str(path)], suite) + classical
     record = {**chosen, "gains": None if held is None else held[1], "residual_zeroed": None}
+    record["shipped"] = None
     if held is not None:
-        figures = _zero_if_it_loses(rig, path, figures, record, suite, log, max_chatter)
+        figures = _zero_if_it_loses(rig, path, figures, record, suite, log, rig_base)
+    figures = _adopt_if_better(rig, path, figures, shipped, record, context, suite, log, rig_base)
+    figures += shipped
     figures[0]["controller"] = "controller.npz (train --rig)"
     (out / "summary.md").write_text(
         summary_markdown(rig, figures, record, command), encoding="utf-8"
@@ -500,5 +486,7 @@ def run(args) -> int:
     for f in res["figures"]:
         print(f"  {f['controller']}: mean RMS {f['rms_error_pct']:.2f} %")
     print(f"  residual base: {res['base']['controller']} ({res['base']['reason']})")
+    if res["base"]["shipped"]:
+        print(f"  {res['base']['shipped']['reason']}")
     print(f"wrote {res['controller']} and {out / 'summary.md'}")
     return 0

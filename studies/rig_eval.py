@@ -222,12 +222,15 @@ def train_and_evaluate(job: dict) -> dict:
     }
 
 
-def base_alone(controller: Path, job: dict) -> float:
+def base_alone(controller: Path, job: dict) -> float | None:
     """The suite's mean RMS error (%) on the rig's plant of the controller file's base alone
     (a copy with its residual zeroed, ``agents.learned.zero_the_residual``): the learned
-    correction's own share is the difference."""
-    from pneumatic_env.agents.learned import zero_the_residual
+    correction's own share is the difference. None for a pure actor (``train --rig`` may
+    adopt a shipped one)."""
+    from pneumatic_env.agents.learned import LearnedActor, zero_the_residual
 
+    if LearnedActor(controller).residual_config is None:
+        return None
     copy = Path(shutil.copy(controller, controller.with_name("base_alone.npz")))
     zero_the_residual(copy, "rig_eval: the base alone")
     return _closed_loop(str(copy), job)["rms_error_pct"]
@@ -384,6 +387,8 @@ def _seed_lines(rigs: dict[str, dict], trained: dict[str, list[dict]]) -> list[s
             record = r.get("residual_base") or {}
             base = record.get("controller", record.get("kind", "-"))  # a name since 2026-11-28
             base += " (residual zeroed)" if record.get("residual_zeroed") else ""
+            if record.get("shipped"):  # since 2026-12-07: a shipped actor won on the fitted rig
+                base = f"shipped {record['shipped']['adopted']} (trained: {base})"
             seconds = r.get("seconds", {}).get("train", nan)
             alone = r.get("base_alone_rms_error_pct")
             lines.append(

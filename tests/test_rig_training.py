@@ -176,13 +176,15 @@ def test_train_rig_writes_a_controller_that_runs_by_file_name_alone(tmp_path):
     rig = load_rig(report)
     suite = load_suite()
     suite = dataclasses.replace(suite, tasks=suite.tasks[:2])
+    tuning = _tiny_tuning()  # the trained file (tests/test_rig_shipped.py: a shipped one)
+    tuning["rig_base"] = {**tuning["rig_base"], "shipped_candidates": []}
     res = train_for_rig(
         report,
         tmp_path / "out",
         minutes=None,
         steps=1,
         overrides=TINY_TRAINING,
-        tuning=_tiny_tuning(),
+        tuning=tuning,
         suite=suite,
     )
     summary = (tmp_path / "out" / "summary.md").read_text()
@@ -517,7 +519,7 @@ def test_a_residual_that_loses_to_its_base_on_the_fitted_rig_is_zeroed(tmp_path,
     figures = {PID_RETUNED: 4.0, SMC_FITTED: 5.0, SMC_NOMINAL: 3.0}
     res = _train_with_figures(monkeypatch, figures, write_report(tmp_path / "report"), out)
     zeroed = res["base"]["residual_zeroed"]
-    assert zeroed["trained"]["rms_error_pct"] == 9.0 and "lost to its base" in zeroed["reason"]
+    assert zeroed["trained"]["rms_error_pct"] == 9.0 and "did not cut its base" in zeroed["reason"]
     assert "The residual was zeroed" in (out / "summary.md").read_text()
     actor = LearnedActor(res["controller"])
     assert actor.meta["residual_zeroed"] == zeroed["reason"]

@@ -1,0 +1,131 @@
+"""``train --rig``'s last choices (issue 35): a trained residual must cut its base's error
+on the fitted rig by ``rig_base.min_residual_gain`` to be kept, and a shipped learned
+controller that beats the trained one there by ``rig_base.min_shipped_gain`` within the
+chatter limit becomes
+``controller.npz``, self-contained (``agents.rig_shipped``)."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from pneumatic_env.agents.base import ControllerContext
+from pneumatic_env.agents.config import load_agent_config
+from pneumatic_env.agents.learned import FORMAT_SELF_CONTAINED, LearnedActor
+from pneumatic_env.agents.registry import classical_gains, resolve_controller
+from pneumatic_env.agents.rig import load_rig
+from pneumatic_env.agents.rig_shipped import best_shipped, shipped_base, shipped_for
+from test_rig_training import (
+    PID_RETUNED,
+    SMC_FITTED,
+    SMC_NOMINAL,
+    _train_with_figures,
+    write_report,
+)
+
+VARIANT = "Numatics-2m"
+
+
+def test_the_shipped_candidates_are_those_with_an_actor_for_the_variant():
+    names = load_agent_config("tuning", raw=("references",))["rig_base"]["shipped_candidates"]
+    assert "ppo_residual_dr" in shipped_for(names, "Numatics-2m")
+    assert "ppo_residual_dr" not in shipped_for(names, "Airpel-0.5m")  # trained for 2 m only
+    assert "ppo_generalist" in shipped_for(names, "Airpel-0.5m")  # one actor for all
+    with pytest.raises(ValueError, match="shipped_candidates: controller = 'ppo_nope'"):
+        shipped_for(["ppo_nope"], VARIANT)
+    # a residual actor's base: its kind with the variant's benchmark gains; a pure one none
+    assert shipped_base("ppo_adaptive", VARIANT) == ("pid", classical_gains("pid", VARIANT))
+    assert shipped_base("ppo_pure", VARIANT) is None
+
+
+def test_the_best_shipped_row_must_beat_the_trained_one_within_the_chatter_limit():
+    row = lambda name, rms, chatter: {  # noqa: E731
+        "controller": name,
+        "rms_error_pct": rms,
+        "chatter_rms_a": chatter,
+    }
+    trained = row("trained", 3.0, 0.01)
+    shipped = [row("a", 2.5, 0.03), row("b", 2.8, 0.01), row("c", 3.2, 0.0)]
+    assert best_shipped(trained, shipped, 0.02)["controller"] == "b"  # a is too loud
+    assert best_shipped(trained, shipped, 0.03)["controller"] == "a"  # at the limit is within
+    assert best_shipped(row("t", 2.8, 0.0), shipped, 0.02) is None  # a tie is no win
+    assert best_shipped(trained, [], 1.0) is None
+    # a margin (rig_base.min_shipped_gain): a 10 % cut is 2.7 %, which b does not reach
+    assert best_shipped(trained, shipped, 0.03, 0.1)["controller"] == "a"
+    assert best_shipped(trained, shipped, 0.02, 0.1) is None
+
+
+@pytest.mark.parametrize(("trained_pct", "kept"), [(2.95, False), (2.90, True)])
+def test_a_residual_must_cut_its_bases_error_by_the_margin_to_be_kept(
+    tmp_path, monkeypatch, trained_pct, kept
+):
+    """Base at 3 %: a 1.7 % cut is under the 2 % margin (``rig_base.min_residual_gain``),
+    a 3.3 % cut over it."""
+    margin = load_agent_config("tuning", raw=("references",))["rig_base"]["min_residual_gain"]
+    assert margin == 0.02
+    out = tmp_path / "out"
+    figures = {PID_RETUNED: 3.0, SMC_FITTED: 5.0, SMC_NOMINAL: 4.0}
+    figures[str(out / "controller.npz")] = trained_pct
+    res = _train_with_figures(monkeypatch, figures, write_report(tmp_path / "report"), out)
+    zeroed = res["base"]["residual_zeroed"]
+    assert (zeroed is None) == kept
+    if not kept:
+        assert "did not cut its base's error (3.00 %) by 2 %" in zeroed["reason"]
+
+
+def test_a_shipped_controller_that_wins_clearly_on_the_fitted_rig_is_written_self_contained(
+    tmp_path, monkeypatch
+):
+    """The trained controller at 3 % (its base PID at 3.5 %); the shipped ppo_adaptive at
+    2.5 % (a 17 % cut, over the 10 % margin) within the chatter limit, ppo_pure at 2 % over
+    it: controller.npz is
+    ppo_adaptive, running on the fitted rig bit for bit as the shipped one does, with the
+    fitted model and its base's gains inside; the trained file is kept."""
+    report = write_report(tmp_path / "report")
+    out = tmp_path / "out"
+    figures = {PID_RETUNED: 3.5, SMC_FITTED: 5.0, SMC_NOMINAL: 4.0}
+    figures |= {str(out / "controller.npz"): 3.0, "ppo_adaptive": 2.5, "ppo_pure": 2.0}
+    chatter = {SMC_NOMINAL: 0.01, "ppo_pure": 0.016}
+    res = _train_with_figures(monkeypatch, figures, report, out, chatter)
+    assert res["base"]["shipped"]["adopted"] == "ppo_adaptive"
+    assert res["base"]["shipped"]["trained"]["rms_error_pct"] == 3.0
+    assert "ppo_adaptive (shipped)" in (out / "summary.md").read_text()
+    assert (out / "training" / "controller_trained.npz").is_file()
+    actor = LearnedActor(res["controller"])
+    assert actor.meta["format"] == FORMAT_SELF_CONTAINED
+    assert actor.base_controller == ("pid", classical_gains("pid", VARIANT))
+    rig = load_rig(report)
+    env = gym.make_vec(rig.env_id, num_envs=2, preview_steps=20, **rig.env_options)
+    context = ControllerContext.from_env(env)
+    ours = resolve_controller(res["controller"], rig.variant).build(context)
+    shipped = resolve_controller("ppo_adaptive", rig.variant).build(context)
+    obs, _ = env.reset(seed=4)
+    ours.reset()
+    shipped.reset()
+    for _ in range(40):
+        u = ours.act(obs)
+        assert np.array_equal(u, shipped.act(obs))
+        obs, *_ = env.step(u[:, None])
+    env.close()
+    # the model travels in the file: its base params are the fitted rig's
+    assert actor.meta["model"]["base_params"]["supply_pressure_pa"] == pytest.approx(
+        rig.params["supply_pressure_pa"]
+    )
+
+
+def test_a_kind_asked_for_gets_no_shipped_controller(tmp_path, monkeypatch):
+    from pneumatic_env.agents import rig_training
+
+    out = tmp_path / "out"
+    figures = {PID_RETUNED: 3.5, SMC_FITTED: 5.0, SMC_NOMINAL: 4.0, "ppo_adaptive": 1.0}
+    monkeypatch.setattr(
+        rig_training, "train_for_rig", _with_base(rig_training.train_for_rig, "pid")
+    )
+    res = _train_with_figures(monkeypatch, figures, write_report(tmp_path / "report"), out)
+    assert res["base"]["shipped"] is None
+    assert "(shipped)" not in (out / "summary.md").read_text()
+
+
+def _with_base(train_for_rig, base: str):
+    return lambda *a, **k: train_for_rig(*a, **k, base=base)
