@@ -19,7 +19,7 @@ import shutil
 from pathlib import Path
 
 from .base import ControllerContext
-from .learned import LearnedActor, shipped_policy_path, write_self_contained
+from .learned import LearnedActor, shipped_policies, shipped_policy_path, write_self_contained
 from .registry import classical_gains
 
 __all__ = ["SHIPPED_SUFFIX", "shipped_for", "shipped_base", "best_shipped", "adopt_shipped"]
@@ -30,14 +30,19 @@ SHIPPED_SUFFIX = " (shipped)"
 
 def shipped_for(names: list[str], variant: str) -> list[str]:
     """Those of the shipped policies ``names`` with an actor for ``variant`` (a generalist's
-    one actor serves all); an unknown name is an error."""
+    one actor serves all); a name that is not a shipped policy is an error."""
+    known = shipped_policies()
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise ValueError(
+            f"rig_base.shipped_candidates = {unknown} is not allowed: the shipped policies "
+            f"are {sorted(known)}"
+        )
     out = []
     for name in names:
         try:
             shipped_policy_path(name, variant)
-        except ValueError as exc:
-            if "is not a shipped policy" in str(exc):
-                raise ValueError(f"rig_base.shipped_candidates: {exc}") from None
+        except ValueError:
             continue  # no actor for this variant
         out.append(name)
     return out
@@ -49,10 +54,8 @@ def shipped_base(name: str, variant: str) -> tuple[str, dict] | None:
     residual = LearnedActor(shipped_policy_path(name, variant)).residual_config
     if residual is None:
         return None
-    gains = residual.gains
-    return residual.base, dict(gains) if gains is not None else classical_gains(
-        residual.base, variant
-    )
+    kind, gains = residual.base, residual.gains
+    return kind, dict(gains) if gains is not None else classical_gains(kind, variant)
 
 
 def best_shipped(

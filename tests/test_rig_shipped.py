@@ -32,7 +32,9 @@ def test_the_shipped_candidates_are_those_with_an_actor_for_the_variant():
     assert "ppo_residual_dr" in shipped_for(names, "Numatics-2m")
     assert "ppo_residual_dr" not in shipped_for(names, "Airpel-0.5m")  # trained for 2 m only
     assert "ppo_generalist" in shipped_for(names, "Airpel-0.5m")  # one actor for all
-    with pytest.raises(ValueError, match="shipped_candidates: controller = 'ppo_nope'"):
+    with pytest.raises(
+        ValueError, match=r"shipped_candidates = \['ppo_nope'\] is not allowed: the shipped"
+    ):
         shipped_for(["ppo_nope"], VARIANT)
     # a residual actor's base: its kind with the variant's benchmark gains; a pure one none
     assert shipped_base("ppo_adaptive", VARIANT) == ("pid", classical_gains("pid", VARIANT))
