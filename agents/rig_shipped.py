@@ -6,7 +6,7 @@ training on that rig gives. So ``train --rig`` scores the shipped actors of the 
 variant on the fitted rig beside the classical controllers
 (``rig_base.shipped_candidates``), and writes the best of them as ``OUT/controller.npz``
 if it cuts the trained controller's error there by ``rig_base.min_shipped_gain`` within
-the chatter limit (``best_shipped``, ``adopt_shipped``); the trained one stays in
+the chatter and air limits (``best_shipped``, ``adopt_shipped``); the trained one stays in
 ``OUT/training/controller_trained.npz``. The margin is wide because the fitted rig is not
 the rig: on the cross-piston leak + coil lag evaluation rig the shipped ``ppo_adaptive``
 beat the trained controller by 2.8 % on the fitted rig and lost to it by a third on the
@@ -15,6 +15,7 @@ rig's plant.
 
 from __future__ import annotations
 
+import math
 import shutil
 from pathlib import Path
 
@@ -59,13 +60,19 @@ def shipped_base(name: str, variant: str) -> tuple[str, dict] | None:
 
 
 def best_shipped(
-    trained: dict, shipped: list[dict], chatter_limit_a: float, min_gain: float = 0.0
+    trained: dict,
+    shipped: list[dict],
+    chatter_limit_a: float,
+    min_gain: float = 0.0,
+    air_limit_mg: float = math.inf,
 ) -> dict | None:
     """The row of ``shipped`` (figures on the fitted rig) with the lowest mean RMS error,
     if it cuts ``trained``'s by more than the fraction ``min_gain``
-    (``rig_base.min_shipped_gain``) and its chatter is within ``chatter_limit_a``; else
-    None."""
-    quiet = [f for f in shipped if f["chatter_rms_a"] <= chatter_limit_a]
+    (``rig_base.min_shipped_gain``) and its chatter and air are within ``chatter_limit_a``
+    and ``air_limit_mg``; else None."""
+    quiet = [
+        f for f in shipped if f["chatter_rms_a"] <= chatter_limit_a and f["air_mg"] <= air_limit_mg
+    ]
     best = min(quiet, key=lambda f: f["rms_error_pct"], default=None)
     if best is None or best["rms_error_pct"] >= trained["rms_error_pct"] * (1.0 - min_gain):
         return None

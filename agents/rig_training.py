@@ -32,13 +32,14 @@ chatter: a base candidate whose chatter is over ``rig_base.max_chatter_ratio`` x
 sliding mode's at nominal tuning is not chosen (unless all are). If the trained actor
 does not cut its base's mean RMS error on the fitted rig by
 ``rig_base.min_residual_gain`` (2 %: the fitted rig is not the rig), or its chatter is
-over that limit and its base's, its residual is zeroed
+over that limit and its base's, or its air over ``rig_base.max_air_ratio`` x the same
+sliding mode's and its base's, its residual is zeroed
 (``agents.learned.zero_the_residual``): the file then runs the base bit for bit, and
 ``summary.md`` and ``rig_training.json`` (``base.residual_zeroed``) say so with the
 trained actor's figures. With ``base="auto"`` the shipped learned controllers of the
 variant are scored on the fitted rig too (``agents.rig_shipped``): the best of them
 becomes ``controller.npz`` if it cuts the error of the file written so far there by
-``rig_base.min_shipped_gain`` (10 %) within the chatter limit (``base.shipped`` says so;
+``rig_base.min_shipped_gain`` (10 %) within the chatter and air limits (``base.shipped`` says so;
 the trained file is kept in ``training/controller_trained.npz``).
 """
 
@@ -73,6 +74,7 @@ __all__ = [
     "train_for_rig",
     "choose_base",
     "chatter_limit",
+    "reference_limit",
     "CHATTER_REFERENCE",
     "candidate_base",
     "rig_controllers",
@@ -229,14 +231,19 @@ def _check_base(base: str) -> None:
         raise ValueError(f"base = {base!r} is not allowed: use one of {list(BASE_CHOICES)}")
 
 
+def reference_limit(figures: list[dict], key: str, max_ratio: float | None) -> float:
+    """The figure ``key`` a controller for the rig may have: ``max_ratio`` x that of
+    ``CHATTER_REFERENCE`` in ``figures`` (None: no limit)."""
+    if max_ratio is None:
+        return math.inf
+    return float(max_ratio) * {f["controller"]: f[key] for f in figures}[CHATTER_REFERENCE]
+
+
 def chatter_limit(figures: list[dict], max_ratio: float | None) -> float:
     """The chatter (A) a controller for the rig may have: ``max_ratio`` x that of
     ``CHATTER_REFERENCE`` in ``figures`` (``rig_base.max_chatter_ratio``; None: no
     limit)."""
-    if max_ratio is None:
-        return math.inf
-    ref = {f["controller"]: f["chatter_rms_a"] for f in figures}[CHATTER_REFERENCE]
-    return float(max_ratio) * ref
+    return reference_limit(figures, "chatter_rms_a", max_ratio)
 
 
 def choose_base(
@@ -326,13 +333,16 @@ def _zero_if_it_loses(rig, path, figures, record, suite, log, rig_base: dict) ->
     """Zero the residual of ``path`` (``zero_the_residual``) if its figures on the fitted rig
     (``figures[0]``) do not cut its base's (``record``, from ``choose_base``) mean RMS
     error by ``rig_base["min_residual_gain"]``, or exceed ``chatter_limit`` and the base's
-    chatter; then the file's figures anew and ``record["residual_zeroed"]`` with the
-    trained ones. Returns the figures."""
+    chatter, or ``rig_base["max_air_ratio"]`` x the reference's air and the base's; then the
+    file's figures anew and ``record["residual_zeroed"]`` with the trained ones. Returns
+    the figures."""
     trained = figures[0]
     base_row = {f["controller"]: f for f in figures[1:]}[record["controller"]]
     base_rms = base_row["rms_error_pct"]
     max_chatter_ratio, min_gain = rig_base["max_chatter_ratio"], rig_base["min_residual_gain"]
     limit = max(chatter_limit(figures[1:], max_chatter_ratio), base_row["chatter_rms_a"])
+    air_ratio = rig_base["max_air_ratio"]
+    air = max(reference_limit(figures[1:], "air_mg", air_ratio), base_row["air_mg"])
     if trained["rms_error_pct"] > base_rms * (1.0 - min_gain):
         reason = (
             f"the trained residual ({trained['rms_error_pct']:.2f} %) did not cut its base's "
@@ -344,6 +354,12 @@ def _zero_if_it_loses(rig, path, figures, record, suite, log, rig_base: dict) ->
             f"the trained residual's chatter ({trained['chatter_rms_a']:.4f} A) is over "
             f"{limit:.4f} A ({max_chatter_ratio} x {CHATTER_REFERENCE}'s, or its base's) "
             "on the fitted rig: the file runs the base"
+        )
+    elif trained["air_mg"] > air:
+        reason = (
+            f"the trained residual's air ({trained['air_mg']:.1f} mg) is over {air:.1f} mg "
+            f"({air_ratio} x {CHATTER_REFERENCE}'s, or its base's) on the fitted rig: the "
+            "file runs the base"
         )
     else:
         return figures
@@ -366,7 +382,8 @@ def _adopt_if_better(rig, path, figures, shipped, record, context, suite, log, r
     within ``chatter_limit``; then the file's figures anew and ``record["shipped"]``.
     Returns the figures."""
     limit = chatter_limit(figures[1:], rig_base["max_chatter_ratio"])
-    best = best_shipped(figures[0], shipped, limit, rig_base["min_shipped_gain"])
+    air = reference_limit(figures[1:], "air_mg", rig_base["max_air_ratio"])
+    best = best_shipped(figures[0], shipped, limit, rig_base["min_shipped_gain"], air)
     if best is None:
         return figures
     name = best["controller"].removesuffix(SHIPPED_SUFFIX)

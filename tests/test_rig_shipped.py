@@ -46,6 +46,7 @@ def test_the_best_shipped_row_must_beat_the_trained_one_within_the_chatter_limit
         "controller": name,
         "rms_error_pct": rms,
         "chatter_rms_a": chatter,
+        "air_mg": 100.0,
     }
     trained = row("trained", 3.0, 0.01)
     shipped = [row("a", 2.5, 0.03), row("b", 2.8, 0.01), row("c", 3.2, 0.0)]
@@ -56,6 +57,7 @@ def test_the_best_shipped_row_must_beat_the_trained_one_within_the_chatter_limit
     # a margin (rig_base.min_shipped_gain): a 10 % cut is 2.7 %, which b does not reach
     assert best_shipped(trained, shipped, 0.03, 0.1)["controller"] == "a"
     assert best_shipped(trained, shipped, 0.02, 0.1) is None
+    assert best_shipped(trained, shipped, 0.03, 0.0, 99.0) is None  # every one over the air
 
 
 @pytest.mark.parametrize(("trained_pct", "kept"), [(2.95, False), (2.90, True)])
@@ -131,3 +133,26 @@ def test_a_kind_asked_for_gets_no_shipped_controller(tmp_path, monkeypatch):
 
 def _with_base(train_for_rig, base: str):
     return lambda *a, **k: train_for_rig(*a, **k, base=base)
+
+
+def test_a_residual_over_the_air_limit_is_zeroed(tmp_path, monkeypatch):
+    """A trained controller better than its base by far but with air over 1.5 x the
+    sliding mode's at nominal tuning (``rig_base.max_air_ratio``) and over its base's on
+    the fitted rig runs its base; within the limit, or no more than its base's, it is
+    kept."""
+    ratio = load_agent_config("tuning", raw=("references",))["rig_base"]["max_air_ratio"]
+    assert ratio == 1.5  # the issue's limit
+    out = tmp_path / "out"
+    trained = str(out / "controller.npz")
+    figures = {PID_RETUNED: 3.0, SMC_FITTED: 5.0, SMC_NOMINAL: 4.0, trained: 2.0}
+    report = write_report(tmp_path / "report")
+    for air, zeroed in [  # the base: PID retuned; the reference: the nominal sliding mode
+        ({SMC_NOMINAL: 100.0, PID_RETUNED: 100.0, trained: 150.0}, False),  # at the limit
+        ({SMC_NOMINAL: 100.0, PID_RETUNED: 180.0, trained: 170.0}, False),  # below its base
+        ({SMC_NOMINAL: 100.0, PID_RETUNED: 100.0, trained: 151.0}, True),
+    ]:
+        res = _train_with_figures(monkeypatch, figures, report, out, None, air)
+        record = res["base"]["residual_zeroed"]
+        assert (record is not None) == zeroed
+        if zeroed:
+            assert "air (151.0 mg) is over 150.0 mg" in record["reason"]

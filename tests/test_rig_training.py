@@ -266,12 +266,13 @@ def test_bench_rig_runs_the_suite_on_the_fitted_rig(tmp_path, capsys):
     assert fitted[0]["rms_error_pct"] != nominal[0]["rms_error_pct"]  # another plant
 
 
-def _train_with_figures(monkeypatch, figures: dict, report, out, chatter=None) -> dict:
+def _train_with_figures(monkeypatch, figures: dict, report, out, chatter=None, air=None) -> dict:
     """``train_for_rig`` on a tiny budget with the suite's figures faked
     (``_fake_suite_summary``)."""
     from pneumatic_env.agents import rig_training
 
-    monkeypatch.setattr(rig_training, "suite_summary", _fake_suite_summary(figures, chatter))
+    fake = _fake_suite_summary(figures, chatter, air)
+    monkeypatch.setattr(rig_training, "suite_summary", fake)
     return rig_training.train_for_rig(
         report,
         out,
@@ -298,9 +299,10 @@ SMC_NOMINAL = "sliding_mode (nominal model)"
 SMC_NOMINAL_RETUNED = "sliding_mode (nominal model, retuned on the fitted rig)"
 
 
-def _fake_suite_summary(figures: dict, chatter: dict | None = None):
+def _fake_suite_summary(figures: dict, chatter: dict | None = None, air: dict | None = None):
     """``suite_summary`` with the controllers named in ``figures`` at their mean RMS error
-    (%), any other at 9 %; those named in ``chatter`` at that chatter (A), any other at 0."""
+    (%), any other at 9 %; those named in ``chatter`` (``air``) at that chatter (A) (air,
+    mg), any other at 0."""
 
     def summary(rig, controllers, suite=None):
         names = [getattr(c, "name", str(c)) for c in controllers]
@@ -309,7 +311,7 @@ def _fake_suite_summary(figures: dict, chatter: dict | None = None):
                 "controller": n,
                 "rms_error_pct": figures.get(n, 9.0),
                 "chatter_rms_a": (chatter or {}).get(n, 0.0),
-                "air_mg": 0.0,
+                "air_mg": (air or {}).get(n, 0.0),
             }
             for n in names
         ]
