@@ -379,7 +379,7 @@ def _shipped_figures(rig: FittedRig, suite: Suite, names: list[str]) -> list[dic
 def _adopt_if_better(rig, path, figures, shipped, record, context, suite, log, rig_base):
     """Write the best shipped actor (``best_shipped``) as ``path`` if it cuts the trained
     controller's error (``figures[0]``) on the fitted rig by ``rig_base["min_shipped_gain"]``
-    within ``chatter_limit``; then the file's figures anew and ``record["shipped"]``.
+    within the chatter and air limits; then the file's figures anew and ``record["shipped"]``.
     Returns the figures."""
     limit = chatter_limit(figures[1:], rig_base["max_chatter_ratio"])
     air = reference_limit(figures[1:], "air_mg", rig_base["max_air_ratio"])
@@ -391,7 +391,7 @@ def _adopt_if_better(rig, path, figures, shipped, record, context, suite, log, r
     reason = (
         f"The shipped {name} ({best['rms_error_pct']:.2f} %) beat the trained controller "
         f"({figures[0]['rms_error_pct']:.2f} %) on the fitted rig by more than "
-        f"{100 * rig_base['min_shipped_gain']:g} % within the chatter limit, "
+        f"{100 * rig_base['min_shipped_gain']:g} % within the chatter and air limits, "
         f"so controller.npz is {name} with the fitted model (the trained one: {kept})"
     )
     log(f"      {reason}")
@@ -461,8 +461,8 @@ def train_for_rig(
     )
     log(f"[5/5] suite on the fitted rig: {path.name}")
     figures = suite_summary(rig, [str(path)], suite) + classical
-    record = {**chosen, "gains": None if held is None else held[1], "residual_zeroed": None}
-    record["shipped"] = None
+    gains = None if held is None else held[1]
+    record = {**chosen, "gains": gains, "residual_zeroed": None, "shipped": None}
     if held is not None:
         figures = _zero_if_it_loses(rig, path, figures, record, suite, log, rig_base)
     figures = _adopt_if_better(rig, path, figures, shipped, record, context, suite, log, rig_base)
