@@ -7,7 +7,6 @@ chatter limit becomes
 from __future__ import annotations
 
 import gymnasium as gym
-import numpy as np
 import pytest
 
 from pneumatic_env.agents.base import ControllerContext
@@ -21,6 +20,7 @@ from test_rig_training import (
     SMC_FITTED,
     SMC_NOMINAL,
     _train_with_figures,
+    assert_same_currents,
     write_report,
 )
 
@@ -104,13 +104,7 @@ def test_a_shipped_controller_that_wins_clearly_on_the_fitted_rig_is_written_sel
     context = ControllerContext.from_env(env)
     ours = resolve_controller(res["controller"], rig.variant).build(context)
     shipped = resolve_controller("ppo_adaptive", rig.variant).build(context)
-    obs, _ = env.reset(seed=4)
-    ours.reset()
-    shipped.reset()
-    for _ in range(40):
-        u = ours.act(obs)
-        assert np.array_equal(u, shipped.act(obs))
-        obs, *_ = env.step(u[:, None])
+    assert_same_currents(ours, shipped, env, seed=4, steps=40)
     env.close()
     # the model travels in the file: its base params are the fitted rig's
     assert actor.meta["model"]["base_params"]["supply_pressure_pa"] == pytest.approx(
