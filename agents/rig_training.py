@@ -471,19 +471,9 @@ def train_for_rig(
     (out / "summary.md").write_text(
         summary_markdown(rig, figures, record, command), encoding="utf-8"
     )
-    (out / "rig_training.json").write_text(
-        json.dumps(
-            {
-                "figures": figures,
-                "base": record,
-                "retuned_gains": retuned,
-                "reference_smoothing": tried,
-                "randomization": randomization,
-            },
-            indent=2,
-        ),
-        encoding="utf-8",
-    )
+    written = {"figures": figures, "base": record, "retuned_gains": retuned}
+    written |= {"reference_smoothing": tried, "randomization": randomization}
+    (out / "rig_training.json").write_text(json.dumps(written, indent=2), encoding="utf-8")
     return {"figures": figures, "controller": str(path), "base": record}
 
 
