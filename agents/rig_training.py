@@ -185,41 +185,68 @@ def rig_controllers(rig: FittedRig, retuned: dict[str, dict], suite: Suite) -> l
     ]
 
 
-def search_smoothing(
-    rig: FittedRig, retuned: dict[str, dict], classical: list[dict], suite: Suite, grid
-) -> tuple[dict[str, int], list[dict], dict[str, dict[int, float]]]:
-    """The reference smoothing W of each base candidate searched on the fitted rig's suite:
-    every W of ``grid`` beside the candidate's own figure (W = 0, ``classical``). Returns
-    {candidate: its best W, where one beats W = 0}, their figures (rows named
-    ``smoothed_name``) and {candidate: {W: mean RMS error %}} of every W tried."""
-    own = {f["controller"]: f["rms_error_pct"] for f in classical}
-    grid = sorted({int(w) for w in grid if int(w) > 0})
+def _smoothed_figures(rig, retuned, suite, grids: dict[str, list[int]], by_w: dict) -> None:
+    """The suite's figures on the fitted rig of each candidate of ``grids`` at each of its
+    W, into ``by_w[candidate][W]``."""
     specs = [
         _spec(f"{n}|{w}", *candidate_base(rig, n, retuned, w), suite.preview_steps)
-        for n in BASE_CANDIDATES
+        for n, grid in grids.items()
         for w in grid
     ]
-    figures = {f["controller"]: f for f in (suite_summary(rig, specs, suite) if specs else [])}
-    tried = {
-        n: {0: own[n], **{w: figures[f"{n}|{w}"]["rms_error_pct"] for w in grid}}
-        for n in BASE_CANDIDATES
-    }
-    best = {n: min(t, key=lambda w: (t[w], w)) for n, t in tried.items()}
-    smoothing = {n: w for n, w in best.items() if w > 0}
-    rows = [
-        {**figures[f"{n}|{w}"], "controller": smoothed_name(n, w)} for n, w in smoothing.items()
-    ]
-    return smoothing, rows, tried
+    for f in suite_summary(rig, specs, suite) if specs else []:
+        name, w = f["controller"].rsplit("|", 1)
+        by_w[name][int(w)] = f
+
+
+def _lowest_error(figures: dict[int, dict]) -> int:
+    return min(figures, key=lambda w: (figures[w]["rms_error_pct"], w))
+
+
+def search_smoothing(
+    rig: FittedRig,
+    retuned: dict[str, dict],
+    classical: list[dict],
+    suite: Suite,
+    grid,
+    air_grid=(),
+    air_limit_mg: float = math.inf,
+) -> tuple[dict[str, int], list[dict], dict[str, dict[int, float]]]:
+    """The reference smoothing W of each base candidate searched on the fitted rig's suite:
+    every W of ``grid`` beside the candidate's own figure (W = 0, ``classical``). A
+    candidate whose best W uses more air than ``air_limit_mg`` tries the W of ``air_grid``
+    too and takes the best W within the limit, if one is (a smoother reference asks for
+    less air). Returns {candidate: its W, where not 0}, their figures (rows named
+    ``smoothed_name``) and {candidate: {W: mean RMS error %}} of every W tried."""
+    by_w: dict[str, dict[int, dict]] = {f["controller"]: {0: f} for f in classical}
+    grid = sorted({int(w) for w in grid if int(w) > 0})
+    _smoothed_figures(rig, retuned, suite, dict.fromkeys(BASE_CANDIDATES, grid), by_w)
+    best = {n: _lowest_error(by_w[n]) for n in BASE_CANDIDATES}
+    over = [n for n, w in best.items() if by_w[n][w]["air_mg"] > air_limit_mg]
+    extra = sorted({int(w) for w in air_grid} - set(grid) - {0})
+    _smoothed_figures(rig, retuned, suite, dict.fromkeys(over, extra), by_w)
+    for n in over:
+        within = {w: f for w, f in by_w[n].items() if f["air_mg"] <= air_limit_mg}
+        best[n] = _lowest_error(within) if within else best[n]
+    rows = [{**by_w[n][w], "controller": smoothed_name(n, w)} for n, w in best.items() if w]
+    tried = {n: {w: by_w[n][w]["rms_error_pct"] for w in sorted(by_w[n])} for n in best}
+    return {n: w for n, w in best.items() if w}, rows, tried
 
 
 def _classical_and_base(rig: FittedRig, retuned: dict, suite: Suite, rig_base: dict, base: str):
     """Stage 3: the base candidates' figures on the fitted rig, each also with its best
-    reference smoothing (``search_smoothing``, ``rig_base.reference_smoothing_steps``), and
-    the base chosen among them (``choose_base`` with ``rig_base.max_chatter_ratio``).
-    Returns (figures, the choice, every smoothing tried)."""
+    reference smoothing (``search_smoothing``: ``rig_base.reference_smoothing_steps``, and
+    ``air_smoothing_steps`` within ``max_air_ratio``), and the base chosen among them
+    (``choose_base`` with ``rig_base.max_chatter_ratio``). Returns (figures, the choice,
+    every smoothing tried)."""
     classical = suite_summary(rig, rig_controllers(rig, retuned, suite), suite)
     smoothing, smoothed, tried = search_smoothing(
-        rig, retuned, classical, suite, rig_base["reference_smoothing_steps"]
+        rig,
+        retuned,
+        classical,
+        suite,
+        rig_base["reference_smoothing_steps"],
+        rig_base["air_smoothing_steps"],
+        reference_limit(classical, "air_mg", rig_base["max_air_ratio"]),
     )
     classical += smoothed
     chosen = choose_base(classical, base, smoothing, rig_base["max_chatter_ratio"])
