@@ -112,7 +112,7 @@ class FittedRig:
     @property
     def noiseless_env_options(self) -> dict:
         """``env_options`` with exact sensors: the rig the classical gains are searched on
-        (``agents.rig_training.retuned_gains``; the grid's chatter penalty,
+        (``agents.rig_base.retuned_gains``; the grid's chatter penalty,
         ``configs/agents/tuning.yaml: chatter_penalty_pct_per_a``, was set on exact
         sensors, and on noisy ones it picked gains that track worse)."""
         return {k: v for k, v in self.env_options.items() if k != "sensor_noise"}

@@ -252,7 +252,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--base",
-        choices=("auto", "sliding_mode", "pid"),  # rig_training.BASE_CHOICES (imports torch)
+        choices=("auto", "sliding_mode", "pid"),  # rig_base.BASE_CHOICES (a test checks)
         help="with --rig: the residual's base controller (default auto: of PID nominal and "
         "retuned and the sliding mode on the nominal and the fitted model, the lowest mean "
         "RMS error on the fitted rig; a kind: the better of its two)",

@@ -15,8 +15,8 @@ from pneumatic_env.agents.config import load_agent_config
 from pneumatic_env.agents.learned import FORMAT_SELF_CONTAINED, LearnedActor
 from pneumatic_env.agents.registry import classical_gains, resolve_controller
 from pneumatic_env.agents.rig import load_rig
+from pneumatic_env.agents.rig_base import RETUNED
 from pneumatic_env.agents.rig_shipped import best_shipped, shipped_base, shipped_for
-from pneumatic_env.agents.rig_training import RETUNED
 from pneumatic_env.agents.suite import load_suite
 from test_rig_training import (
     PID_RETUNED,
@@ -167,11 +167,11 @@ def test_a_base_over_the_air_limit_smooths_its_reference_further(tmp_path, monke
     ``max_air_ratio`` x the nominal sliding mode's tries ``air_smoothing_steps`` and takes
     the lowest-error W within the limit; one over it at every W keeps its best W, and one
     within it is not searched further."""
-    from pneumatic_env.agents import rig_training
+    from pneumatic_env.agents import rig_base
 
-    rig_base = load_agent_config("tuning", raw=("references",))["rig_base"]
+    tuned = load_agent_config("tuning", raw=("references",))["rig_base"]
     limit = 100.0 * _air_ratio()
-    grid, more = rig_base["reference_smoothing_steps"], rig_base["air_smoothing_steps"]
+    grid, more = tuned["reference_smoothing_steps"], tuned["air_smoothing_steps"]
     low, mid, high = sorted(more)  # three W tried for air alone, the lowest first
     rms = {f"{PID_RETUNED}|{w}": 3.0 + 0.01 * w for w in grid} | {PID_RETUNED: 3.1}
     rms |= {f"{PID_RETUNED}|{low}": 3.3, f"{PID_RETUNED}|{mid}": 3.2}
@@ -187,11 +187,11 @@ def test_a_base_over_the_air_limit_smooths_its_reference_further(tmp_path, monke
         asked.extend(getattr(c, "name", str(c)) for c in controllers)
         return fake(rig, controllers, suite)
 
-    monkeypatch.setattr(rig_training, "suite_summary", summary)
+    monkeypatch.setattr(rig_base, "suite_summary", summary)
     rig = load_rig(write_report(tmp_path / "report"))
-    retuned = {n: classical_gains(rig_training.BASE_CANDIDATES[n][0], VARIANT) for n in RETUNED}
-    classical = summary(rig, rig_training.rig_controllers(rig, retuned, load_suite()))
-    smoothing, rows, tried = rig_training.search_smoothing(
+    retuned = {n: classical_gains(rig_base.BASE_CANDIDATES[n][0], VARIANT) for n in RETUNED}
+    classical = summary(rig, rig_base.rig_controllers(rig, retuned, load_suite()))
+    smoothing, rows, tried = rig_base.search_smoothing(
         rig, retuned, classical, load_suite(), grid, more, limit
     )
     # the PID: W = low is within the limit (at it) and beats W = high; mid is over it
@@ -200,5 +200,5 @@ def test_a_base_over_the_air_limit_smooths_its_reference_further(tmp_path, monke
     assert set(tried[PID_RETUNED]) == {0, *grid, *more}
     assert set(tried[SMC_NOMINAL]) == {0, *grid}
     assert not any(a.startswith(SMC_NOMINAL + "|") and int(a.rsplit("|")[1]) in more for a in asked)
-    row = {r["controller"]: r for r in rows}[rig_training.smoothed_name(PID_RETUNED, low)]
+    row = {r["controller"]: r for r in rows}[rig_base.smoothed_name(PID_RETUNED, low)]
     assert row["air_mg"] == limit and row["rms_error_pct"] == 3.3

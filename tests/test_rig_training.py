@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 import yaml
 
+from pneumatic_env.agents import rig_base
 from pneumatic_env.agents.bench import load_suite, read_results, run_suite
 from pneumatic_env.agents.learned import FORMAT_SELF_CONTAINED
 from pneumatic_env.agents.registry import resolve_controller
@@ -170,7 +171,8 @@ TINY_TRAINING = {
 
 
 def test_train_rig_writes_a_controller_that_runs_by_file_name_alone(tmp_path):
-    from pneumatic_env.agents.rig_training import BASE_CANDIDATES, train_for_rig
+    from pneumatic_env.agents.rig_base import BASE_CANDIDATES
+    from pneumatic_env.agents.rig_training import train_for_rig
 
     report = write_report(tmp_path / "report")
     rig = load_rig(report)
@@ -273,6 +275,7 @@ def _train_with_figures(monkeypatch, figures: dict, report, out, chatter=None, a
 
     fake = _fake_suite_summary(figures, chatter, air)
     monkeypatch.setattr(rig_training, "suite_summary", fake)
+    monkeypatch.setattr(rig_base, "suite_summary", fake)
     return rig_training.train_for_rig(
         report,
         out,
@@ -344,22 +347,22 @@ def test_train_rig_sits_on_the_winning_base_with_exactly_its_gains_and_model(
         SMC_NOMINAL_RETUNED: {"reaching_gain_per_s": 300.0, "lambda_integral_per_s": 100.0},
     }
     retuned = {
-        name: {**classical_gains(rig_training.BASE_CANDIDATES[name][0], "Numatics-2m"), **g}
-        for name in rig_training.RETUNED
+        name: {**classical_gains(rig_base.BASE_CANDIDATES[name][0], "Numatics-2m"), **g}
+        for name in rig_base.RETUNED
         for g in [custom.get(name, {"reaching_gain_per_s": 60.0})]
     }
     monkeypatch.setattr(rig_training, "retuned_gains", lambda rig, tuning=None: retuned)
     figures = {PID_RETUNED: 4.0, SMC_FITTED: 5.0, winner: 3.0}
     report, out = write_report(tmp_path / "report"), tmp_path / "out"
     res = _train_with_figures(monkeypatch, figures, report, out)
-    kind, model = rig_training.BASE_CANDIDATES[winner]
+    kind, model = rig_base.BASE_CANDIDATES[winner]
     gains = retuned[winner] if winner in retuned else classical_gains(kind, "Numatics-2m")
     nominal = load_rig(report).nominal_parameters()
     assert res["base"]["controller"] == winner and res["base"]["kind"] == kind
     assert f"The residual's base: {winner} (auto:" in (out / "summary.md").read_text()
     record = json.loads((out / "rig_training.json").read_text())["base"]
     assert record["kind"] == kind and record["model"] == model and record["gains"] == gains
-    assert record["rms_error_pct"] == {n: figures.get(n, 9.0) for n in rig_training.BASE_CANDIDATES}
+    assert record["rms_error_pct"] == {n: figures.get(n, 9.0) for n in rig_base.BASE_CANDIDATES}
     meta = json.loads(str(np.load(res["controller"])["meta"]))
     assert meta["base_controller"] == {"kind": kind, "gains": gains}
     assert meta["residual"]["base_model_params"] == (nominal if model == "nominal" else None)
@@ -388,7 +391,6 @@ def test_the_sliding_mode_is_retuned_on_the_fitted_rig_with_the_candidates_model
     fitted rig with the controller on the candidate's own model (the nominal model's grid
     scores differ from those on the env's own, fitted, model), with exact sensors: a
     report's sensor noise reaches the fitted rig's suites, not the gain search."""
-    from pneumatic_env.agents import rig_training
     from pneumatic_env.agents.tune_pid import grid_search
 
     report = write_report(tmp_path / "report")
@@ -400,7 +402,7 @@ def test_the_sliding_mode_is_retuned_on_the_fitted_rig_with_the_candidates_model
     exact = rig.noiseless_env_options
     assert exact == {k: v for k, v in rig.env_options.items() if k != "sensor_noise"}
     tuning = _tiny_tuning()
-    retuned = rig_training.retuned_gains(rig, tuning)
+    retuned = rig_base.retuned_gains(rig, tuning)
     runs = {
         model: grid_search("sliding_mode", rig.variant, tuning, exact, base_params=p)
         for model, p in [("nominal", rig.nominal_parameters()), ("fitted", None)]
@@ -417,7 +419,6 @@ def test_the_sliding_mode_is_retuned_on_the_fitted_rig_with_the_candidates_model
 
 
 def test_a_base_with_its_reference_smoothed_wins_and_travels_in_the_file(tmp_path, monkeypatch):
-    from pneumatic_env.agents import rig_training
     from pneumatic_env.agents.base import ControllerContext
     from pneumatic_env.agents.registry import classical_gains
 
@@ -426,7 +427,7 @@ def test_a_base_with_its_reference_smoothed_wins_and_travels_in_the_file(tmp_pat
     figures |= {f"{PID_RETUNED}|1": 3.2, PID_RETUNED: 3.6}
     report, out = write_report(tmp_path / "report"), tmp_path / "out"
     res = _train_with_figures(monkeypatch, figures, report, out)
-    winner = rig_training.smoothed_name(SMC_NOMINAL, 2)
+    winner = rig_base.smoothed_name(SMC_NOMINAL, 2)
     assert res["base"]["controller"] == winner and res["base"]["smoothing_steps"] == 2
     record = json.loads((out / "rig_training.json").read_text())
     assert record["reference_smoothing"][SMC_NOMINAL] == {
@@ -437,7 +438,7 @@ def test_a_base_with_its_reference_smoothed_wins_and_travels_in_the_file(tmp_pat
         "4": 9.0,
     }
     # the PID's own best smoothing is a row too; a candidate none beats gets none
-    assert record["base"]["rms_error_pct"][rig_training.smoothed_name(PID_RETUNED, 1)] == 3.2
+    assert record["base"]["rms_error_pct"][rig_base.smoothed_name(PID_RETUNED, 1)] == 3.2
     assert not any(SMC_FITTED + "," in name for name in record["base"]["rms_error_pct"])
     gains = {**classical_gains("sliding_mode", "Numatics-2m"), "reference_smoothing_steps": 2}
     meta = json.loads(str(np.load(res["controller"])["meta"]))
@@ -454,16 +455,16 @@ def test_train_rig_sits_on_the_sliding_mode_when_it_wins_or_when_told(tmp_path, 
     from pneumatic_env.agents import rig_training
 
     rms = {PID_RETUNED: 4.0, SMC_FITTED: 3.0, "pid (nominal)": 3.5}
-    figures = _fake_suite_summary(rms)(None, rig_training.BASE_CANDIDATES)
-    assert rig_training.choose_base(figures)["controller"] == SMC_FITTED
-    told = rig_training.choose_base(figures, "pid")  # the better PID: the nominal one here
+    figures = _fake_suite_summary(rms)(None, rig_base.BASE_CANDIDATES)
+    assert rig_base.choose_base(figures)["controller"] == SMC_FITTED
+    told = rig_base.choose_base(figures, "pid")  # the better PID: the nominal one here
     assert told["controller"] == "pid (nominal)" and told["model"] == "nominal"
     assert told["kind"] == "pid" and told["reason"].startswith("given")
-    tie = _fake_suite_summary(dict.fromkeys(rig_training.BASE_CANDIDATES, 2.0))
-    first = rig_training.choose_base(tie(None, rig_training.BASE_CANDIDATES))
+    tie = _fake_suite_summary(dict.fromkeys(rig_base.BASE_CANDIDATES, 2.0))
+    first = rig_base.choose_base(tie(None, rig_base.BASE_CANDIDATES))
     assert first["controller"] == SMC_FITTED  # a tie: the trainer configs' own base
     with pytest.raises(ValueError, match="base = 'lqr' is not allowed"):
-        rig_training.choose_base(figures, "lqr")
+        rig_base.choose_base(figures, "lqr")
     with pytest.raises(ValueError, match="base = 'lqr' is not allowed"):  # before any work
         rig_training.train_for_rig(write_report(tmp_path / "r"), tmp_path / "o", base="lqr")
 
@@ -471,7 +472,7 @@ def test_train_rig_sits_on_the_sliding_mode_when_it_wins_or_when_told(tmp_path, 
 def test_the_cli_base_choices_are_the_trainers():
     import argparse
 
-    from pneumatic_env.agents.rig_training import BASE_CHOICES
+    from pneumatic_env.agents.rig_base import BASE_CHOICES
     from pneumatic_env.agents.train import add_arguments
 
     parser = argparse.ArgumentParser()
@@ -553,7 +554,6 @@ def test_a_base_candidate_that_chatters_over_the_limit_is_not_chosen():
     """``rig_base.max_chatter_ratio`` (1.5) x the sliding mode's chatter at nominal tuning:
     a candidate over it is passed over for the next best; if every candidate of the kind
     asked for is over it, the best of them is chosen and the reason says so."""
-    from pneumatic_env.agents import rig_training
     from pneumatic_env.agents.config import load_agent_config
 
     tuning = load_agent_config("tuning", raw=("references",))
@@ -561,13 +561,13 @@ def test_a_base_candidate_that_chatters_over_the_limit_is_not_chosen():
     assert ratio == 1.5  # the issue's limit
     rms = {PID_RETUNED: 3.0, SMC_FITTED: 4.0, SMC_NOMINAL: 5.0, "pid (nominal)": 3.5}
     loud = {SMC_NOMINAL: 0.010, PID_RETUNED: 0.016, "pid (nominal)": 0.016, SMC_FITTED: 0.015}
-    figures = _fake_suite_summary(rms, loud)(None, rig_training.BASE_CANDIDATES)
-    assert rig_training.chatter_limit(figures, ratio) == pytest.approx(0.015)
-    assert rig_training.choose_base(figures)["controller"] == PID_RETUNED  # no limit given
-    chosen = rig_training.choose_base(figures, "auto", None, ratio)
+    figures = _fake_suite_summary(rms, loud)(None, rig_base.BASE_CANDIDATES)
+    assert rig_base.chatter_limit(figures, ratio) == pytest.approx(0.015)
+    assert rig_base.choose_base(figures)["controller"] == PID_RETUNED  # no limit given
+    chosen = rig_base.choose_base(figures, "auto", None, ratio)
     assert chosen["controller"] == SMC_FITTED  # at the limit is within it
     assert "so not chosen: " + PID_RETUNED in chosen["reason"]
-    pid = rig_training.choose_base(figures, "pid", None, ratio)
+    pid = rig_base.choose_base(figures, "pid", None, ratio)
     assert pid["controller"] == PID_RETUNED and "so allowed" in pid["reason"]
 
 
