@@ -175,7 +175,7 @@ def search_smoothing(
     candidate whose best W uses more air than ``air_limit_mg`` tries the W of ``air_grid``
     too and takes the best W within the limit, if one is (a smoother reference asks for
     less air). Returns {candidate: its W, where not 0}, their figures (rows named
-    ``smoothed_name``) and {candidate: {W: mean RMS error %}} of every W tried."""
+    ``smoothed_name``) and {candidate: {W: {"rms_error_pct", "air_mg"}}} of every W tried."""
     by_w: dict[str, dict[int, dict]] = {f["controller"]: {0: f} for f in classical}
     grid = sorted({int(w) for w in grid if int(w) > 0})
     _smoothed_figures(rig, retuned, suite, dict.fromkeys(BASE_CANDIDATES, grid), by_w)
@@ -187,7 +187,10 @@ def search_smoothing(
         within = {w: f for w, f in by_w[n].items() if f["air_mg"] <= air_limit_mg}
         best[n] = _lowest_error(within) if within else best[n]
     rows = [{**by_w[n][w], "controller": smoothed_name(n, w)} for n, w in best.items() if w]
-    tried = {n: {w: by_w[n][w]["rms_error_pct"] for w in sorted(by_w[n])} for n in best}
+    tried = {
+        n: {w: {k: by_w[n][w][k] for k in ("rms_error_pct", "air_mg")} for w in sorted(by_w[n])}
+        for n in best
+    }
     return {n: w for n, w in best.items() if w}, rows, tried
 
 

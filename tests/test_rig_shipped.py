@@ -198,6 +198,7 @@ def test_a_base_over_the_air_limit_smooths_its_reference_further(tmp_path, monke
     assert smoothing[PID_RETUNED] == low
     assert smoothing[SMC_FITTED] == grid[-1]  # over the limit at every W: its best W
     assert set(tried[PID_RETUNED]) == {0, *grid, *more}
+    assert tried[PID_RETUNED][mid] == {"rms_error_pct": 3.2, "air_mg": limit + 1}
     assert set(tried[SMC_NOMINAL]) == {0, *grid}
     assert not any(a.startswith(SMC_NOMINAL + "|") and int(a.rsplit("|")[1]) in more for a in asked)
     row = {r["controller"]: r for r in rows}[rig_base.smoothed_name(PID_RETUNED, low)]

@@ -430,13 +430,15 @@ def test_a_base_with_its_reference_smoothed_wins_and_travels_in_the_file(tmp_pat
     winner = rig_base.smoothed_name(SMC_NOMINAL, 2)
     assert res["base"]["controller"] == winner and res["base"]["smoothing_steps"] == 2
     record = json.loads((out / "rig_training.json").read_text())
-    assert record["reference_smoothing"][SMC_NOMINAL] == {
+    tried = record["reference_smoothing"][SMC_NOMINAL]
+    assert {w: f["rms_error_pct"] for w, f in tried.items()} == {
         "0": 4.0,
         "1": 9.0,
         "2": 3.0,
         "3": 3.5,
         "4": 9.0,
     }
+    assert {f["air_mg"] for f in tried.values()} == {0.0}  # the fake suite's air
     # the PID's own best smoothing is a row too; a candidate none beats gets none
     assert record["base"]["rms_error_pct"][rig_base.smoothed_name(PID_RETUNED, 1)] == 3.2
     assert not any(SMC_FITTED + "," in name for name in record["base"]["rms_error_pct"])
