@@ -74,11 +74,12 @@ def smoothed_name(name: str, steps: int) -> str:
 
 
 def _named_candidates(smoothing: dict[str, int] | None = None) -> dict[str, tuple[str, int]]:
-    """Row name -> (``BASE_CANDIDATES`` name, reference smoothing W): the candidates
-    as they are, and each one given in ``smoothing`` with its W."""
-    out = {name: (name, 0) for name in BASE_CANDIDATES}
-    out.update({smoothed_name(n, w): (n, w) for n, w in (smoothing or {}).items()})
-    return out
+    """Row name -> (``BASE_CANDIDATES`` name, reference smoothing W): each candidate once,
+    at its W in ``smoothing`` (``search_smoothing``'s choice; else 0). The W search
+    chooses within a candidate, air included: its other rows are not candidates."""
+    smoothing = smoothing or {}
+    steps = {name: int(smoothing.get(name, 0)) for name in BASE_CANDIDATES}
+    return {(smoothed_name(n, w) if w else n): (n, w) for n, w in steps.items()}
 
 
 def _model_params(rig: FittedRig, model: str) -> dict | None:
@@ -169,7 +170,7 @@ def search_smoothing(
     grid,
     air_grid=(),
     air_limit_mg: float = math.inf,
-) -> tuple[dict[str, int], list[dict], dict[str, dict[int, float]]]:
+) -> tuple[dict[str, int], list[dict], dict[str, dict[int, dict]]]:
     """The reference smoothing W of each base candidate searched on the fitted rig's suite:
     every W of ``grid`` beside the candidate's own figure (W = 0, ``classical``). A
     candidate whose best W uses more air than ``air_limit_mg`` tries the W of ``air_grid``
@@ -242,8 +243,8 @@ def choose_base(
     max_chatter_ratio: float | None = None,
 ) -> dict:
     """The residual's base from the classical controllers' figures on the fitted rig
-    (``suite_summary`` of ``rig_controllers``; the rows of ``smoothing``, from
-    ``search_smoothing``, too): the candidate with the lowest mean RMS error, among all
+    (``suite_summary`` of ``rig_controllers`` and the rows of ``search_smoothing``), each
+    candidate at its W of ``smoothing``: the one with the lowest mean RMS error, among all
     (``"auto"``) or those of the kind ``base``, whose chatter is within
     ``chatter_limit`` (all of them if none is). Returns ``{"controller": name, "kind",
     "model", "smoothing_steps", "reason", "rms_error_pct": {name: %}}``."""
