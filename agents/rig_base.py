@@ -8,11 +8,12 @@ nominal or the fitted model, at the benchmark's gains or retuned on the fitted r
 smoothed (``search_smoothing``). A long tube's waves and heat transfer can leave the
 sliding mode well behind PID, a fit that trades one parameter for another can leave the
 sliding mode on the fitted model behind the nominal one, and spool friction favours other
-sliding-mode gains than the benchmark's. With ``base="auto"`` the one with the lowest mean
-RMS error on the fitted rig's suite is chosen (``choose_base``), among those whose chatter
-is within ``rig_base.max_chatter_ratio`` x the sliding mode's at nominal tuning
-(``CHATTER_REFERENCE``; all if none is). A candidate over ``rig_base.max_air_ratio`` x
-that one's air smooths its reference further if that brings it within.
+sliding-mode gains than the benchmark's. Each candidate takes the smoothing with its
+lowest mean RMS error on the fitted rig's suite; one over ``rig_base.max_air_ratio`` x the
+air of the sliding mode at nominal tuning (``CHATTER_REFERENCE``) smooths its reference
+further if that brings it within. With ``base="auto"`` the candidate with the lowest mean
+RMS error there is chosen (``choose_base``), among those whose chatter is within
+``rig_base.max_chatter_ratio`` x the same sliding mode's (all if none is).
 """
 
 from __future__ import annotations
