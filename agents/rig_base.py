@@ -214,7 +214,23 @@ def classical_and_base(rig: FittedRig, retuned: dict, suite: Suite, rig_base: di
     )
     classical += smoothed
     chosen = choose_base(classical, base, smoothing, rig_base["max_chatter_ratio"])
+    chosen["reason"] += _air_note(chosen, tried, classical, rig_base["max_air_ratio"])
     return classical, chosen, tried
+
+
+def _air_note(chosen: dict, tried: dict, classical: list[dict], ratio: float) -> str:
+    """Why the chosen base's W is not its lowest-error one, if so: that one's air."""
+    figures = tried[chosen["candidate"]]
+    lowest = min(figures, key=lambda w: (figures[w]["rms_error_pct"], w))
+    if lowest == chosen["smoothing_steps"]:
+        return ""
+    reference = {f["controller"]: f["air_mg"] for f in classical}[CHATTER_REFERENCE]
+    f = figures[lowest]
+    return (
+        f"; its reference smoothed +-{chosen['smoothing_steps']}, not +-{lowest} "
+        f"({f['rms_error_pct']:.2f} %), whose air ({f['air_mg'] / reference:.2f} x "
+        f"{CHATTER_REFERENCE}'s) is over the limit ({ratio} x)"
+    )
 
 
 def check_base(base: str) -> None:

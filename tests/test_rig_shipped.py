@@ -215,3 +215,7 @@ def test_a_base_over_the_air_limit_smooths_its_reference_further(tmp_path, monke
     chosen = rig_base.choose_base(classical + rows, "auto", smoothing)
     assert chosen["controller"] == row["controller"] and chosen["smoothing_steps"] == low
     assert PID_RETUNED not in chosen["rms_error_pct"]
+    # stage 3 as train --rig runs it: the same choice, and the reason names the air
+    staged = rig_base.classical_and_base(rig, retuned, load_suite(), tuned, "auto")[1]
+    assert staged["controller"] == chosen["controller"]
+    assert f"smoothed +-{low}, not +-{grid[0]} (3.01 %), whose air" in staged["reason"]
