@@ -203,6 +203,8 @@ def classical_and_base(rig: FittedRig, retuned: dict, suite: Suite, rig_base: di
     (``choose_base`` with ``rig_base.max_chatter_ratio``). Returns (figures, the choice,
     every smoothing tried)."""
     classical = suite_summary(rig, rig_controllers(rig, retuned, suite), suite)
+    reference_air = reference_limit(classical, "air_mg", 1.0)
+    ratio = rig_base["max_air_ratio"]
     smoothing, smoothed, tried = search_smoothing(
         rig,
         retuned,
@@ -210,27 +212,20 @@ def classical_and_base(rig: FittedRig, retuned: dict, suite: Suite, rig_base: di
         suite,
         rig_base["reference_smoothing_steps"],
         rig_base["air_smoothing_steps"],
-        reference_limit(classical, "air_mg", rig_base["max_air_ratio"]),
+        ratio * reference_air,
     )
     classical += smoothed
     chosen = choose_base(classical, base, smoothing, rig_base["max_chatter_ratio"])
-    chosen["reason"] += _air_note(chosen, tried, classical, rig_base["max_air_ratio"])
-    return classical, chosen, tried
-
-
-def _air_note(chosen: dict, tried: dict, classical: list[dict], ratio: float) -> str:
-    """Why the chosen base's W is not its lowest-error one, if so: that one's air."""
     figures = tried[chosen["candidate"]]
-    lowest = min(figures, key=lambda w: (figures[w]["rms_error_pct"], w))
-    if lowest == chosen["smoothing_steps"]:
-        return ""
-    reference = {f["controller"]: f["air_mg"] for f in classical}[CHATTER_REFERENCE]
-    f = figures[lowest]
-    return (
-        f"; its reference smoothed +-{chosen['smoothing_steps']}, not +-{lowest} "
-        f"({f['rms_error_pct']:.2f} %), whose air ({f['air_mg'] / reference:.2f} x "
-        f"{CHATTER_REFERENCE}'s) is over the limit ({ratio} x)"
-    )
+    lowest = _lowest_error(figures)
+    if lowest != chosen["smoothing_steps"]:  # its W was taken for air: say so
+        chosen["reason"] += (
+            f"; its reference smoothed +-{chosen['smoothing_steps']}, not +-{lowest} "
+            f"({figures[lowest]['rms_error_pct']:.2f} %), whose air "
+            f"({figures[lowest]['air_mg'] / reference_air:.2f} x {CHATTER_REFERENCE}'s) is "
+            f"over the limit ({ratio} x)"
+        )
+    return classical, chosen, tried
 
 
 def check_base(base: str) -> None:
