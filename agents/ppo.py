@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .actor_validation import validate_actor
+from .actor_validation import validate_on_draws
 from .config import agent_config_path
 from .generalist import MixtureVectorEnv
 from .learned import FORMAT
@@ -299,13 +299,21 @@ class TrainingRun:
         )
 
     def validate(self, row: dict, w: float, log) -> None:
-        """The actor on the validation references of each variant; the best is kept."""
+        """The actor on the validation references of each variant, on the nominal plant
+        and on ``training.validation_draws`` plants per reference drawn from the config's
+        randomisation (``agents.actor_validation.validate_on_draws``); the best is kept."""
         te, out, state = time.perf_counter(), self.out, self.state
         path = self.export(out / "actor_tmp.npz")
-        steps = self.cfg.training.validation_steps
-        vals = [validate_actor(path, v, self.validation, steps) for v in self.variants]
+        tr = self.cfg.training
+        randomization = self.cfg.env_kwargs.get("domain_randomization")
+        vals = [
+            validate_on_draws(
+                path, v, self.validation, tr.validation_steps, randomization, tr.validation_draws
+            )
+            for v in self.variants
+        ]
         val = {k: float(np.mean([v[k] for v in vals])) for k in vals[0]}
-        row.update({k: round(v, 5) for k, v in val.items()})
+        row.update({k: round(val[k], 5) for k in ("val_rms_pct", "val_chatter_a")})
         record = {"wall_s": w, "steps": state["steps"], **val}
         record["train_rms_pct"] = row["train_rms_pct"]
         state["curve"].append(record)

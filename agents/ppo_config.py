@@ -137,6 +137,7 @@ class TrainingSettings(_Section):
     validation_variants: tuple[str, ...] | None = None  # default: the trained variants
     residual_gains: tuple[float, ...] | None = None  # after training (agents.residual_gain)
     residual_gain_draws: int = 0  # drawn plants per validation reference in that choice
+    validation_draws: int = 0  # drawn plants per validation reference in choosing the best
 
 
 @dataclass(frozen=True)
@@ -300,6 +301,12 @@ def load_config(
     if tree.get("mode") not in ("residual", "pure"):
         raise ConfigError(f"mode = {tree.get('mode')!r} is not allowed: 'residual' or 'pure'")
     cfg = PPOFastConfig.from_tree(tree)
+    draws = cfg.training.validation_draws
+    if draws < 0 or (draws and not cfg.env_kwargs.get("domain_randomization")):
+        raise ConfigError(
+            f"training.validation_draws = {draws!r} is not allowed: 0, or a positive count "
+            "with env_kwargs.domain_randomization set"
+        )
     if cfg.variants is not None:
         if len(cfg.variants) < 2:
             raise ConfigError(

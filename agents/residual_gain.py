@@ -32,16 +32,13 @@ import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from .actor_validation import validate_actor
+from .actor_validation import DRAW_SEED_STRIDE, validate_on_draws
 from .config import ConfigError
 from .learned import LearnedActor, scale_the_residual
 from .ppo_config import PPOFastConfig, load_config
 from .ppo_setup import references
 
 __all__ = ["DRAW_SEED_STRIDE", "gain_scores", "apply_residual_gain", "main"]
-
-DRAW_SEED_STRIDE = 1000  # a draw's episode seed: the reference's seed + this x the draw
-
 
 def gain_scores(
     actor_path: str | Path,
@@ -55,27 +52,17 @@ def gain_scores(
     """Per gain: the actor's mean RMS error (% of the scale) on ``validation`` on the
     nominal plant, on ``draws`` plants per reference drawn from ``randomization``, and
     over all those episodes (``score_rms_pct``)."""
-    drawn = [
-        {**v, "seed": int(v["seed"]) + DRAW_SEED_STRIDE * k}
-        for k in range(1, draws + 1)
-        for v in validation
-    ]
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for gain in gains:
             path = scale_the_residual(actor_path, Path(tmp) / "scaled.npz", gain, "scored")
-            nominal = validate_actor(path, variant, validation, n_steps)["val_rms_pct"]
-            mixture = math.nan
-            if drawn:
-                options = {"domain_randomization": randomization}
-                mixture = validate_actor(path, variant, drawn, n_steps, options)["val_rms_pct"]
-            total = nominal * len(validation) + (mixture * len(drawn) if drawn else 0.0)
+            score = validate_on_draws(path, variant, validation, n_steps, randomization, draws)
             rows.append(
                 {
                     "gain": float(gain),
-                    "nominal_rms_pct": nominal,
-                    "mixture_rms_pct": mixture,
-                    "score_rms_pct": total / (len(validation) + len(drawn)),
+                    "nominal_rms_pct": score["nominal_rms_pct"],
+                    "mixture_rms_pct": score["mixture_rms_pct"],
+                    "score_rms_pct": score["val_rms_pct"],
                 }
             )
     return rows

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from conftest import assert_error_names
+from pneumatic_env.agents import actor_validation as AV
 from pneumatic_env.agents import residual_gain as RG
 from pneumatic_env.agents.base import ControllerContext
 from pneumatic_env.agents.bench import make_env
@@ -96,7 +97,7 @@ def test_the_lowest_validation_score_is_chosen_from_the_unscaled_actor(tmp_path,
         calls.append((variant, [v["seed"] for v in validation], env_options))
         return {"val_rms_pct": 4.0 + (gain - 0.6) ** 2 + (1.0 if env_options else 0.0)}
 
-    monkeypatch.setattr(RG, "validate_actor", scripted)
+    monkeypatch.setattr(AV, "validate_actor", scripted)
     chosen = RG.apply_residual_gain(run, cfg, log=lambda *a: None)
     assert chosen["gain"] == 0.6 and len(chosen["scores"]) == len(cfg.training.residual_gains)
     assert LearnedActor(run / "actor_best.npz").meta["residual_gain"]["gain"] == 0.6
@@ -133,7 +134,7 @@ def test_the_command_records_the_choice_in_train_json(tmp_path, monkeypatch):
     shutil.copyfile(shipped_policy_path("ppo_adaptive", VARIANT), run / "actor_best.npz")
     (run / "train.json").write_text(json.dumps({"config": load_config(CONFIG).to_tree()}))
     monkeypatch.setattr(
-        RG, "validate_actor", lambda *a, **k: {"val_rms_pct": 1.0 if a[4:] or k else 2.0}
+        AV, "validate_actor", lambda *a, **k: {"val_rms_pct": 1.0 if a[4:] or k else 2.0}
     )
     assert RG.main([str(run)]) == 0
     summary = json.loads((run / "train.json").read_text())
