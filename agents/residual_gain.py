@@ -40,6 +40,7 @@ from .ppo_setup import references
 
 __all__ = ["DRAW_SEED_STRIDE", "gain_scores", "apply_residual_gain", "main"]
 
+
 def gain_scores(
     actor_path: str | Path,
     variant: str,

@@ -169,3 +169,45 @@ def test_the_choice_runs_on_drawn_plants_and_keeps_the_trained_actor(tmp_path):
         trained["residual"]
         == LearnedActor(shipped_policy_path("ppo_adaptive", VARIANT)).meta["residual"]
     )
+
+
+def test_the_trainer_chooses_its_best_actor_on_drawn_plants_beside_the_nominal_one(tmp_path):
+    """training.validation_draws: each validation scores the actor on the nominal plant and
+    on drawn plants (the gain step's score); the record keeps both parts and their
+    episode-weighted mean, and the best actor is the one with the lowest mean."""
+    from conftest import SMALL
+    from pneumatic_env.agents.ppo import train
+    from pneumatic_env.agents.ppo_setup import references
+
+    overrides = {
+        **SMALL,
+        "training.eval_every_steps": 256,
+        "training.validation_draws": 2,
+        "training.residual_gains": None,
+    }
+    summary = train(
+        "configs/agents/ppo_fast-adaptive-tube-air-numatics-2m.yaml",
+        seed=2,
+        out=tmp_path / "run",
+        minutes=10.0,
+        total_steps=3 * 256,
+        overrides=overrides,
+        log=lambda *a, **k: None,
+    )
+    n = len(references(load_config(CONFIG))[1])
+    curve = summary["curve"]
+    assert len(curve) >= 2
+    for r in curve:
+        assert np.isfinite(r["mixture_rms_pct"]) and r["mixture_rms_pct"] > 0
+        mean = (r["nominal_rms_pct"] * n + r["mixture_rms_pct"] * 2 * n) / (3 * n)
+        assert r["val_rms_pct"] == pytest.approx(mean, rel=1e-12)
+    assert summary["best"] == min(curve, key=lambda r: r["val_rms_pct"])
+
+
+@pytest.mark.parametrize("draws", [-1, 2])
+def test_validation_draws_need_a_randomisation(draws):
+    with pytest.raises(ConfigError) as err:
+        load_config(
+            "configs/agents/ppo_fast-numatics-2m.yaml", {"training.validation_draws": draws}
+        )
+    assert_error_names(err, "training.validation_draws", draws, ["domain_randomization"])
