@@ -23,6 +23,7 @@ from .suite import suite_preview_steps
 
 __all__ = [
     "resolve_controller",
+    "classical_spec",
     "make_base_controller",
     "learned_spec",
     "controller_names",
@@ -71,12 +72,20 @@ def _classical(
         if preview_steps is None
         else preview_steps
     )
-    cls = BASE_CLASSES[name]
+    return classical_spec(name, gains, preview, name, str(config))
+
+
+def classical_spec(
+    kind: str, gains: Mapping, preview_steps: int, name: str | None = None, source: str = ""
+) -> ControllerSpec:
+    """The classical controller ``kind`` (``pid``, ``sliding_mode``) with ``gains``, as the
+    benchmark runs it (``preview_steps`` of the reference, raw observation)."""
+    cls, gains = BASE_CLASSES[kind], dict(gains)
     return ControllerSpec(
-        name,
-        {"preview_steps": preview, "normalize_observation": False},
+        name or kind,
+        {"preview_steps": int(preview_steps), "normalize_observation": False},
         lambda ctx: cls(ctx, **gains),
-        str(config),
+        source,
     )
 
 

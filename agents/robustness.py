@@ -21,6 +21,11 @@ against the baseline's. ``--residual-gain G`` runs each seed's residual actor wi
 correction's bound at G times the trained one (``agents.learned.scale_the_residual``; a
 file already scaled is rescaled from its trained bound), to see how the gain trades the
 nominal error against the degradation.
+
+``--controllers`` also takes ``pid_retuned_per_plant``: the PID with its gains searched
+again on each perturbed plant itself (``agents.tune_pid``'s grid and references, not the
+benchmark's). It is not a controller one could ship (it knows the plant it is tuned for):
+it shows how much of a cell's error comes from not adapting to that plant.
 """
 
 from __future__ import annotations
@@ -41,9 +46,10 @@ from .bench_results import markdown_table
 from .config import load_agent_config
 from .evaluate_seeds import actor_paths, estimate_text
 from .learned import scale_the_residual
-from .registry import resolve_controller
+from .registry import classical_spec, resolve_controller
 from .stats import iqm_estimate
 from .suite import load_suite, parse_variant
+from .tune_pid import grid_search
 
 __all__ = [
     "perturbed_plants",
@@ -51,11 +57,14 @@ __all__ = [
     "robustness_markdown",
     "seed_markdown",
     "worst_ratio",
+    "PER_PLANT_PID",
+    "pid_retuned_for",
     "actors_at_gain",
     "main",
 ]
 
 NOMINAL = "nominal"
+PER_PLANT_PID = "pid_retuned_per_plant"  # the PID's grid searched on each plant itself
 
 
 def perturbed_plants(config: dict, variant: str) -> dict[str, dict[str, float]]:
@@ -77,7 +86,19 @@ def perturbed_plants(config: dict, variant: str) -> dict[str, dict[str, float]]:
     return plants
 
 
+def pid_retuned_for(variant: str, plant: dict, tuning: dict | None = None) -> dict:
+    """The PID's gains best on ``plant`` over the tuning grid (``agents.tune_pid``: its
+    references and objective; ``tuning`` default ``configs/agents/tuning.yaml``), with the
+    grid's fixed values."""
+    tuning = tuning or load_agent_config("tuning", raw=("references",))
+    res = grid_search("pid", variant, tuning, {"plant": plant} if plant else None)
+    best = zip(res["names"], res["combos"][res["best"]])
+    return {**tuning["pid"]["fixed"], **{n: float(v) for n, v in best}}
+
+
 def _has_actor(controller: str, variant: str) -> bool:
+    if controller == PER_PLANT_PID:
+        return True
     try:
         resolve_controller(controller, variant)
     except (ValueError, FileNotFoundError):
@@ -96,8 +117,12 @@ def robustness_rows(
             progress(f"{controller}: no actor for {variant}, left out")
             continue
         for name, plant in plants.items():
+            spec = controller
+            if controller == PER_PLANT_PID:
+                gains = pid_retuned_for(variant, plant)
+                spec = classical_spec("pid", gains, suite.preview_steps, PER_PLANT_PID)
             rows, _ = run_suite(
-                controller, [variant], suite, env_options={"plant": plant} if plant else None
+                spec, [variant], suite, env_options={"plant": plant} if plant else None
             )
             mean = float(np.mean([r["rms_error_pct"] for r in rows]))
             table.setdefault(controller, {})[name] = mean

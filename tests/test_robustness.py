@@ -150,3 +150,25 @@ def test_the_seed_actors_at_a_residual_gain(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["--residual-gain", "0.9"])
     assert "--residual-gain 0.9 needs --seed-runs" in capsys.readouterr().err
+
+
+def test_the_pid_retuned_per_plant_finds_the_tuned_gains_on_the_nominal_plant():
+    """``pid_retuned_per_plant`` searches the tuning grid on each plant: on the nominal one
+    it finds the gains tune_pid wrote to configs/agents/pid-numatics-2m.yaml (a grid cut to
+    the neighbours of those gains), and on the plant with the tube's whole air volume, a
+    slower plant, a higher proportional gain."""
+    from pneumatic_env.agents.config import load_agent_config
+    from pneumatic_env.agents.registry import classical_gains
+    from pneumatic_env.agents.robustness import pid_retuned_for
+
+    tuned = classical_gains("pid", "Numatics-2m")
+    tuning = load_agent_config("tuning", raw=("references",))
+    grid = {k: [tuned[k]] for k in tuning["pid"]["grid"]}
+    grid["kp_a_per_n"] = [0.004, 0.006, 0.008]
+    grid["reference_lead_s"] = [0.012, 0.016, 0.018]
+    tuning["pid"] = {**tuning["pid"], "grid": grid}
+
+    nominal = pid_retuned_for("Numatics-2m", {}, tuning)
+    assert nominal == {**tuning["pid"]["fixed"], **{k: tuned[k] for k in grid}}
+    tube_air = pid_retuned_for("Numatics-2m", {"tube_volume_fraction": 1.0}, tuning)
+    assert tube_air["kp_a_per_n"] > nominal["kp_a_per_n"]
