@@ -47,7 +47,7 @@ from .policy import actor_layers
 from .ppo_config import PPOFastConfig, load_config
 from .ppo_networks import Agent, RunningMeanStd
 from .ppo_rollout import RolloutBuffer, Rollouts, advantages, imitation_loss, ppo_update
-from .ppo_setup import make_training_env, references, select_columns
+from .ppo_setup import PlantInputs, make_training_env, references, select_columns
 from .residual import RESIDUAL_COLUMNS, env_variant
 from .residual_gain import apply_residual_gain
 
@@ -228,8 +228,14 @@ class TrainingRun:
         )
         self.env_only = _env_only_rate(env)
         D = len(self.inputs)
+        plant = PlantInputs(env, tr.critic_plant_inputs) if tr.critic_plant_inputs else None
         self.agent = Agent(
-            D, hp.hidden_pi, hp.hidden_v, hp.log_std_init, zero_init=cfg.mode == "residual"
+            D,
+            hp.hidden_pi,
+            hp.hidden_v,
+            hp.log_std_init,
+            zero_init=cfg.mode == "residual",
+            n_privileged=len(plant) if plant else 0,
         )
         self.opt = torch.optim.Adam(self.agent.parameters(), lr=hp.learning_rate, eps=1e-5)
         self.obs_rms, ret_rms = RunningMeanStd(D), RunningMeanStd()
@@ -241,9 +247,9 @@ class TrainingRun:
             self.state = self.checkpoint.resume()
             rng = np.random.default_rng(seed + 7919 * self.state["updates"])
         index = np.array([columns.index(c) for c in self.inputs])
-        self.rollouts = Rollouts(cfg, env, index, self.obs_rms, ret_rms)
+        self.rollouts = Rollouts(cfg, env, index, self.obs_rms, ret_rms, plant)
         self.rollouts.start(seed, self.state["updates"], rng, warm=not resume)
-        self.buf = RolloutBuffer.zeros(hp.rollout_steps, hp.num_envs, D)
+        self.buf = RolloutBuffer.zeros(hp.rollout_steps, hp.num_envs, D, len(plant) if plant else 0)
         self.progress = ProgressLog(out / "progress.csv", resume)
         self.wall = WallClock(self.state["wall_s"])
         self.last_eval_s, self.last_eval_steps = self.wall.wall0_s, self.state["steps"]

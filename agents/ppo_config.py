@@ -138,6 +138,7 @@ class TrainingSettings(_Section):
     residual_gains: tuple[float, ...] | None = None  # after training (agents.residual_gain)
     residual_gain_draws: int = 0  # drawn plants per validation reference in that choice
     validation_draws: int = 0  # drawn plants per validation reference in choosing the best
+    critic_plant_inputs: tuple[str, ...] = ()  # drawn plant parameters the critic sees
 
 
 @dataclass(frozen=True)

@@ -72,15 +72,26 @@ def mlp(n_in: int, hidden, n_out: int, out_gain: float) -> nn.Sequential:
 
 
 class Agent(nn.Module):
-    """Gaussian actor (state-independent log std) and critic, separate MLPs."""
+    """Gaussian actor (state-independent log std) and critic, separate MLPs. The critic may
+    see ``n_privileged`` inputs more than the actor (``value(x, privileged)``)."""
 
-    def __init__(self, n_obs: int, hidden_pi, hidden_v, log_std_init: float, zero_init: bool):
+    def __init__(
+        self,
+        n_obs: int,
+        hidden_pi,
+        hidden_v,
+        log_std_init: float,
+        zero_init: bool,
+        n_privileged: int = 0,
+    ):
         super().__init__()
         self.actor = mlp(n_obs, hidden_pi, 1, 0.0 if zero_init else 0.01)
-        self.critic = mlp(n_obs, hidden_v, 1, 1.0)
+        self.critic = mlp(n_obs + n_privileged, hidden_v, 1, 1.0)
         self.log_std = nn.Parameter(torch.full((1,), float(log_std_init)))
 
-    def value(self, x):
+    def value(self, x, privileged=None):
+        if privileged is not None:
+            x = torch.cat([x, privileged], dim=-1)
         return self.critic(x).squeeze(-1)
 
     def dist(self, x):

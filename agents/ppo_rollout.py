@@ -34,20 +34,23 @@ class RolloutBuffer:
     done: np.ndarray  # transition t ended its episode
     val: np.ndarray  # (T + 1, N): V, and V of the observation after the rollout
     teach: np.ndarray  # the teacher's action (0 without a teacher)
+    plant: np.ndarray  # (T, N, privileged inputs): the critic's own (``PlantInputs``)
 
     @classmethod
-    def zeros(cls, T: int, N: int, D: int) -> RolloutBuffer:
+    def zeros(cls, T: int, N: int, D: int, P: int = 0) -> RolloutBuffer:
         act, logp, rew, done = (np.zeros((T, N), np.float32) for _ in range(4))
         val, teach = np.zeros((T + 1, N), np.float32), np.zeros((T, N), np.float32)
-        return cls(np.zeros((T, N, D), np.float32), act, logp, rew, done, val, teach)
+        plant = np.zeros((T, N, P), np.float32)
+        return cls(np.zeros((T, N, D), np.float32), act, logp, rew, done, val, teach, plant)
 
 
 class Rollouts:
     """The env side of training: the policy's inputs and their normaliser, actions to
     currents, the reward and its running scale, the teacher (``agents.teacher``)."""
 
-    def __init__(self, cfg: PPOFastConfig, env, index, obs_rms, ret_rms):
+    def __init__(self, cfg: PPOFastConfig, env, index, obs_rms, ret_rms, plant=None):
         self.cfg, self.env, self.index = cfg, env, index
+        self.plant = plant  # the critic's privileged inputs (PlantInputs), or None
         self.obs_rms, self.ret_rms = obs_rms, ret_rms
         self.scale, self.i_max = env.unwrapped.reference_scale, env.unwrapped.coil_current_max_a
         self.residual = cfg.mode == "residual"
@@ -97,11 +100,12 @@ class Rollouts:
         for t in range(len(buf.act)):
             self.obs_rms.update(self.feat)
             x = self.normalise(self.feat)
+            plant = self._plant()
             with torch.no_grad():
                 xt = torch.from_numpy(x)
                 d = agent.dist(xt)
                 a = d.sample()
-                logp, v = d.log_prob(a).sum(-1), agent.value(xt)
+                logp, v = d.log_prob(a).sum(-1), agent.value(xt, plant)
             a_np = a.numpy()[:, 0].astype(np.float64)
             if self.teacher:
                 buf.teach[t] = self.teacher.targets(self.obs)
@@ -110,12 +114,19 @@ class Rollouts:
             trunc, info = self._step(a_clip)
             sq_err += float(np.mean((info["tracking_error"] / self.scale) ** 2))
             rs = self._scaled_reward(info, a_clip, trunc)
-            self._bootstrap(agent, rs, trunc, info)
+            self._bootstrap(agent, rs, trunc, info, plant)
             buf.obs[t], buf.act[t], buf.logp[t], buf.val[t] = x, a_np, logp.numpy(), v.numpy()
             buf.rew[t], buf.done[t] = rs, trunc
+            if plant is not None:
+                buf.plant[t] = plant.numpy()
         with torch.no_grad():
-            buf.val[-1] = agent.value(torch.from_numpy(self.normalise(self.feat))).numpy()
+            x = torch.from_numpy(self.normalise(self.feat))
+            buf.val[-1] = agent.value(x, self._plant()).numpy()
         return sq_err, sq_gap
+
+    def _plant(self) -> torch.Tensor | None:
+        """The critic's privileged inputs of each lane's current episode, or None."""
+        return None if self.plant is None else torch.from_numpy(self.plant())
 
     def _step(self, a_clip: np.ndarray):
         pure = self.cfg.pure
@@ -154,14 +165,16 @@ class Rollouts:
         self.ret_acc[trunc] = 0.0
         return rew / np.sqrt(self.ret_rms.var + 1e-8)
 
-    def _bootstrap(self, agent: Agent, rs: np.ndarray, trunc: np.ndarray, info) -> None:
-        """Add gamma V(final obs) to the reward of each episode truncated at this step."""
+    def _bootstrap(self, agent: Agent, rs: np.ndarray, trunc: np.ndarray, info, plant) -> None:
+        """Add gamma V(final obs) to the reward of each episode truncated at this step
+        (``plant``: the critic's inputs before the step, the ended episodes' plants)."""
         if not trunc.any():
             return
         rows = np.flatnonzero(trunc)
         final = np.stack([info["final_obs"][r] for r in rows])[:, self.index]
         with torch.no_grad():
-            value = agent.value(torch.from_numpy(self.normalise(final))).numpy()
+            x = torch.from_numpy(self.normalise(final))
+            value = agent.value(x, None if plant is None else plant[rows]).numpy()
         rs[rows] += self.cfg.hyperparameters.gamma * value
 
 
@@ -206,6 +219,7 @@ def ppo_update(agent: Agent, opt, buf: RolloutBuffer, adv, hp, imitation):
     T, N, D = buf.obs.shape
     B = T * N
     fo, fa = torch.from_numpy(buf.obs.reshape(B, D)), torch.from_numpy(buf.act.reshape(B, 1))
+    fp = torch.from_numpy(buf.plant.reshape(B, -1)) if buf.plant.shape[-1] else None
     flp, fadv = torch.from_numpy(buf.logp.reshape(-1)), torch.from_numpy(adv.reshape(-1))
     fret = torch.from_numpy((adv + buf.val[:T]).reshape(-1))
     n_mb = hp.minibatches
@@ -225,7 +239,10 @@ def ppo_update(agent: Agent, opt, buf: RolloutBuffer, adv, hp, imitation):
             A = (A - A.mean()) / (A.std() + 1e-8)
             clip = hp.clip_range
             pg = torch.max(-A * ratio, -A * ratio.clamp(1 - clip, 1 + clip)).mean()
-            vl = 0.5 * ((agent.value(obs_mb) - fret[idx]) ** 2).mean()
+            vl = (
+                0.5
+                * ((agent.value(obs_mb, None if fp is None else fp[idx]) - fret[idx]) ** 2).mean()
+            )
             loss = pg + hp.vf_coef * vl - hp.ent_coef * d.entropy().sum(-1).mean()
             if imitation is not None:
                 loss = loss + imitation(d.mean[:, 0], idx)

@@ -26,6 +26,7 @@ __all__ = [
     "select_columns",
     "make_training_env",
     "row_deadband_a",
+    "PlantInputs",
 ]
 
 REFERENCE_FILE_KEYS = ("training", "validation")
@@ -95,3 +96,42 @@ def row_deadband_a(env) -> np.ndarray | float:
             [np.full(e.num_envs, valve_currents(e.unwrapped.base_params)[0]) for e in top.envs]
         )
     return valve_currents(top.base_params)[0]
+
+
+class PlantInputs:
+    """The critic's privileged inputs (asymmetric actor-critic, Pinto et al. 2018): each
+    lane's plant parameters ``training.critic_plant_inputs`` as drawn for its episode,
+    scaled to [-1, 1] over the config's randomisation ranges (all alternatives). Training
+    only: the actor, and so the exported policy, never sees them."""
+
+    def __init__(self, env, names: tuple[str, ...]):
+        import pneumatic_env.params as P
+        from pneumatic_env.envs.randomization import check_randomization
+
+        core = env.unwrapped.core
+        spec = core.options.domain_randomization
+        base = P.load_parameters(core.cylinder, params=core.plant_params)
+        rand = check_randomization(spec, base, core.cylinder)
+        spans: dict[str, list[float]] = {}
+        for ranges in (rand.ranges, *(r for _, r in rand.alternatives)):
+            for n, (lo, hi) in ranges.items():
+                spans.setdefault(n, [float(base[n])]).extend((lo, hi))
+        missing = [n for n in names if n not in spans]
+        if missing:
+            raise ConfigError(
+                f"training.critic_plant_inputs = {list(names)!r}: {missing} not drawn; "
+                f"allowed: parameters of env_kwargs.domain_randomization {sorted(spans)}"
+            )
+        lo = np.array([min(spans[n]) for n in names])
+        hi = np.array([max(spans[n]) for n in names])
+        self.center, self.half = (hi + lo) / 2, np.maximum((hi - lo) / 2, 1e-30)
+        self.rows = np.array([P.PARAMETER_INDEX[n] for n in names])
+        self.sim = core.sim
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __call__(self) -> np.ndarray:
+        """(N, inputs) float32: each lane's current plant, scaled."""
+        values = self.sim.params[self.rows].T
+        return ((values - self.center) / self.half).astype(np.float32)
