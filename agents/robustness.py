@@ -121,6 +121,7 @@ def robustness_rows(
             if controller == PER_PLANT_PID:
                 gains = pid_retuned_for(variant, plant)
                 spec = classical_spec("pid", gains, suite.preview_steps, PER_PLANT_PID)
+                progress(f"{PER_PLANT_PID} {variant} {name}: {gains}")
             rows, _ = run_suite(
                 spec, [variant], suite, env_options={"plant": plant} if plant else None
             )
