@@ -239,10 +239,8 @@ def ppo_update(agent: Agent, opt, buf: RolloutBuffer, adv, hp, imitation):
             A = (A - A.mean()) / (A.std() + 1e-8)
             clip = hp.clip_range
             pg = torch.max(-A * ratio, -A * ratio.clamp(1 - clip, 1 + clip)).mean()
-            vl = (
-                0.5
-                * ((agent.value(obs_mb, None if fp is None else fp[idx]) - fret[idx]) ** 2).mean()
-            )
+            plant_mb = None if fp is None else fp[idx]
+            vl = 0.5 * ((agent.value(obs_mb, plant_mb) - fret[idx]) ** 2).mean()
             loss = pg + hp.vf_coef * vl - hp.ent_coef * d.entropy().sum(-1).mean()
             if imitation is not None:
                 loss = loss + imitation(d.mean[:, 0], idx)

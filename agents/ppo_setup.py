@@ -11,6 +11,8 @@ import fnmatch
 import gymnasium as gym
 import numpy as np
 
+import pneumatic_env.params as P
+from pneumatic_env.envs.randomization import check_randomization
 from pneumatic_env.envs.tasks import scale_spec
 from pneumatic_env.ids import EPISODE_STEPS
 
@@ -105,9 +107,6 @@ class PlantInputs:
     only: the actor, and so the exported policy, never sees them."""
 
     def __init__(self, env, names: tuple[str, ...]):
-        import pneumatic_env.params as P
-        from pneumatic_env.envs.randomization import check_randomization
-
         core = env.unwrapped.core
         spec = core.options.domain_randomization
         base = P.load_parameters(core.cylinder, params=core.plant_params)

@@ -23,8 +23,8 @@ import math
 
 from .base import ControllerContext, ControllerSpec
 from .config import load_agent_config
-from .registry import classical_gains
-from .residual import BASE_CLASSES, BASE_CONTROLLERS
+from .registry import classical_gains, classical_spec
+from .residual import BASE_CONTROLLERS
 from .rig import FittedRig
 from .rig_summary import suite_summary
 from .suite import Suite
@@ -113,13 +113,14 @@ def retuned_gains(rig: FittedRig, tuning: dict | None = None) -> dict[str, dict]
 def _spec(name: str, kind: str, gains: dict, base_params: dict | None, preview: int):
     """A classical controller with ``gains``; on the model ``base_params`` if given (else
     the env's, i.e. the fitted rig's)."""
+    spec = classical_spec(kind, gains, preview, name)
+    if base_params is None:
+        return spec
 
     def build(ctx: ControllerContext):
-        if base_params is not None:
-            ctx = dataclasses.replace(ctx, base_params=dict(base_params))
-        return BASE_CLASSES[kind](ctx, **gains)
+        return spec.build(dataclasses.replace(ctx, base_params=dict(base_params)))
 
-    return ControllerSpec(name, {"preview_steps": preview, "normalize_observation": False}, build)
+    return dataclasses.replace(spec, build=build)
 
 
 def candidate_base(
