@@ -167,6 +167,24 @@ def suite_rms_pct(controller: str, variant: str) -> dict[str, float]:
     return {r["task"]: r["rms_error_pct"] for r in run_suite(controller, [variant])[0]}
 
 
+def small_run(config, out, updates: int, seed: int = 1, **overrides):
+    """A fast trainer's run of ``updates`` updates with ``SMALL`` and ``overrides``
+    ({"section.key": value}); returns its ``train.json`` summary."""
+    from pneumatic_env.agents.ppo import train
+
+    return train(
+        config,
+        seed=seed,
+        out=out,
+        minutes=10.0,  # ends by steps, not by the machine's load
+        total_steps=updates
+        * SMALL["hyperparameters.num_envs"]
+        * SMALL["hyperparameters.rollout_steps"],
+        overrides={**SMALL, **overrides},
+        log=lambda *a, **k: None,
+    )
+
+
 # a fast trainer's run in seconds (agents.ppo.train overrides): tests of the trainer's files
 SMALL = {
     "hyperparameters.num_envs": 32,

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import SMALL, assert_error_names
+from conftest import assert_error_names, small_run
 from pneumatic_env.agents.config import ConfigError
 from pneumatic_env.agents.learned import LearnedActor
 from pneumatic_env.agents.ppo_config import load_config
@@ -48,19 +48,8 @@ def test_a_plant_input_that_is_not_drawn_is_refused():
 
 
 def test_the_critic_sees_the_plant_and_the_exported_actor_does_not(tmp_path):
-    from pneumatic_env.agents.ppo import train
-
-    overrides = {**SMALL, "training.critic_plant_inputs": list(NAMES)}
-    overrides["training.residual_gains"] = None
-    summary = train(
-        CONFIG,
-        seed=1,
-        out=tmp_path,
-        minutes=10.0,
-        total_steps=2 * 256,
-        overrides=overrides,
-        log=lambda *a, **k: None,
-    )
+    overrides = {"training.critic_plant_inputs": list(NAMES), "training.residual_gains": None}
+    summary = small_run(CONFIG, tmp_path, 2, **overrides)
     state = torch.load(tmp_path / "checkpoint.pt", weights_only=False)["agent"]
     n_actor = state["actor.0.weight"].shape[1]
     assert state["critic.0.weight"].shape[1] == n_actor + len(NAMES)

@@ -175,25 +175,16 @@ def test_the_trainer_chooses_its_best_actor_on_drawn_plants_beside_the_nominal_o
     """training.validation_draws: each validation scores the actor on the nominal plant and
     on drawn plants (the gain step's score); the record keeps both parts and their
     episode-weighted mean, and the best actor is the one with the lowest mean."""
-    from conftest import SMALL
-    from pneumatic_env.agents.ppo import train
+    from conftest import small_run
     from pneumatic_env.agents.ppo_setup import references
 
     overrides = {
-        **SMALL,
         "training.eval_every_steps": 256,
         "training.validation_draws": 2,
         "training.residual_gains": None,
     }
-    summary = train(
-        "configs/agents/ppo_fast-adaptive-tube-air-numatics-2m.yaml",
-        seed=2,
-        out=tmp_path / "run",
-        minutes=10.0,
-        total_steps=3 * 256,
-        overrides=overrides,
-        log=lambda *a, **k: None,
-    )
+    config = "configs/agents/ppo_fast-adaptive-tube-air-numatics-2m.yaml"
+    summary = small_run(config, tmp_path / "run", 3, seed=2, **overrides)
     n = len(references(load_config(CONFIG))[1])
     curve = summary["curve"]
     assert len(curve) >= 2
