@@ -41,6 +41,7 @@ import numpy as np
 
 from pneumatic_env.params import DEFAULT_CYLINDER, load_parameters
 
+from .base import ControllerSpec
 from .bench import run_suite
 from .bench_results import markdown_table
 from .config import load_agent_config
@@ -117,7 +118,7 @@ def robustness_rows(
             progress(f"{controller}: no actor for {variant}, left out")
             continue
         for name, plant in plants.items():
-            spec = controller
+            spec: str | ControllerSpec = controller
             if controller == PER_PLANT_PID:
                 gains = pid_retuned_for(variant, plant)
                 spec = classical_spec("pid", gains, suite.preview_steps, PER_PLANT_PID)
