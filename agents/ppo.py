@@ -44,7 +44,7 @@ from .config import agent_config_path
 from .generalist import MixtureVectorEnv
 from .learned import FORMAT
 from .policy import actor_layers
-from .ppo_config import PPOFastConfig, load_config
+from .ppo_config import PPOFastConfig, drawn_plants, load_config
 from .ppo_networks import Agent, RunningMeanStd
 from .ppo_rollout import RolloutBuffer, Rollouts, advantages, imitation_loss, ppo_update
 from .ppo_setup import PlantInputs, make_training_env, references, select_columns
@@ -229,13 +229,14 @@ class TrainingRun:
         self.env_only = _env_only_rate(env)
         D = len(self.inputs)
         plant = PlantInputs(env, tr.critic_plant_inputs) if tr.critic_plant_inputs else None
+        n_plant = len(plant) if plant else 0
         self.agent = Agent(
             D,
             hp.hidden_pi,
             hp.hidden_v,
             hp.log_std_init,
             zero_init=cfg.mode == "residual",
-            n_privileged=len(plant) if plant else 0,
+            n_privileged=n_plant,
         )
         self.opt = torch.optim.Adam(self.agent.parameters(), lr=hp.learning_rate, eps=1e-5)
         self.obs_rms, ret_rms = RunningMeanStd(D), RunningMeanStd()
@@ -249,7 +250,7 @@ class TrainingRun:
         index = np.array([columns.index(c) for c in self.inputs])
         self.rollouts = Rollouts(cfg, env, index, self.obs_rms, ret_rms, plant)
         self.rollouts.start(seed, self.state["updates"], rng, warm=not resume)
-        self.buf = RolloutBuffer.zeros(hp.rollout_steps, hp.num_envs, D, len(plant) if plant else 0)
+        self.buf = RolloutBuffer.zeros(hp.rollout_steps, hp.num_envs, D, n_plant)
         self.progress = ProgressLog(out / "progress.csv", resume)
         self.wall = WallClock(self.state["wall_s"])
         self.last_eval_s, self.last_eval_steps = self.wall.wall0_s, self.state["steps"]
@@ -310,12 +311,10 @@ class TrainingRun:
         randomisation (``agents.actor_validation.validate_on_draws``); the best is kept."""
         te, out, state = time.perf_counter(), self.out, self.state
         path = self.export(out / "actor_tmp.npz")
-        tr = self.cfg.training
-        randomization = self.cfg.env_kwargs.get("domain_randomization")
+        steps = self.cfg.training.validation_steps
+        draws, randomization = drawn_plants(self.cfg, "validation_draws")
         vals = [
-            validate_on_draws(
-                path, v, self.validation, tr.validation_steps, randomization, tr.validation_draws
-            )
+            validate_on_draws(path, v, self.validation, steps, randomization, draws)
             for v in self.variants
         ]
         val = {k: float(np.mean([v[k] for v in vals])) for k in vals[0]}

@@ -283,6 +283,20 @@ def _override(tree: dict, key: str, value: Any) -> None:
         node[name] = {"value": value, "unit": "-", "source": OVERRIDE_SOURCE}
 
 
+def drawn_plants(cfg: PPOFastConfig, key: str) -> tuple[int, dict | None]:
+    """(``training.<key>``, a count of plants drawn per validation reference, and the
+    config's randomisation they are drawn from), or a named error: the count is 0, or
+    positive with ``env_kwargs.domain_randomization`` set."""
+    draws = getattr(cfg.training, key)
+    randomization = cfg.env_kwargs.get("domain_randomization")
+    if draws < 0 or (draws and not randomization):
+        raise ConfigError(
+            f"training.{key} = {draws!r} is not allowed: 0, or a positive count "
+            "with env_kwargs.domain_randomization set"
+        )
+    return int(draws), randomization
+
+
 def load_config(
     config: str | Path | Mapping | PPOFastConfig, overrides: Mapping | None = None
 ) -> PPOFastConfig:
@@ -302,12 +316,7 @@ def load_config(
     if tree.get("mode") not in ("residual", "pure"):
         raise ConfigError(f"mode = {tree.get('mode')!r} is not allowed: 'residual' or 'pure'")
     cfg = PPOFastConfig.from_tree(tree)
-    draws = cfg.training.validation_draws
-    if draws < 0 or (draws and not cfg.env_kwargs.get("domain_randomization")):
-        raise ConfigError(
-            f"training.validation_draws = {draws!r} is not allowed: 0, or a positive count "
-            "with env_kwargs.domain_randomization set"
-        )
+    drawn_plants(cfg, "validation_draws")
     if cfg.variants is not None:
         if len(cfg.variants) < 2:
             raise ConfigError(

@@ -35,7 +35,7 @@ from pathlib import Path
 from .actor_validation import DRAW_SEED_STRIDE, validate_on_draws
 from .config import ConfigError
 from .learned import LearnedActor, scale_the_residual
-from .ppo_config import PPOFastConfig, load_config
+from .ppo_config import PPOFastConfig, drawn_plants, load_config
 from .ppo_setup import references
 
 __all__ = ["DRAW_SEED_STRIDE", "gain_scores", "apply_residual_gain", "main"]
@@ -87,13 +87,8 @@ def _settings(cfg: PPOFastConfig) -> tuple[tuple[float, ...], int, dict | None]:
             f"training.residual_gains = {list(tr.residual_gains)!r} is not allowed: "
             "finite numbers >= 0"
         )
-    randomization = cfg.env_kwargs.get("domain_randomization")
-    if tr.residual_gain_draws < 0 or (tr.residual_gain_draws and not randomization):
-        raise ConfigError(
-            f"training.residual_gain_draws = {tr.residual_gain_draws!r} is not allowed: "
-            "0, or a positive count with env_kwargs.domain_randomization set"
-        )
-    return tuple(tr.residual_gains), int(tr.residual_gain_draws), randomization
+    draws, randomization = drawn_plants(cfg, "residual_gain_draws")
+    return tuple(tr.residual_gains), draws, randomization
 
 
 def apply_residual_gain(run_dir: str | Path, cfg: PPOFastConfig, log: Callable = print) -> dict:
