@@ -1,8 +1,9 @@
 """Shared fixtures and helpers of the physics and environment tests.
 
-``python -m pytest -q`` runs every test (about 7 minutes on two cores); tests that take
-over about 15 s carry ``@pytest.mark.slow``, so ``python -m pytest -q -m "not slow"`` is the
-quick run.
+``python -m pytest -q`` runs every test on two pytest-xdist workers (``-n 2
+--dist loadfile`` in pyproject.toml; about 5 minutes on two cores, ``-n 0`` runs
+them in one process); tests that take over about 15 s carry ``@pytest.mark.slow``, so
+``python -m pytest -q -m "not slow"`` is the quick run.
 """
 
 from __future__ import annotations
