@@ -171,6 +171,7 @@ PROGRESS_COLUMNS = (
     "val_rms_pct",
     "val_chatter_a",
     "teacher_gap",  # RMS of (policy mean - teacher's action) over the rollout; "" without one
+    "plant_mse",  # the actor's plant head's last minibatch mean square; "" without one
 )
 
 
@@ -237,6 +238,7 @@ class TrainingRun:
             hp.log_std_init,
             zero_init=cfg.mode == "residual",
             n_privileged=n_plant,
+            plant_head=tr.actor_plant_prediction > 0,
         )
         self.opt = torch.optim.Adam(self.agent.parameters(), lr=hp.learning_rate, eps=1e-5)
         self.obs_rms, ret_rms = RunningMeanStd(D), RunningMeanStd()
@@ -272,7 +274,9 @@ class TrainingRun:
         env_s = self.rollouts.t_env_s - base_s * (self.cfg.mode == "residual")
         return env_s / span, base_s / span, self.t_update_s / span
 
-    def progress_row(self, w: float, sq_err: float, sq_gap: float, kls, value_loss) -> dict:
+    def progress_row(
+        self, w: float, sq_err: float, sq_gap: float, kls, value_loss, plant_mse=None
+    ) -> dict:
         T, steps = len(self.buf.act), self.state["steps"]
         env_share, base_share, update_share = self.shares(w)
         return {
@@ -290,6 +294,7 @@ class TrainingRun:
             "val_rms_pct": "",
             "val_chatter_a": "",
             "teacher_gap": round(np.sqrt(sq_gap / T), 5) if self.rollouts.teacher else "",
+            "plant_mse": "" if plant_mse is None else round(plant_mse, 5),
         }
 
     def validation_due(self, w: float) -> bool:
@@ -423,12 +428,14 @@ def train(
             t0 = time.perf_counter()
             adv = advantages(buf, hp.gamma, hp.gae_lambda)
             imitation = imitation_loss(run.rollouts.teacher, teach, frac, len(buf.act))
-            kls, value_loss = ppo_update(run.agent, run.opt, buf, adv, hp, imitation)
+            kls, value_loss, plant_mse = ppo_update(
+                run.agent, run.opt, buf, adv, hp, imitation, tr.actor_plant_prediction
+            )
             run.t_update_s += time.perf_counter() - t0
             state["steps"] += buf.act.size
             state["updates"] += 1
             w = run.wall()
-            row = run.progress_row(w, sq_err, sq_gap, kls, value_loss)
+            row = run.progress_row(w, sq_err, sq_gap, kls, value_loss, plant_mse)
             if run.validation_due(w):
                 run.validate(row, w, log)
             run.write_row(row, log, on_eval)

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import gymnasium as gym
+import numpy as np
 
 from pneumatic_env.config_files import read_yaml
 
@@ -139,6 +140,7 @@ class TrainingSettings(_Section):
     residual_gain_draws: int = 0  # drawn plants per validation reference in that choice
     validation_draws: int = 0  # drawn plants per validation reference in choosing the best
     critic_plant_inputs: tuple[str, ...] = ()  # drawn plant parameters the critic sees
+    actor_plant_prediction: float = 0.0  # weight of the actor's head predicting them; 0: none
 
 
 @dataclass(frozen=True)
@@ -317,6 +319,12 @@ def load_config(
         raise ConfigError(f"mode = {tree.get('mode')!r} is not allowed: 'residual' or 'pure'")
     cfg = PPOFastConfig.from_tree(tree)
     drawn_plants(cfg, "validation_draws")
+    weight, tr = cfg.training.actor_plant_prediction, cfg.training
+    if not (np.isfinite(weight) and weight >= 0) or (weight > 0 and not tr.critic_plant_inputs):
+        raise ConfigError(
+            f"training.actor_plant_prediction = {weight!r} is not allowed: a finite number "
+            ">= 0, and 0 unless training.critic_plant_inputs names the plant to predict"
+        )
     if cfg.variants is not None:
         if len(cfg.variants) < 2:
             raise ConfigError(

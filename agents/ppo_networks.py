@@ -73,7 +73,9 @@ def mlp(n_in: int, hidden, n_out: int, out_gain: float) -> nn.Sequential:
 
 class Agent(nn.Module):
     """Gaussian actor (state-independent log std) and critic, separate MLPs. The critic may
-    see ``n_privileged`` inputs more than the actor (``value(x, privileged)``)."""
+    see ``n_privileged`` inputs more than the actor (``value(x, privileged)``). With
+    ``plant_head`` a linear head on the actor's last hidden layer predicts those inputs
+    (``dist_and_plant``): training only, the exported actor is ``actor`` alone."""
 
     def __init__(
         self,
@@ -83,11 +85,15 @@ class Agent(nn.Module):
         log_std_init: float,
         zero_init: bool,
         n_privileged: int = 0,
+        plant_head: bool = False,
     ):
         super().__init__()
         self.actor = mlp(n_obs, hidden_pi, 1, 0.0 if zero_init else 0.01)
         self.critic = mlp(n_obs + n_privileged, hidden_v, 1, 1.0)
         self.log_std = nn.Parameter(torch.full((1,), float(log_std_init)))
+        if plant_head and not (n_privileged and len(hidden_pi)):
+            raise ValueError("plant_head needs privileged inputs and a hidden actor layer")
+        self.plant_head = nn.Linear(int(hidden_pi[-1]), n_privileged) if plant_head else None
 
     def value(self, x, privileged=None):
         if privileged is not None:
@@ -95,5 +101,14 @@ class Agent(nn.Module):
         return self.critic(x).squeeze(-1)
 
     def dist(self, x):
-        mu = self.actor(x)
+        return self._normal(self.actor(x))
+
+    def dist_and_plant(self, x):
+        """(the action distribution, the plant head's prediction or None)."""
+        if self.plant_head is None:
+            return self.dist(x), None
+        hidden = self.actor[:-1](x)
+        return self._normal(self.actor[-1](hidden)), self.plant_head(hidden)
+
+    def _normal(self, mu):
         return torch.distributions.Normal(mu, self.log_std.exp().expand_as(mu))

@@ -213,9 +213,11 @@ def imitation_loss(teacher: Teacher | None, teach: torch.Tensor, frac: float, T:
     return masked
 
 
-def ppo_update(agent: Agent, opt, buf: RolloutBuffer, adv, hp, imitation):
+def ppo_update(agent: Agent, opt, buf: RolloutBuffer, adv, hp, imitation, plant_weight=0.0):
     """Epochs of clipped-PPO minibatch steps (stopped above ``target_kl``); (the
-    minibatches' approximate KLs, the last value loss)."""
+    minibatches' approximate KLs, the last value loss, the last plant-prediction mean
+    square or None). ``plant_weight``: the weight of the actor's plant head's mean square
+    error on the critic's plant inputs (an auxiliary loss)."""
     T, N, D = buf.obs.shape
     B = T * N
     fo, fa = torch.from_numpy(buf.obs.reshape(B, D)), torch.from_numpy(buf.act.reshape(B, 1))
@@ -225,12 +227,13 @@ def ppo_update(agent: Agent, opt, buf: RolloutBuffer, adv, hp, imitation):
     n_mb = hp.minibatches
     mb = B // n_mb
     kls: list[float] = []
+    plant_mse = None
     for _ in range(hp.epochs):
         perm = torch.randperm(B)
         for s in range(0, mb * n_mb, mb):
             idx = perm[s : s + mb]
             obs_mb = fo[idx]
-            d = agent.dist(obs_mb)
+            d, plant_pred = agent.dist_and_plant(obs_mb)
             log_ratio = d.log_prob(fa[idx]).sum(-1) - flp[idx]
             ratio = log_ratio.exp()
             with torch.no_grad():
@@ -244,6 +247,9 @@ def ppo_update(agent: Agent, opt, buf: RolloutBuffer, adv, hp, imitation):
             loss = pg + hp.vf_coef * vl - hp.ent_coef * d.entropy().sum(-1).mean()
             if imitation is not None:
                 loss = loss + imitation(d.mean[:, 0], idx)
+            if plant_pred is not None:
+                plant_mse = ((plant_pred - plant_mb) ** 2).mean()
+                loss = loss + plant_weight * plant_mse
             opt.zero_grad()
             loss.backward()
             nn.utils.clip_grad_norm_(agent.parameters(), hp.max_grad_norm)
@@ -252,4 +258,4 @@ def ppo_update(agent: Agent, opt, buf: RolloutBuffer, adv, hp, imitation):
                 agent.log_std.clamp_(min=hp.log_std_min)
         if hp.target_kl and np.mean(kls[-n_mb:]) > hp.target_kl:
             break
-    return kls, vl.item()
+    return kls, vl.item(), None if plant_mse is None else plant_mse.item()
