@@ -34,6 +34,7 @@ from pneumatic_env.agents.registry import classical_spec
 from pneumatic_env.agents.robustness import NOMINAL, perturbed_plants, pid_retuned_for
 from pneumatic_env.agents.suite import Suite, load_suite
 from pneumatic_env.envs.tasks import scale_spec
+from pneumatic_env.params import load_numerics
 
 __all__ = ["step_floor", "task_errors", "main"]
 
@@ -48,14 +49,12 @@ def step_floor(
     ``{"rms_pct", "current_a", "lead_steps", "rise_steps"}`` (rise: from the step to the
     force first at the target)."""
     options = {"plant": plant} if plant else {}
-    dt = 1e-3
+    dt = load_numerics()["control_dt_s"]
     grid = [(c, lead) for c in currents_a for lead in range(0, suite.preview_steps + 1, 2)]
     current = np.array([c for c, _ in grid])
     lead = np.array([lead for _, lead in grid])
     n, m = int(round(task.duration_s / dt)), len(grid)
     env = make_env(variant, m, n, suite.task, **options)
-    if abs(env.unwrapped.control_dt_s - dt) > 1e-12:
-        raise ValueError(f"step_floor: control_dt_s = {env.unwrapped.control_dt_s}, expected {dt}")
     scale = env.unwrapped.reference_scale
     env.reset(seed=[task.seed] * m, options={"reference": [scale_spec(task.reference, scale)] * m})
     k_step = int(round(task.reference["step_time_s"] / dt))
@@ -91,7 +90,7 @@ def task_errors(controller: str, variant: str, plant: dict, suite: Suite) -> dic
     return {r["task"]: float(r["rms_error_pct"]) for r in rows}
 
 
-def _markdown(variant: str, perturbation: str, errors: dict, floors: dict) -> str:
+def _markdown(variant: str, errors: dict, floors: dict) -> str:
     tasks = list(next(iter(errors.values())))
     lines = [
         f"**{variant}**: RMS error per task (% of the nominal force scale)",
@@ -137,7 +136,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for name, plant in pair.items()
         for t in steps
     }
-    print(_markdown(args.variant, args.perturbation, errors, floors))
+    print(_markdown(args.variant, errors, floors))
     return 0
 
 
