@@ -319,8 +319,10 @@ def load_config(
         raise ConfigError(f"mode = {tree.get('mode')!r} is not allowed: 'residual' or 'pure'")
     cfg = PPOFastConfig.from_tree(tree)
     drawn_plants(cfg, "validation_draws")
-    weight, tr = cfg.training.actor_plant_prediction, cfg.training
-    if not (np.isfinite(weight) and weight >= 0) or (weight > 0 and not tr.critic_plant_inputs):
+    weight = cfg.training.actor_plant_prediction
+    if not (np.isfinite(weight) and weight >= 0) or (
+        weight > 0 and not cfg.training.critic_plant_inputs
+    ):
         raise ConfigError(
             f"training.actor_plant_prediction = {weight!r} is not allowed: a finite number "
             ">= 0, and 0 unless training.critic_plant_inputs names the plant to predict"

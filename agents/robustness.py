@@ -60,6 +60,7 @@ __all__ = [
     "worst_ratio",
     "PER_PLANT_PID",
     "pid_retuned_for",
+    "spec_on_plant",
     "actors_at_gain",
     "main",
 ]
@@ -97,6 +98,17 @@ def pid_retuned_for(variant: str, plant: dict, tuning: dict | None = None) -> di
     return {**tuning["pid"]["fixed"], **{n: float(v) for n, v in best}}
 
 
+def spec_on_plant(
+    controller: str, variant: str, plant: dict, preview_steps: int
+) -> tuple[str | ControllerSpec, dict | None]:
+    """(what runs ``controller`` on ``plant``, the gains searched for it or None): the
+    name itself, or for ``PER_PLANT_PID`` the PID with its grid searched on that plant."""
+    if controller != PER_PLANT_PID:
+        return controller, None
+    gains = pid_retuned_for(variant, plant)
+    return classical_spec("pid", gains, preview_steps, PER_PLANT_PID), gains
+
+
 def _has_actor(controller: str, variant: str) -> bool:
     if controller == PER_PLANT_PID:
         return True
@@ -118,10 +130,8 @@ def robustness_rows(
             progress(f"{controller}: no actor for {variant}, left out")
             continue
         for name, plant in plants.items():
-            spec: str | ControllerSpec = controller
-            if controller == PER_PLANT_PID:
-                gains = pid_retuned_for(variant, plant)
-                spec = classical_spec("pid", gains, suite.preview_steps, PER_PLANT_PID)
+            spec, gains = spec_on_plant(controller, variant, plant, suite.preview_steps)
+            if gains is not None:
                 progress(f"{PER_PLANT_PID} {variant} {name}: {gains}")
             rows, _ = run_suite(
                 spec, [variant], suite, env_options={"plant": plant} if plant else None

@@ -5,9 +5,8 @@ Two tables for one variant, its nominal plant and one perturbation of
 ``configs/agents/robustness.yaml``:
 
 - the suite's error per task for each controller (names or files as ``pneumatic-env
-  bench`` takes them; ``pid_retuned``: the PID's tuning grid searched again on the
-  perturbed plant, ``agents.robustness.pid_retuned_for``), so one sees which tasks make a
-  cell's mean;
+  bench`` takes them; ``pid_retuned_per_plant``: the PID's tuning grid searched again on
+  each plant, as the robustness table runs it), so one sees which tasks make a cell's mean;
 - the step tasks' floor under the fastest constant current: the valve held at one current
   from ``lead`` before the step (at most the suite's preview) until the force first reaches
   the target, the tracking then taken as perfect. The RMS error of that, minimised over a
@@ -18,7 +17,7 @@ Two tables for one variant, its nominal plant and one perturbation of
   fills the chamber more slowly than a half-open one.
 
 ``python -m pneumatic_env.studies.step_floor --variant Numatics-2m --perturbation "tube air
-volume" --controllers pid pid_retuned ppo_adaptive``
+volume" --controllers pid pid_retuned_per_plant ppo_adaptive``
 """
 
 from __future__ import annotations
@@ -29,16 +28,20 @@ from collections.abc import Sequence
 import numpy as np
 
 from pneumatic_env.agents.bench import make_env, run_suite
+from pneumatic_env.agents.bench_results import markdown_table
 from pneumatic_env.agents.config import load_agent_config
-from pneumatic_env.agents.registry import classical_spec
-from pneumatic_env.agents.robustness import NOMINAL, perturbed_plants, pid_retuned_for
+from pneumatic_env.agents.robustness import (
+    NOMINAL,
+    PER_PLANT_PID,
+    perturbed_plants,
+    spec_on_plant,
+)
 from pneumatic_env.agents.suite import Suite, load_suite
 from pneumatic_env.envs.tasks import scale_spec
 from pneumatic_env.params import load_numerics
 
 __all__ = ["step_floor", "task_errors", "main"]
 
-RETUNED = "pid_retuned"
 CURRENTS_A = np.round(np.arange(0.15, 1.51, 0.05), 2)  # the valve opens fully near 1.2 A
 
 
@@ -82,41 +85,44 @@ def step_floor(
 
 def task_errors(controller: str, variant: str, plant: dict, suite: Suite) -> dict[str, float]:
     """``{task: RMS error %}`` of the suite for ``controller`` on ``plant``."""
-    spec = controller
-    if controller == RETUNED:
-        gains = pid_retuned_for(variant, plant)
-        spec = classical_spec("pid", gains, suite.preview_steps, RETUNED)
+    spec, _ = spec_on_plant(controller, variant, plant, suite.preview_steps)
     rows, _ = run_suite(spec, [variant], suite, env_options={"plant": plant} if plant else None)
     return {r["task"]: float(r["rms_error_pct"]) for r in rows}
 
 
 def _markdown(variant: str, errors: dict, floors: dict) -> str:
     tasks = list(next(iter(errors.values())))
-    lines = [
-        f"**{variant}**: RMS error per task (% of the nominal force scale)",
-        "",
-        "| controller | plant | " + " | ".join(tasks) + " | mean |",
-        "|---|---|" + "---|" * (len(tasks) + 1),
+    rows = [
+        [name, plant, *(f"{row[t]:.2f}" for t in tasks), f"{np.mean(list(row.values())):.2f}"]
+        for (name, plant), row in errors.items()
     ]
-    for (name, plant), row in errors.items():
-        cells = " | ".join(f"{row[t]:.2f}" for t in tasks)
-        lines.append(f"| {name} | {plant} | {cells} | {np.mean(list(row.values())):.2f} |")
-    lines += ["", "Step floor under the best constant current:", ""]
-    lines += ["| plant | task | RMS % | current (A) | lead (periods) | rise (periods) |"]
-    lines += ["|---|---|---|---|---|---|"]
-    for (plant, task), f in floors.items():
-        lines.append(
-            f"| {plant} | {task} | {f['rms_pct']:.2f} | {f['current_a']:.2f} | "
-            f"{f['lead_steps']} | {f['rise_steps']} |"
-        )
-    return "\n".join(lines)
+    floor_rows = [
+        [
+            plant,
+            task,
+            f"{f['rms_pct']:.2f}",
+            f"{f['current_a']:.2f}",
+            f["lead_steps"],
+            f["rise_steps"],
+        ]
+        for (plant, task), f in floors.items()
+    ]
+    floor_header = ["plant", "task", "RMS %", "current (A)", "lead (periods)", "rise (periods)"]
+    return "\n\n".join(
+        [
+            f"**{variant}**: RMS error per task (% of the nominal force scale)",
+            markdown_table(["controller", "plant", *tasks, "mean"], rows),
+            "Step floor under the best constant current:",
+            markdown_table(floor_header, floor_rows),
+        ]
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m pneumatic_env.studies.step_floor")
     ap.add_argument("--variant", default="Numatics-2m")
     ap.add_argument("--perturbation", default="tube air volume", help="robustness.yaml's name")
-    ap.add_argument("--controllers", nargs="+", default=["pid", RETUNED, "ppo_adaptive"])
+    ap.add_argument("--controllers", nargs="+", default=["pid", PER_PLANT_PID, "ppo_adaptive"])
     args = ap.parse_args(argv)
     plants = perturbed_plants(load_agent_config("robustness"), args.variant)
     if args.perturbation not in plants:
