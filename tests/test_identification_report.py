@@ -14,8 +14,8 @@ from pneumatic_env.identification.config import _parse_parameter, load_config
 from pneumatic_env.identification.diagnose import diagnose
 from pneumatic_env.identification.drift import base_drifts, suggested_effects
 from pneumatic_env.identification.report import _drift_lines, write_report
-from pneumatic_env.identification.results import FitResult
-from pneumatic_env.identification.scoring import acceptance
+from pneumatic_env.identification.results import WIDE_INTERVAL, FitResult
+from pneumatic_env.identification.scoring import _parameter_verdict, acceptance
 from pneumatic_env.identification.selection import WorkPlan, work_after_refits
 from pneumatic_env.params import ConfigError
 from pneumatic_env.studies.virtual_rig import make_recording
@@ -223,6 +223,53 @@ def test_a_strong_effect_outside_its_plausible_range_is_accepted_flagged_a_weak_
     # a strong improvement is no licence without identification
     accepted, _, _ = acceptance(0.37, outside=outside, cfg=cfg, **{**args, "identified": False})
     assert not accepted
+
+
+def test_a_strong_effect_whose_strength_is_loose_is_accepted_flagged_a_weak_one_not():
+    """A parameter whose only shortfall is a confidence interval wider than its plausible
+    range (off value outside it): the data show the effect, not its strength. Accepted
+    flagged at or above diagnosis.min_improvement_when_implausible (25 %), refused below
+    with the reason; an effect not identified otherwise stays refused however strong."""
+    cfg = load_config()
+    loose = ["wall_heat_transfer_w_per_k = 0.0267 W/K, confidence interval [0.000325, 2.19]"]
+    args = dict(how="median", delta_ic=-34.0, identified=False, outside=[], min_rel=0.1)
+    accepted, reasons, flags = acceptance(0.58, min_ic=10.0, cfg=cfg, loose=loose, **args)
+    assert accepted and not reasons
+    assert flags == ["strength not pinned down: " + loose[0]]
+    accepted, reasons, flags = acceptance(0.15, min_ic=10.0, cfg=cfg, loose=loose, **args)
+    assert not accepted and not flags
+    assert "needs a held-out improvement of at least 25 %" in reasons[-1]
+    # the BIC rule still holds, and nothing loose is no licence
+    accepted, _, _ = acceptance(0.58, min_ic=50.0, cfg=cfg, loose=loose, **args)
+    assert not accepted
+    accepted, _, _ = acceptance(0.58, min_ic=10.0, cfg=cfg, **args)
+    assert not accepted
+
+
+def test_only_a_wide_interval_with_the_off_value_outside_it_counts_as_loose():
+    """_parameter_verdict: a parameter is loose when its one flag is the wide interval
+    and its neutral (off) value lies outside the interval; a collinear one, one at a
+    bound as well, or one whose interval holds the off value is not."""
+    par = SimpleNamespace(name="g", unit="W/K", neutral=0.0, plausible_min=1e-3, plausible_max=2.0)
+    cand = SimpleNamespace(parameters=[par])
+
+    def verdict(ci, flags):
+        fit = SimpleNamespace(
+            ci={"g": ci},
+            flags={"g": flags},
+            identified={"g": not flags},
+            values={"g": 0.03},
+            plausible={"g": True},
+        )
+        return _parameter_verdict(cand, fit)
+
+    plausible, identified, reasons, outside, loose = verdict((3e-4, 2.2), [WIDE_INTERVAL])
+    assert plausible and not identified and not outside and len(loose) == 1
+    assert "[0.0003, 2.2]" in loose[0] and "g not identified" in reasons[0]
+    assert not verdict((-0.5, 2.6), [WIDE_INTERVAL])[4]  # the off value inside
+    assert not verdict((3e-4, 2.2), [WIDE_INTERVAL, "at a bound of the fit"])[4]
+    assert not verdict((3e-4, 2.2), ["near-collinear with h", WIDE_INTERVAL])[4]
+    assert verdict((0.01, 0.1), [])[1:] == (True, [], [], [])
 
 
 # --------------------------------------------------------------------------- anytime report

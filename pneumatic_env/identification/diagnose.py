@@ -17,7 +17,8 @@
    and its parameters are identified (confidence interval narrower than the plausible
    range and excluding the neutral value) and plausible, or the improvement is strong
    (``diagnosis.min_improvement_when_implausible``: then it is accepted flagged with the
-   value outside the plausible range). A second or later effect must
+   value outside the plausible range, or with the interval wider than the plausible range
+   when that is its only shortfall). A second or later effect must
    also be supported on held-out data the effects before it did not explain: it must
    lower the error of every held-out recording it can act on by the threshold, raise
    none, and beat the effects before it refitted per experiment type

@@ -264,8 +264,10 @@ def _candidate_lines(data: dict) -> list[str]:
         "autocorrelation-corrected BIC "
         f"falls by at least {th['min_ic_drop']:g}, and the effect's parameters are identified "
         "(confidence interval narrower than the plausible range, excluding the neutral "
-        "value) and plausible; a candidate with a value outside its plausible range is "
-        "accepted, flagged with the value, when its held-out improvement is at least "
+        "value) and plausible; a candidate with a value outside its plausible range, or "
+        "whose only shortfall is an interval wider than the plausible range (the effect "
+        "shown, its strength not pinned down), is accepted, flagged, when its held-out "
+        "improvement is at least "
         f"{100 * th.get('min_improvement_when_implausible', math.inf):.0f} %.",
         "",
         "| round | candidate | score (held-out improvement) | delta BIC | held-out NRMSE | "

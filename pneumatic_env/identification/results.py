@@ -17,6 +17,9 @@ from .candidates import SENSOR_NEUTRAL
 from .config import FitParameter
 from .datasets import Dataset, dataset_overrides, kernel_name
 
+# the flag of a parameter whose confidence interval is wider than its plausible range
+WIDE_INTERVAL = "confidence interval wider than the plausible range"
+
 if TYPE_CHECKING:
     from .problem import FitProblem
 
@@ -182,7 +185,7 @@ def _statistics(problem: FitProblem, u: np.ndarray, r: np.ndarray, J: np.ndarray
         else:
             lo, hi, std = -math.inf, math.inf, math.inf
         if (hi - lo) > (par.plausible_max - par.plausible_min):
-            flags.append("confidence interval wider than the plausible range")
+            flags.append(WIDE_INTERVAL)
         if abs(u[j] - lo_b[j]) < 1e-9 or abs(u[j] - hi_b[j]) < 1e-9:
             flags.append("at a bound of the fit")
         out["std"][par.name] = float(std)

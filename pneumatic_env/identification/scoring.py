@@ -24,6 +24,7 @@ from .calibrate import FitResult, diagnosis_fit_stops, run_fit
 from .candidates import Candidate
 from .config import FitParameter, IdentificationConfig
 from .holdout import Holdout
+from .results import WIDE_INTERVAL
 
 __all__ = [
     "CandidateScore",
@@ -338,11 +339,11 @@ def score(
     rel, how = heldout_improvement(per, pooled, cfg, split.acted_on(cand))
     # BIC(candidate) - BIC(current): N_eff ln(RSS_c / RSS_m) + (extra parameters) ln(N_eff)
     delta_ic = _ic(fit.rss, n_res, n_eff, n_extra) - _ic(current.rss, n_res, n_eff, 0)
-    plausible, identified, reasons, outside = _parameter_verdict(cand, fit)
+    plausible, identified, reasons, outside, loose = _parameter_verdict(cand, fit)
     accepted, more, flags = acceptance(
-        rel, how, delta_ic, identified, outside, min_rel, min_ic, cfg
+        rel, how, delta_ic, identified, outside, min_rel, min_ic, cfg, loose
     )
-    reasons += more
+    reasons = [] if accepted else reasons + more
     return CandidateScore(
         cand,
         rnd,
@@ -371,34 +372,49 @@ def acceptance(
     min_rel: float,
     min_ic: float,
     cfg: IdentificationConfig,
+    loose: Sequence[str] = (),
 ) -> tuple[bool, list[str], list[str]]:
     """Whether a refit is accepted, the reasons against and the flags it is accepted with.
 
     Accepted when the held-out improvement ``rel`` (taken as ``how``) is at least
     ``min_rel``, the BIC change ``delta_ic`` at most ``-min_ic``, the effect's parameters
-    are ``identified``, and none is ``outside`` its plausible range (each with its value)
-    or the improvement is at least ``diagnosis.min_improvement_when_implausible``: a
-    strong effect is still that effect, accepted flagged with the value; a weaker
-    implausible one is refused."""
+    are ``identified``, and none is ``outside`` its plausible range (each with its value).
+    A strong effect is still that effect: with an improvement of at least
+    ``diagnosis.min_improvement_when_implausible`` it is accepted flagged when a value is
+    outside its plausible range, or when the only parameters not identified are
+    ``loose`` ones (a confidence interval wider than the plausible range, the effect's
+    off value outside it: the data show the effect, not its strength). A weaker one is
+    refused."""
     min_strong = cfg.diagnosis("min_improvement_when_implausible")
+    strong = rel >= min_strong
     reasons = []
     if rel < min_rel:
         reasons.append(f"held-out improvement ({how}) {100 * rel:.1f} % < {100 * min_rel:.0f} %")
     if delta_ic > -min_ic:
         reasons.append(f"BIC change {delta_ic:.1f} > -{min_ic:g}")
-    passes = rel >= min_rel and delta_ic <= -min_ic and identified
+    loose_only = not identified and bool(loose) and strong
+    passes = rel >= min_rel and delta_ic <= -min_ic and (identified or loose_only)
+    flags = [f"strength not pinned down: {w}" for w in loose] if loose_only else []
+    if not identified and loose and not strong and rel >= min_rel:
+        reasons.append(
+            _needs_strong("a confidence interval wider than the plausible range", rel, min_strong)
+        )
     if not outside:
-        return passes, reasons, []
-    if passes and rel >= min_strong:  # a strong effect is still that effect: flagged
-        return True, reasons, [f"fitted value outside the plausible range: {o}" for o in outside]
+        return passes, reasons, flags if passes else []
+    if passes and strong:
+        flags += [f"fitted value outside the plausible range: {o}" for o in outside]
+        return True, reasons, flags
     reasons += outside
     if rel >= min_rel:
-        reasons.append(
-            f"a value outside the plausible range needs a held-out improvement of at least "
-            f"{100 * min_strong:.0f} % (diagnosis.min_improvement_when_implausible), "
-            f"this one is {100 * rel:.1f} %"
-        )
+        reasons.append(_needs_strong("a value outside the plausible range", rel, min_strong))
     return False, reasons, []
+
+
+def _needs_strong(what: str, rel: float, min_strong: float) -> str:
+    return (
+        f"{what} needs a held-out improvement of at least {100 * min_strong:.0f} % "
+        f"(diagnosis.min_improvement_when_implausible), this one is {100 * rel:.1f} %"
+    )
 
 
 def _refit(
@@ -455,19 +471,30 @@ class _FitFailed(Exception):
     """A candidate's refit failed (its message says why)."""
 
 
-def _parameter_verdict(cand: Candidate, fit: FitResult) -> tuple[bool, bool, list[str], list[str]]:
+def _parameter_verdict(
+    cand: Candidate, fit: FitResult
+) -> tuple[bool, bool, list[str], list[str], list[str]]:
     """Whether ``cand``'s fitted parameters are plausible and identified (confidence
-    interval excluding the neutral value), why not identified, and each parameter
-    outside its plausible range with its value."""
+    interval excluding the neutral value), why not identified, each parameter outside its
+    plausible range with its value, and each one whose only shortfall is a confidence
+    interval wider than the plausible range (``loose``: sensitive, not collinear, the
+    neutral value outside its interval; its strength is not pinned down)."""
     plausible = all(fit.plausible[p.name] for p in cand.parameters)
     identified = True
-    reasons, outside = [], []
+    reasons, outside, loose = [], [], []
     for p in cand.parameters:
         lo, hi = fit.ci[p.name]
+        off_inside = p.neutral is not None and lo <= p.neutral <= hi
         if not fit.identified[p.name]:
             identified = False
             reasons.append(f"{p.name} not identified ({'; '.join(fit.flags[p.name])})")
-        elif p.neutral is not None and lo <= p.neutral <= hi:
+            if fit.flags[p.name] == [WIDE_INTERVAL] and not off_inside:
+                loose.append(
+                    f"{p.name} = {fit.values[p.name]:.4g} {p.unit}, confidence interval "
+                    f"[{lo:.3g}, {hi:.3g}] wider than the plausible range "
+                    f"[{p.plausible_min:g}, {p.plausible_max:g}]"
+                )
+        elif off_inside:
             identified = False
             reasons.append(
                 f"{p.name}: its confidence interval [{lo:.3g}, {hi:.3g}] contains the "
@@ -478,7 +505,7 @@ def _parameter_verdict(cand: Candidate, fit: FitResult) -> tuple[bool, bool, lis
                 f"{p.name} = {fit.values[p.name]:.4g} {p.unit} is outside the plausible "
                 f"range [{p.plausible_min:g}, {p.plausible_max:g}]"
             )
-    return plausible, identified, reasons, outside
+    return plausible, identified, reasons, outside, loose
 
 
 def score_many(jobs_args: Sequence[tuple], jobs: int, poll_s: float = 1.0) -> list[CandidateScore]:
