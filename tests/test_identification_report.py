@@ -232,17 +232,18 @@ def test_a_strong_effect_whose_strength_is_loose_is_accepted_flagged_a_weak_one_
     with the reason; an effect not identified otherwise stays refused however strong."""
     cfg = load_config()
     loose = ["wall_heat_transfer_w_per_k = 0.0267 W/K, confidence interval [0.000325, 2.19]"]
-    args = dict(how="median", delta_ic=-34.0, identified=False, outside=[], min_rel=0.1)
+    args = dict(how="median", delta_ic=-34.0, identified=True, outside=[], min_rel=0.1)
     accepted, reasons, flags = acceptance(0.58, min_ic=10.0, cfg=cfg, loose=loose, **args)
     assert accepted and not reasons
     assert flags == ["strength not pinned down: " + loose[0]]
     accepted, reasons, flags = acceptance(0.15, min_ic=10.0, cfg=cfg, loose=loose, **args)
     assert not accepted and not flags
     assert "needs a held-out improvement of at least 25 %" in reasons[-1]
-    # the BIC rule still holds, and nothing loose is no licence
+    # the BIC rule still holds, and another parameter not identified is no licence
     accepted, _, _ = acceptance(0.58, min_ic=50.0, cfg=cfg, loose=loose, **args)
     assert not accepted
-    accepted, _, _ = acceptance(0.58, min_ic=10.0, cfg=cfg, **args)
+    unidentified = {**args, "identified": False}
+    accepted, _, _ = acceptance(0.58, min_ic=10.0, cfg=cfg, loose=loose, **unidentified)
     assert not accepted
 
 
@@ -264,11 +265,15 @@ def test_only_a_wide_interval_with_the_off_value_outside_it_counts_as_loose():
         return _parameter_verdict(cand, fit)
 
     plausible, identified, reasons, outside, loose = verdict((3e-4, 2.2), [WIDE_INTERVAL])
-    assert plausible and not identified and not outside and len(loose) == 1
+    assert plausible and identified and not outside and len(loose) == 1  # apart from loose
     assert "[0.0003, 2.2]" in loose[0] and "g not identified" in reasons[0]
-    assert not verdict((-0.5, 2.6), [WIDE_INTERVAL])[4]  # the off value inside
-    assert not verdict((3e-4, 2.2), [WIDE_INTERVAL, "at a bound of the fit"])[4]
-    assert not verdict((3e-4, 2.2), ["near-collinear with h", WIDE_INTERVAL])[4]
+    for ci, flags in (
+        ((-0.5, 2.6), [WIDE_INTERVAL]),  # the off value inside
+        ((3e-4, 2.2), [WIDE_INTERVAL, "at a bound of the fit"]),
+        ((3e-4, 2.2), ["near-collinear with h", WIDE_INTERVAL]),
+    ):
+        _, identified, _, _, loose = verdict(ci, flags)
+        assert not identified and not loose
     assert verdict((0.01, 0.1), [])[1:] == (True, [], [], [])
 
 

@@ -353,7 +353,7 @@ def score(
         rel,
         delta_ic,
         plausible,
-        identified,
+        identified and not loose,
         accepted,
         reasons,
         per_recording=per,
@@ -378,13 +378,12 @@ def acceptance(
 
     Accepted when the held-out improvement ``rel`` (taken as ``how``) is at least
     ``min_rel``, the BIC change ``delta_ic`` at most ``-min_ic``, the effect's parameters
-    are ``identified``, and none is ``outside`` its plausible range (each with its value).
-    A strong effect is still that effect: with an improvement of at least
-    ``diagnosis.min_improvement_when_implausible`` it is accepted flagged when a value is
-    outside its plausible range, or when the only parameters not identified are
-    ``loose`` ones (a confidence interval wider than the plausible range, the effect's
-    off value outside it: the data show the effect, not its strength). A weaker one is
-    refused."""
+    are ``identified`` (apart from the ``loose`` ones) and none is ``loose`` or
+    ``outside`` its plausible range (each with its value). A strong effect is still that
+    effect: with an improvement of at least ``diagnosis.min_improvement_when_implausible``
+    it is accepted flagged with its ``loose`` parameters (a confidence interval wider than
+    the plausible range, the effect's off value outside it: the data show the effect, not
+    its strength) and those ``outside``. A weaker one is refused."""
     min_strong = cfg.diagnosis("min_improvement_when_implausible")
     strong = rel >= min_strong
     reasons = []
@@ -392,10 +391,9 @@ def acceptance(
         reasons.append(f"held-out improvement ({how}) {100 * rel:.1f} % < {100 * min_rel:.0f} %")
     if delta_ic > -min_ic:
         reasons.append(f"BIC change {delta_ic:.1f} > -{min_ic:g}")
-    loose_only = not identified and bool(loose) and strong
-    passes = rel >= min_rel and delta_ic <= -min_ic and (identified or loose_only)
-    flags = [f"strength not pinned down: {w}" for w in loose] if loose_only else []
-    if not identified and loose and not strong and rel >= min_rel:
+    passes = rel >= min_rel and delta_ic <= -min_ic and identified and (strong or not loose)
+    flags = [f"strength not pinned down: {w}" for w in loose] if passes else []
+    if identified and loose and not strong and rel >= min_rel:
         reasons.append(
             _needs_strong("a confidence interval wider than the plausible range", rel, min_strong)
         )
@@ -475,10 +473,11 @@ def _parameter_verdict(
     cand: Candidate, fit: FitResult
 ) -> tuple[bool, bool, list[str], list[str], list[str]]:
     """Whether ``cand``'s fitted parameters are plausible and identified (confidence
-    interval excluding the neutral value), why not identified, each parameter outside its
-    plausible range with its value, and each one whose only shortfall is a confidence
-    interval wider than the plausible range (``loose``: sensitive, not collinear, the
-    neutral value outside its interval; its strength is not pinned down)."""
+    interval excluding the neutral value) apart from the ``loose`` ones, why not
+    identified, each parameter outside its plausible range with its value, and each one
+    whose only shortfall is a confidence interval wider than the plausible range
+    (``loose``: sensitive, not collinear, the neutral value outside its interval; its
+    strength is not pinned down)."""
     plausible = all(fit.plausible[p.name] for p in cand.parameters)
     identified = True
     reasons, outside, loose = [], [], []
@@ -486,9 +485,10 @@ def _parameter_verdict(
         lo, hi = fit.ci[p.name]
         off_inside = p.neutral is not None and lo <= p.neutral <= hi
         if not fit.identified[p.name]:
-            identified = False
             reasons.append(f"{p.name} not identified ({'; '.join(fit.flags[p.name])})")
-            if fit.flags[p.name] == [WIDE_INTERVAL] and not off_inside:
+            if fit.flags[p.name] != [WIDE_INTERVAL] or off_inside:
+                identified = False
+            else:
                 loose.append(
                     f"{p.name} = {fit.values[p.name]:.4g} {p.unit}, confidence interval "
                     f"[{lo:.3g}, {hi:.3g}] wider than the plausible range "
