@@ -391,19 +391,17 @@ def acceptance(
         reasons.append(f"held-out improvement ({how}) {100 * rel:.1f} % < {100 * min_rel:.0f} %")
     if delta_ic > -min_ic:
         reasons.append(f"BIC change {delta_ic:.1f} > -{min_ic:g}")
-    passes = rel >= min_rel and delta_ic <= -min_ic and identified and (strong or not loose)
-    flags = [f"strength not pinned down: {w}" for w in loose] if passes else []
+    passes = rel >= min_rel and delta_ic <= -min_ic and identified
+    waived = [f"strength not pinned down: {w}" for w in loose]
+    waived += [f"fitted value outside the plausible range: {o}" for o in outside]
+    if passes and (strong or not waived):  # a strong effect is still that effect: flagged
+        return True, reasons, waived
     if identified and loose and not strong and rel >= min_rel:
         reasons.append(
             _needs_strong("a confidence interval wider than the plausible range", rel, min_strong)
         )
-    if not outside:
-        return passes, reasons, flags if passes else []
-    if passes and strong:
-        flags += [f"fitted value outside the plausible range: {o}" for o in outside]
-        return True, reasons, flags
     reasons += outside
-    if rel >= min_rel:
+    if outside and rel >= min_rel:
         reasons.append(_needs_strong("a value outside the plausible range", rel, min_strong))
     return False, reasons, []
 
